@@ -1,0 +1,72 @@
+"""YAML loading that remembers where every key came from, so errors can name the line."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ctrplan.errors import InputError
+
+KeyPath = tuple[str | int, ...]
+
+
+@dataclass(frozen=True)
+class YamlDoc:
+    """A parsed YAML mapping plus the 1-based line of every key path, for error messages."""
+
+    data: dict[str, Any]
+    path: Path
+    lines: dict[KeyPath, int]
+
+    def where(self, keys: KeyPath) -> str:
+        """``file:line: a.b[2].c`` for the deepest known prefix of ``keys``."""
+        line = None
+        for n in range(len(keys), -1, -1):
+            line = self.lines.get(tuple(keys[:n]))
+            if line is not None:
+                break
+        name = "".join(f"[{k}]" if isinstance(k, int) else f".{k}" for k in keys).lstrip(".")
+        loc = f"{self.path}:{line}" if line is not None else str(self.path)
+        return f"{loc}: {name}" if name else loc
+
+    def error(self, keys: KeyPath, message: str) -> InputError:
+        return InputError(f"{self.where(keys)}: {message}")
+
+
+def _walk(node: yaml.Node, prefix: KeyPath, lines: dict[KeyPath, int]) -> None:
+    lines.setdefault(prefix, node.start_mark.line + 1)
+    if isinstance(node, yaml.MappingNode):
+        for key_node, value_node in node.value:
+            key = prefix + (str(key_node.value),)
+            lines[key] = key_node.start_mark.line + 1
+            _walk(value_node, key, lines)
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            _walk(item, prefix + (i,), lines)
+
+
+def load_yaml(path: str | Path) -> YamlDoc:
+    """Load a YAML mapping; raise `InputError` naming the file (and line) on any problem."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise InputError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read ({exc})") from None
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        loc = f"{path}:{mark.line + 1}" if mark is not None else str(path)
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise InputError(f"{loc}: malformed YAML ({problem})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a YAML mapping at the top level")
+    lines: dict[KeyPath, int] = {}
+    _walk(node, (), lines)
+    return YamlDoc(data=data, path=path, lines=lines)
