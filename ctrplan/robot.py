@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from ctrplan.calibration.model import CALIBRATION_KEY, Calibration
 from ctrplan.errors import DomainError, InputError
 from ctrplan.yamlio import YamlDoc, load_yaml
 
@@ -148,13 +149,16 @@ class Robot:
     """Immutable description of a three-tube CTR: tubes (1 = innermost), loads, joint domain.
 
     ``joint_offset`` (6,) is added to every commanded q before the mechanics (calibration extension:
-    zero offsets of beta in mm and alpha in rad).
+    zero offsets of beta in mm and alpha in rad). ``calibration`` holds the measurement-side
+    extensions (registration to a tracker frame, backlash of the alphas); backends never apply it --
+    backbones stay in the robot frame -- but measured-data tools and `fk` on ordered rows do.
     """
 
     tubes: tuple[Tube, Tube, Tube]
     domain: JointDomain = field(default_factory=JointDomain)
     loads: Loads = field(default_factory=Loads)
     joint_offset: tuple[float, ...] = (0.0,) * 6
+    calibration: Calibration = field(default_factory=Calibration)
     name: str = "custom"
 
     # ---- construction -------------------------------------------------------------------------
@@ -208,7 +212,7 @@ class Robot:
             for t in self.tubes
         ]
         d = asdict(self.domain)
-        return {
+        out = {
             "name": self.name,
             "tubes": tubes,
             "domain": {k: list(v) for k, v in d.items()},
@@ -216,13 +220,19 @@ class Robot:
                       "tip_force_n": list(self.loads.tip_force_n)},
             "joint_offset": list(self.joint_offset),
         }
+        if not self.calibration.is_identity:  # absent when unused: fingerprints stay stable
+            out[CALIBRATION_KEY] = self.calibration.to_dict()
+        return out
 
     @cached_property
     def fingerprint(self) -> str:
-        """SHA-256 of every parameter that changes the mechanics or the domain (not the name)."""
+        """SHA-256 of every parameter that changes the mechanics or the domain (not the name).
+
+        Numbers enter at 12 significant digits, so a robot survives a round trip through its file.
+        """
         d = self.to_dict()
         d.pop("name")
-        text = json.dumps(d, sort_keys=True, separators=(",", ":"), default=float)
+        text = json.dumps(_rounded(d), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest()
 
     # ---- joints ---------------------------------------------------------------------------------
@@ -273,6 +283,16 @@ class Robot:
         return self.domain.sample(n, rng)
 
 
+def _rounded(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _rounded(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_rounded(v) for v in obj]
+    if isinstance(obj, float):
+        return float(f"{obj:.12g}")
+    return obj
+
+
 # ---- YAML ---------------------------------------------------------------------------------------
 _TUBE_KEYS = {
     "inner_diameter_mm": ("inner_diameter_mm", 1.0),
@@ -309,7 +329,7 @@ def _unknown(doc: YamlDoc, keys: tuple, mapping: dict, allowed) -> None:
 def robot_from_yaml(doc: YamlDoc) -> Robot:
     """Build a validated `Robot` from a parsed robot file; errors name the key and line."""
     d = doc.data
-    _unknown(doc, (), d, {"name", "tubes", "domain", "loads", "joint_offset"})
+    _unknown(doc, (), d, {"name", "tubes", "domain", "loads", "joint_offset", CALIBRATION_KEY})
     tubes_raw = d.get("tubes")
     if not isinstance(tubes_raw, list) or len(tubes_raw) != 3:
         raise doc.error(("tubes",), "expected a list of exactly 3 tubes (innermost first)")
@@ -374,5 +394,7 @@ def robot_from_yaml(doc: YamlDoc) -> Robot:
     if "joint_offset" in d:
         offset = _vector(doc, ("joint_offset",), d["joint_offset"], 6)
 
+    calibration = Calibration.from_doc(doc) if CALIBRATION_KEY in d else Calibration()
     name = d.get("name", doc.path.stem)
-    return Robot(tubes=tuple(tubes), domain=domain, loads=loads, joint_offset=offset, name=str(name))
+    return Robot(tubes=tuple(tubes), domain=domain, loads=loads, joint_offset=offset,
+                 calibration=calibration, name=str(name))

@@ -7,6 +7,7 @@ traceback, nothing half-written; ``--json`` prints one JSON document on stdout a
 from __future__ import annotations
 
 import sys
+import warnings
 
 import typer
 
@@ -38,12 +39,18 @@ def _root(
 
 def _register() -> None:
     # Command modules attach themselves to `app` on import.
-    from ctrplan.cli import kinematics  # noqa: F401
+    from ctrplan.cli import bench, diagnose, kinematics, model  # noqa: F401
+    from ctrplan.cli import plan  # noqa: F401
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    print(f"ctrplan: warning: {message}", file=sys.stderr)
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Console entry point: exit 2 with one clear line for any `InputError`."""
+    """Console entry point: exit 2 with one clear line for any `InputError` or usage error."""
     _register()
+    warnings.showwarning = _one_line_warning
     try:
         app(args=argv, standalone_mode=False)
     except InputError as exc:
@@ -51,16 +58,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except typer.Exit as exc:
         return exc.exit_code
+    except typer.TyperException as exc:  # usage errors (typer bundles its own click)
+        message = exc.format_message()
+        if message:  # empty when a bare `ctrplan` shows the help
+            print(f"ctrplan: error: {message}", file=sys.stderr)
+        return exc.exit_code
     except (typer.Abort, KeyboardInterrupt):
         print("ctrplan: aborted", file=sys.stderr)
         return 130
-    except Exception as exc:  # click usage errors
-        import click
-
-        if isinstance(exc, click.ClickException):
-            exc.show()
-            return 2
-        raise
     return 0
 
 

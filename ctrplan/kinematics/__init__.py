@@ -1,19 +1,37 @@
-"""Kinematics backends: joints in, full backbones out (`Backbone`)."""
+"""Kinematics backends: joints in, full backbones out (`Backbone`).
 
+``make_backend(name, robot)`` builds one by name: ``cosserat`` (exact shooting solver), ``pinn``
+(shipped physics-informed surrogate, ``models/pinn_nominal``) or ``hybrid`` (PINN-seeded shooting).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ctrplan.errors import InputError
 from ctrplan.kinematics.backbone import STATE_NAMES, STATE_UNITS, Backbone
 from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.cosserat import CosseratBackend, SolverSettings
+from ctrplan.robot import Robot
 
-__all__ = ["BACKENDS", "make_backend", "STATE_NAMES", "STATE_UNITS", "Backbone", "Backend", "CosseratBackend", "SolverSettings"]
+BACKENDS = ("cosserat", "pinn", "hybrid")
 
 
-def make_backend(name: str, robot=None, **kwargs) -> Backend:
-    """Backend by name: ``cosserat`` (exact), ``pinn`` (shipped surrogate), ``hybrid``."""
-    from ctrplan.errors import InputError
-
+def make_backend(name: str, robot: Robot | None = None, model: str | Path | None = None) -> Backend:
+    """Backend by name; ``model`` picks the PINN weights for ``pinn``/``hybrid`` (default: shipped)."""
+    robot = robot or Robot.nominal()
     if name == "cosserat":
-        return CosseratBackend(robot, **kwargs)
+        return CosseratBackend(robot)
+    if name == "pinn":
+        from ctrplan.kinematics.pinn import PinnBackend
+
+        return PinnBackend.load(model, robot)
+    if name == "hybrid":
+        from ctrplan.kinematics.hybrid import HybridBackend
+
+        return HybridBackend(robot, model)
     raise InputError(f"--backend: unknown backend {name!r} (available: {', '.join(BACKENDS)})")
 
 
-BACKENDS = ("cosserat",)
+__all__ = ["BACKENDS", "STATE_NAMES", "STATE_UNITS", "Backbone", "Backend", "CosseratBackend",
+           "SolverSettings", "make_backend"]

@@ -20,12 +20,17 @@ G_TO_N_PER_MM = 1e-9  # rho [kg/m^3] * A [mm^2] * g [m/s^2] * 1e-9 = N/mm
 
 @dataclass(frozen=True)
 class SolverSettings:
-    """Numerical settings. Steps in mm; tolerance on the normalised boundary residual in 1/m."""
+    """Numerical settings. Steps in mm; tolerance on the normalised boundary residual in 1/m.
+
+    ``exploit_free_space``: without loads, shoot for the two unknowns left by m_b = 0 and
+    sum GJ_i u_iz = 0 (fast); if False, always shoot for all five (the general loaded path).
+    """
 
     step_multi_mm: float = 2.0
     step_single_mm: float = 4.0
     tolerance_per_m: float = 1e-10
     max_iterations: int = 40
+    exploit_free_space: bool = True
 
 
 class CosseratBackend(Backend):
@@ -48,7 +53,7 @@ class CosseratBackend(Backend):
         self._EI = np.array([t.bending_stiffness_nmm2 for t in tubes])
         self._GJ = np.array([t.torsional_stiffness_nmm2 for t in tubes])
         loads = self.robot.loads
-        self.loaded = not loads.is_free
+        self.loaded = not (loads.is_free and self.settings.exploit_free_space)
         mass_per_mm = np.array([t.density_kg_m3 * t.area_mm2 for t in tubes]) * G_TO_N_PER_MM
         self._weight = mass_per_mm[:, None] * np.asarray(loads.gravity_m_s2, dtype=float)[None, :]
         self._force = np.asarray(loads.tip_force_n, dtype=float)

@@ -1,0 +1,501 @@
+"""Diagnosis: what the nominal model gets wrong on measured tips, which physical cause explains it,
+the extended model and its held-out gain.
+
+Procedure (`diagnose`):
+
+1. split the rows into contiguous blocks, some held out (rows are sequences);
+2. nominal errors per tube and where they grow (joints, direction of motion, residual direction);
+3. fit every candidate cause of `effects.CAUSES` on the training rows (least squares on all measured
+   tube tips, finite-difference Jacobians, warm-started batched Cosserat solves);
+4. a candidate *beats noise* when it lowers the training BIC by more than ``bic_margin`` AND lowers the
+   held-out mean error by at least ``min_gain`` with a one-sided Wilcoxon signed-rank test on the
+   held-out rows at ``alpha``; the named cause is the one with the lowest BIC among those, else
+   ``none``;
+5. when one is not enough: the best cause paired with the ``pairs`` partners that a score test
+   (linearised RSS at the best fit) ranks first, each fitted fully and accepted under the same test
+   against the single cause;
+6. outliers (rows far off the extended model) are reported; if some are training rows, the
+   selection is repeated without them (and the report says so).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from ctrplan.calibration.data import MeasuredData, rows_text, split_blocks
+from ctrplan.calibration.effects import CAUSES, Combined, Effect, make_effect
+from ctrplan.calibration.fit import (
+    Evaluator,
+    FitResult,
+    Prediction,
+    bic,
+    fit_effect,
+    partner_scores,
+    residual_vector,
+)
+from ctrplan.calibration.model import Calibration, motion_direction
+from ctrplan.robot import Robot
+
+
+@dataclass(frozen=True)
+class DiagnoseOptions:
+    """Knobs of the diagnosis (defaults are what the CLI uses)."""
+
+    candidates: tuple[str, ...] = CAUSES
+    heldout_fraction: float = 0.25
+    blocks: int = 10
+    seed: int = 0
+    pairs: int = 3               # pair the best cause with this many next-best ones (0: no pairs)
+    bic_margin: float = 10.0     # BIC must drop by more than this ("very strong" evidence)
+    min_gain: float = 0.05       # and the held-out mean error by at least this fraction
+    alpha: float = 0.01          # with this significance (one-sided Wilcoxon, held-out rows)
+    outlier_mads: float = 8.0    # outlier: error > median + this many robust sigmas (and > 3 x median)
+    max_nfev: int = 30
+    max_rows: int = 1000         # larger files: this many rows in 20 contiguous runs spread over the file
+
+
+@dataclass
+class Candidate:
+    """A fitted candidate and how it does on the held-out rows."""
+
+    fit: FitResult
+    heldout: Prediction
+    heldout_err: np.ndarray      # (h, 3) per-row per-tube error, mm (NaN for unmeasured tubes)
+    delta_bic: float = 0.0       # training BIC minus the nominal model's
+    reference: str = "nominal"   # the model it must beat: nominal, or the single cause of a pair
+    delta_bic_ref: float = 0.0   # training BIC minus the reference's
+    p_value: float = 1.0         # one-sided Wilcoxon on held-out rows vs the reference
+    gain: float = 0.0            # relative held-out gain vs the reference (pooled over tubes)
+    significant: bool = False
+
+    @property
+    def cause(self) -> str:
+        return self.fit.name
+
+    @property
+    def causes(self) -> tuple[str, ...]:
+        return self.fit.effect.causes
+
+    def heldout_mean(self, tube: int | None = 0) -> float:
+        e = self.heldout_err if tube is None else self.heldout_err[:, tube]
+        return float(np.nanmean(e))
+
+    def to_json(self) -> dict:
+        return {"cause": self.cause, "causes": list(self.causes), "parameters": self.fit.parameters(),
+                "derived": self.fit.derived,
+                "heldout_mean_mm": self.heldout_mean(0),
+                "heldout_mean_all_tubes_mm": self.heldout_mean(None),
+                "bic": self.fit.bic, "delta_bic": self.delta_bic, "train_rms_mm": self.fit.rms_mm,
+                "reference": self.reference, "delta_bic_vs_reference": self.delta_bic_ref,
+                "heldout_gain_vs_reference_pct": 100.0 * self.gain, "p_value": self.p_value,
+                "significant": bool(self.significant), "fit_seconds": round(self.fit.seconds, 3),
+                "converged": self.fit.success}
+
+
+@dataclass
+class Diagnosis:
+    """Everything `diagnose` found; `to_json` gives the DESIGN §3 document."""
+
+    data: MeasuredData                # the rows diagnosed (all, or max_rows of them)
+    rows_in_file: int
+    robot: Robot
+    calibration: Calibration
+    options: DiagnoseOptions
+    direction: np.ndarray
+    train: np.ndarray                 # row indices used for fitting
+    heldout: np.ndarray               # held-out row indices
+    unsolved: np.ndarray              # rows the nominal model could not solve (excluded)
+    nominal: Prediction               # all rows
+    extended: Prediction              # all rows (== nominal when cause is none)
+    nominal_bic: float
+    singles: list[Candidate]
+    pairs: list[Candidate]
+    chosen: Candidate | None
+    outliers: np.ndarray              # row indices
+    outliers_refit: bool
+    where: dict = field(default_factory=dict)
+    sensitivity: np.ndarray | None = None   # d tips / d q of the nominal model (N, 6, 3, 3)
+    seconds: float = 0.0
+    solves: int = 0
+
+    # ---- derived ----------------------------------------------------------------------------------
+    @property
+    def cause(self) -> str:
+        return "none" if self.chosen is None else self.chosen.causes[0]
+
+    @property
+    def causes(self) -> tuple[str, ...]:
+        return () if self.chosen is None else self.chosen.causes
+
+    @property
+    def extended_robot(self) -> Robot:
+        if self.chosen is None:
+            return self.robot
+        return self.chosen.fit.robot.with_changes(name=f"{self.robot.name}-{'+'.join(self.causes)}")
+
+    @property
+    def extended_calibration(self) -> Calibration:
+        return self.calibration if self.chosen is None else self.chosen.fit.calibration
+
+    def errors(self, which: str = "nominal") -> np.ndarray:
+        """Per-row, per-tube tip error (N, 3), mm, NaN where unmeasured or unsolved."""
+        pred = self.nominal if which == "nominal" else self.extended
+        return np.linalg.norm(self.data.tips_mm - pred.tips_mm, axis=-1)
+
+    def residuals(self, which: str = "nominal") -> np.ndarray:
+        """measured - predicted (N, 3, 3), mm, in the robot frame of the respective model."""
+        pred = self.nominal if which == "nominal" else self.extended
+        calib = self.calibration if which == "nominal" else self.extended_calibration
+        return calib.to_robot_frame(self.data.tips_mm) - pred.robot_tips_mm
+
+    def arc_lengths(self) -> np.ndarray:
+        """Arc length of each tube's tip (N, 3), mm (commanded joints plus the base offsets)."""
+        return self.robot.tube_ends_mm(self.data.q)
+
+    def stats(self, which: str = "nominal", rows: np.ndarray | None = None) -> dict:
+        rows = self.heldout if rows is None else rows
+        err = self.errors(which)[rows]
+        length = self.arc_lengths()[rows]
+        per_tube = [dict(tube=t + 1, **error_stats(err[:, t], length[:, t])) for t in self.data.tubes]
+        out = dict(error_stats(err[:, 0], length[:, 0]))
+        out["rows"] = int(len(rows))
+        out["per_tube"] = per_tube
+        return out
+
+    def gain_pct(self) -> float:
+        nom = self.stats("nominal")["mean_mm"]
+        ext = self.stats("extended")["mean_mm"]
+        return float(100.0 * (1.0 - ext / nom)) if nom > 0 else 0.0
+
+    def to_json(self) -> dict:
+        """The JSON document of DESIGN §3 (plus details); non-finite numbers become null."""
+        return clean_json(self._json())
+
+    def _json(self) -> dict:
+        d = self.data
+        nominal = self.stats("nominal")
+        nominal["scope"] = "held-out rows, tip of tube 1 (per_tube: every measured tube)"
+        nominal["all_rows"] = self.stats("nominal", np.setdiff1d(np.arange(len(d)), self.unsolved))
+        nominal["where"] = self.where
+        extended = self.stats("extended")
+        extended["scope"] = nominal["scope"]
+        cands = [c.to_json() for c in self.singles + self.pairs]
+        chosen = self.chosen
+        return {
+            "source": d.source,
+            "format": d.format,
+            "rows": int(self.rows_in_file),
+            "rows_used": int(len(d)),
+            "train_rows": int(len(self.train)),
+            "heldout_rows": int(len(self.heldout)),
+            "tubes_measured": [t + 1 for t in d.tubes],
+            "nominal": nominal,
+            "cause": self.cause,
+            "causes": list(self.causes),
+            "parameters": {} if chosen is None else chosen.fit.parameters(),
+            "derived": {} if chosen is None else chosen.fit.derived,
+            "extended": extended,
+            "gain_pct": self.gain_pct(),
+            "candidates": cands,
+            "selection": {
+                "criterion": "lowest training BIC among candidates that beat the nominal model: "
+                             f"delta BIC < -{self.options.bic_margin:g} and held-out mean error lower by "
+                             f">= {100 * self.options.min_gain:g} % (one-sided Wilcoxon p < "
+                             f"{self.options.alpha:g}); a second cause is added under the same test",
+                "nominal_bic": self.nominal_bic,
+                "noise_estimate_mm": None if chosen is None else chosen.fit.rms_mm,
+                "seed": self.options.seed,
+            },
+            "outliers": [{"row": int(d.lines[i]), "error_mm": float(np.nanmean(self.errors("extended")[i])),
+                          "split": "heldout" if i in set(self.heldout.tolist()) else "train"}
+                         for i in self.outliers],
+            "outliers_excluded_from_fit": bool(self.outliers_refit),
+            "outside_domain_rows": [int(v) for v in d.lines[d.outside_domain]],
+            "unsolved_rows": [int(d.lines[i]) for i in self.unsolved],
+            "seconds": round(self.seconds, 2),
+            "solves": int(self.solves),
+        }
+
+    def summary(self) -> str:
+        """A human-readable report (the CLI prints it without --json)."""
+        j = self.to_json()
+        nom, ext = j["nominal"], j["extended"]
+        used = "" if j["rows_used"] == j["rows"] else f", {j['rows_used']} used (contiguous runs)"
+        lines = [f"{self.data.source}: {j['rows']} rows{used} ({j['train_rows']} train, "
+                 f"{j['heldout_rows']} held out in contiguous blocks), tubes measured: {j['tubes_measured']}"]
+        if j["outside_domain_rows"]:
+            lines.append(f"  note: {rows_text(j['outside_domain_rows'])} lie outside the snap-free "
+                         f"planning domain (accepted)")
+        if j["unsolved_rows"]:
+            lines.append(f"  note: the nominal model does not solve {rows_text(j['unsolved_rows'])} "
+                         f"(excluded)")
+        lines.append("nominal model, held-out error per tube:")
+        for t in nom["per_tube"]:
+            lines.append(f"  tube {t['tube']}: mean {t['mean_mm']:.3f} mm, median {t['median_mm']:.3f}, "
+                         f"p95 {t['p95_mm']:.3f}, {t['mean_pct_length']:.2f} % of arc length")
+        for s in self.where.get("findings", []):
+            lines.append(f"  where: {s}")
+        lines.append("candidates (training BIC, held-out mean tip error):")
+        for c in sorted(self.singles + self.pairs, key=lambda c: c.fit.bic):
+            mark = "*" if c.significant else " "
+            ref = "" if c.reference == "nominal" else f" vs {c.reference}"
+            lines.append(f"  {mark} {c.cause:<26s} dBIC {c.delta_bic:10.1f}  "
+                         f"held-out {c.heldout_mean(0):.3f} mm  gain {100 * c.gain:5.1f} %{ref}")
+        if self.chosen is None:
+            lines.append("cause: none -- no candidate beats the measurement noise")
+        else:
+            lines.append(f"cause: {' + '.join(self.causes)}")
+            for name, p in j["parameters"].items():
+                std = "n/a" if p["std"] is None else f"{p['std']:.3g}"
+                extra = ""
+                if p["unit"] == "rad":
+                    extra = f"  ({np.degrees(p['value']):.3f} deg +- " + (
+                        "n/a" if p["std"] is None else f"{np.degrees(p['std']):.3f}") + ")"
+                lines.append(f"  {name} = {p['value']:.6g} +- {std} {p['unit']} (was {p['nominal']:.6g})"
+                             f"{extra}")
+            if j["derived"]:
+                lines.append("  i.e. " + ", ".join(f"{k} = {v:.4g}" for k, v in j["derived"].items()))
+            lines.append(f"held-out tip error: {nom['mean_mm']:.3f} -> {ext['mean_mm']:.3f} mm mean, "
+                         f"{nom['p95_mm']:.3f} -> {ext['p95_mm']:.3f} mm p95 "
+                         f"(gain {j['gain_pct']:.1f} %)")
+        if j["outliers"]:
+            o = j["outliers"]
+            fate = "excluded from the fit" if j["outliers_excluded_from_fit"] else "kept in the fit"
+            lines.append(f"outliers (reported, {fate}): "
+                         + ", ".join(f"row {x['row']} ({x['error_mm']:.2f} mm)" for x in o[:10])
+                         + (f" and {len(o) - 10} more" if len(o) > 10 else ""))
+        lines.append(f"time: {j['seconds']:.1f} s ({j['solves']} Cosserat solves)")
+        return "\n".join(lines)
+
+
+def error_stats(err: np.ndarray, length: np.ndarray) -> dict:
+    ok = np.isfinite(err)
+    e, L = err[ok], length[ok]
+    if e.size == 0:
+        return {"mean_mm": None, "median_mm": None, "p95_mm": None, "max_mm": None,
+                "mean_pct_length": None}
+    return {"mean_mm": float(e.mean()), "median_mm": float(np.median(e)),
+            "p95_mm": float(np.percentile(e, 95)), "max_mm": float(e.max()),
+            "mean_pct_length": float(np.mean(100.0 * e / L))}
+
+
+def _per_row(err: np.ndarray) -> np.ndarray:
+    return np.nanmean(err, axis=1)
+
+
+def _compare(cand_err: np.ndarray, ref_err: np.ndarray, alpha: float,
+             min_gain: float) -> tuple[float, float, bool]:
+    """Relative gain, p-value and whether the candidate beats the reference on held-out rows."""
+    a, b = _per_row(ref_err), _per_row(cand_err)
+    gain = 1.0 - b.mean() / a.mean() if a.mean() > 0 else 0.0
+    diff = a - b
+    if np.allclose(diff, 0.0):
+        return float(gain), 1.0, False
+    try:
+        p = float(stats.wilcoxon(diff, alternative="greater").pvalue)
+    except ValueError:
+        p = 1.0
+    return float(gain), p, bool(gain >= min_gain and p < alpha)
+
+
+def diagnose(data: MeasuredData, robot: Robot | None = None, calibration: Calibration | None = None,
+             options: DiagnoseOptions | None = None) -> Diagnosis:
+    """Diagnose measured tips against ``robot`` (+ ``calibration``); see the module docstring."""
+    t0 = time.perf_counter()
+    robot = robot or Robot.nominal()
+    calibration = calibration or Calibration()
+    opt = options or DiagnoseOptions()
+    for c in opt.candidates:
+        make_effect(c)  # validates names
+    rows_in_file = len(data)
+    direction = motion_direction(data.q)   # from the full sequence, before any subsampling
+    if len(data) > opt.max_rows:
+        keep = contiguous_subsample(len(data), opt.max_rows)
+        data, direction = data.subset(keep), direction[keep]
+    n = len(data)
+    ev_all = Evaluator(data.q, direction)
+    nominal = ev_all.predict([(robot, calibration)])[0]
+    unsolved = np.flatnonzero(~nominal.converged)
+    train0, heldout = split_blocks(n, opt.heldout_fraction, opt.blocks, opt.seed)
+    train0 = np.setdiff1d(train0, unsolved)
+    heldout = np.setdiff1d(heldout, unsolved)
+    state = _Selection(data, robot, calibration, opt, direction, nominal, heldout)
+    sel = state.run(train0)
+    extended = _extended(ev_all, sel, nominal)
+    outliers = _outliers(data, extended, unsolved, opt.outlier_mads)
+    refit = False
+    if np.intersect1d(outliers, train0).size:
+        refit = True
+        sel = state.run(np.setdiff1d(train0, outliers))
+        extended = _extended(ev_all, sel, nominal)
+        outliers = _outliers(data, extended, unsolved, opt.outlier_mads)
+    diag = Diagnosis(data=data, rows_in_file=rows_in_file, robot=robot, calibration=calibration,
+                     options=opt, direction=direction,
+                     train=sel["train"], heldout=heldout, unsolved=unsolved, nominal=nominal,
+                     extended=extended, nominal_bic=sel["nominal_bic"], singles=sel["singles"],
+                     pairs=sel["pairs"], chosen=sel["chosen"], outliers=outliers, outliers_refit=refit)
+    from ctrplan.calibration.where import where_analysis
+
+    diag.where = where_analysis(diag)
+    diag.seconds = time.perf_counter() - t0
+    diag.solves = ev_all.solves + state.solves
+    return diag
+
+
+def contiguous_subsample(n: int, rows: int, runs: int = 20) -> np.ndarray:
+    """``rows`` indices of ``range(n)`` as ``runs`` contiguous runs spread evenly over the sequence."""
+    runs = max(1, min(runs, rows))
+    sizes = np.full(runs, rows // runs)
+    sizes[: rows % runs] += 1
+    starts = np.linspace(0, n - sizes.max(), runs).astype(int)
+    return np.unique(np.concatenate([np.arange(a, a + k) for a, k in zip(starts, sizes, strict=True)]))
+
+
+def _extended(ev_all: Evaluator, sel: dict, nominal: Prediction) -> Prediction:
+    chosen = sel["chosen"]
+    if chosen is None:
+        return nominal
+    return ev_all.predict([(chosen.fit.robot, chosen.fit.calibration)], guess=nominal.initial_state)[0]
+
+
+def _outliers(data: MeasuredData, pred: Prediction, unsolved: np.ndarray, mads: float = 8.0) -> np.ndarray:
+    err = np.nanmean(np.linalg.norm(data.tips_mm - pred.tips_mm, axis=-1), axis=1)
+    ok = np.isfinite(err)
+    med = np.median(err[ok])
+    mad = 1.4826 * np.median(np.abs(err[ok] - med))
+    thr = max(med + mads * mad, 3.0 * med)
+    return np.setdiff1d(np.flatnonzero(ok & (err > thr)), unsolved)
+
+
+class _Selection:
+    """Fits and selects candidates for a given set of training rows."""
+
+    def __init__(self, data, robot, calibration, opt, direction, nominal, heldout):
+        self.data, self.robot, self.calibration, self.opt = data, robot, calibration, opt
+        self.direction, self.nominal, self.heldout = direction, nominal, heldout
+        self.ev_held = Evaluator(data.q[heldout], direction[heldout])
+        self.nom_held = _subset(nominal, heldout)
+        self.solves = 0
+
+    def _held_err(self, pred: Prediction) -> np.ndarray:
+        return np.linalg.norm(self.data.tips_mm[self.heldout] - pred.tips_mm, axis=-1)
+
+    def _candidate(self, effect: Effect, ev: Evaluator, measured, nom_train, x_start=None) -> Candidate:
+        fit = fit_effect(effect, self.robot, self.calibration, ev, measured, self.data.tubes, nom_train,
+                         x_start=x_start, max_nfev=self.opt.max_nfev)
+        held = self.ev_held.predict([(fit.robot, fit.calibration)], guess=self.nom_held.initial_state)[0]
+        # unsolved held-out rows keep the nominal prediction (and its error)
+        tips = np.where(held.converged[:, None, None], held.tips_mm, self.nom_held.tips_mm)
+        held = Prediction(tips_mm=tips, robot_tips_mm=held.robot_tips_mm, converged=held.converged,
+                          initial_state=held.initial_state)
+        return Candidate(fit=fit, heldout=held, heldout_err=self._held_err(held))
+
+    def run(self, train: np.ndarray) -> dict:
+        opt, d = self.opt, self.data
+        ev = Evaluator(d.q[train], self.direction[train])
+        measured = d.tips_mm[train]
+        nom_train = _subset(self.nominal, train)
+        r0 = residual_vector(measured, nom_train, d.tubes)
+        n_res = r0.size
+        bic0 = bic(float(r0 @ r0), n_res, 0)
+        nom_held_err = self._held_err(self.nom_held)
+        singles = []
+        for name in opt.candidates:
+            c = self._candidate(make_effect(name), ev, measured, nom_train)
+            c.delta_bic = c.delta_bic_ref = c.fit.bic - bic0
+            c.gain, c.p_value, beats = _compare(c.heldout_err, nom_held_err, opt.alpha, opt.min_gain)
+            c.significant = beats and c.delta_bic_ref < -opt.bic_margin
+            singles.append(c)
+        ranked = sorted(singles, key=lambda c: c.fit.bic)
+        winners = [c for c in ranked if c.significant]
+        chosen = winners[0] if winners else None
+        pairs = []
+        if chosen is not None and opt.pairs > 0:
+            # rank the partners by a score test at the chosen fit, fit the best few fully
+            others = [c for c in ranked if c is not chosen]
+            scores = partner_scores(chosen.fit, [o.fit.effect for o in others], ev, measured,
+                                    d.tubes, nom_train)
+            others = [o for _, o in sorted(zip(scores, others, strict=True), key=lambda t: t[0])][:opt.pairs]
+            for o in others:
+                eff = Combined([chosen.fit.effect, o.fit.effect])
+                x_start = np.concatenate([chosen.fit.x, o.fit.x0])
+                c = self._candidate(eff, ev, measured, nom_train, x_start=x_start)
+                c.delta_bic = c.fit.bic - bic0
+                c.reference = chosen.cause
+                c.delta_bic_ref = c.fit.bic - chosen.fit.bic
+                c.gain, c.p_value, beats = _compare(c.heldout_err, chosen.heldout_err, opt.alpha,
+                                                    opt.min_gain)
+                c.significant = beats and c.delta_bic_ref < -opt.bic_margin
+                pairs.append(c)
+            better = sorted([c for c in pairs if c.significant], key=lambda c: c.fit.bic)
+            if better:
+                chosen = better[0]
+        self.solves += ev.solves
+        self.solves += self.ev_held.solves
+        self.ev_held.solves = 0
+        return {"train": train, "nominal_bic": bic0, "singles": singles, "pairs": pairs, "chosen": chosen}
+
+
+def _subset(pred: Prediction, idx: np.ndarray) -> Prediction:
+    return Prediction(tips_mm=pred.tips_mm[idx], robot_tips_mm=pred.robot_tips_mm[idx],
+                      converged=pred.converged[idx], initial_state=pred.initial_state[idx])
+
+
+__all__ = ["Candidate", "DiagnoseOptions", "Diagnosis", "diagnose", "error_stats", "write_outputs"]
+
+
+def write_outputs(diag: Diagnosis, out_dir: str | Path, plots: bool = True) -> list[Path]:
+    """Write the extended robot file, ``report.json``, ``report.txt`` and the plots into ``out_dir``
+    (created if needed). Every file is written atomically, after the diagnosis is complete."""
+    import json
+
+    from ctrplan.calibration.calibration import write_extended_robot
+    from ctrplan.dataio import atomic_write, output_dir
+
+    out = output_dir(out_dir)
+    j = diag.to_json()
+    cause = " + ".join(diag.causes) if diag.causes else "none"
+    comment = (f"Extended robot written by `ctrplan diagnose` from {diag.data.source}\n"
+               f"base robot: {diag.robot.name}; cause: {cause}\n"
+               f"held-out tip error {j['nominal']['mean_mm']:.3f} -> {j['extended']['mean_mm']:.3f} mm "
+               f"({j['gain_pct']:.1f} % lower), {j['heldout_rows']} held-out rows")
+    robot_path = out / "extended_robot.yaml"
+    write_extended_robot(robot_path, diag.extended_robot, diag.extended_calibration, comment)
+    paths = [robot_path]
+    with atomic_write(out / "report.json") as fh:
+        json.dump(j, fh, indent=2, allow_nan=False, default=_json_default)
+        fh.write("\n")
+    paths.append(out / "report.json")
+    with atomic_write(out / "report.txt") as fh:
+        fh.write(diag.summary() + "\n")
+    paths.append(out / "report.txt")
+    if plots:
+        from ctrplan.calibration.plots import write_plots
+
+        paths += write_plots(diag, out)
+    return paths
+
+
+def _json_default(obj):
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    raise TypeError(f"not JSON serialisable: {type(obj)}")
+
+
+def clean_json(obj):
+    """Replace non-finite floats by None (JSON has no NaN/inf)."""
+    if isinstance(obj, dict):
+        return {k: clean_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [clean_json(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        v = float(obj)
+        return v if np.isfinite(v) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj

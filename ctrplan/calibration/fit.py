@@ -1,0 +1,267 @@
+"""Fitting a candidate effect to measured tips: batched Cosserat solves, warm starts, cheap
+finite-difference Jacobians, least squares, uncertainty and BIC.
+
+Cost model: a Jacobian costs one batched forward call per parameter that changes the mechanics
+(curvature, stiffness, loads: the kernel takes robot parameters per call); all perturbations that
+only change the joints (joint offsets, backlash) are stacked into ONE call with the rows; frame
+perturbations (registration) need no solve at all. Every solve is warm-started from the solution
+of the same row at the current parameters (`Backbone.initial_state`), so Newton needs 1-3 steps.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ctrplan.calibration.effects import Effect, Param
+from ctrplan.calibration.model import Calibration
+from ctrplan.kinematics import CosseratBackend
+from ctrplan.robot import Robot
+
+FD_STEP = 1e-3  # finite-difference step in units of each parameter's typical scale
+FIT_TOL = 1e-6  # relative tolerance of least squares on the cost and on the parameter step
+
+
+@dataclass
+class Prediction:
+    """Predicted tips of a set of rows under one (robot, calibration) model."""
+
+    tips_mm: np.ndarray          # (n, 3, 3) in the measurement frame
+    robot_tips_mm: np.ndarray    # (n, 3, 3) in the robot frame
+    converged: np.ndarray        # (n,)
+    initial_state: np.ndarray    # (n, 15)
+
+
+class Evaluator:
+    """Predicts measured tips of fixed rows (commanded joints in acquisition order plus their
+    direction of motion) for any number of (robot, calibration) models, batching solves."""
+
+    def __init__(self, q: np.ndarray, direction: np.ndarray):
+        self.q = np.asarray(q, dtype=float)
+        self.direction = np.asarray(direction, dtype=float)
+        self.solves = 0
+        self.calls = 0
+
+    def __len__(self) -> int:
+        return self.q.shape[0]
+
+    def predict(self, models: Sequence[tuple[Robot, Calibration]],
+                guess: np.ndarray | None = None) -> list[Prediction]:
+        n = len(self.q)
+        groups: dict[Robot, list] = {}
+        plan = []
+        for robot, calib in models:
+            mech = robot.with_changes(joint_offset=(0.0,) * 6, name="")
+            qj = calib.effective_joints(self.q, self.direction) + np.asarray(robot.joint_offset)
+            g = groups.setdefault(mech, [])
+            key = qj.tobytes()
+            j = next((i for i, (k, _) in enumerate(g) if k == key), None)
+            if j is None:  # a new set of joints for this mechanics: solve it
+                g.append((key, qj))
+                j = len(g) - 1
+            plan.append((mech, j, calib))
+        solved: dict[Robot, tuple] = {}
+        for mech, g in groups.items():
+            stack = np.concatenate([qj for _, qj in g], axis=0)
+            tiled = None if guess is None else np.tile(guess, (len(g), 1))
+            bb = CosseratBackend(mech).forward(stack, points=2, check=False, guess=tiled)
+            self.solves += len(stack)
+            self.calls += 1
+            solved[mech] = (bb.tips_mm.reshape(len(g), n, 3, 3), bb.converged.reshape(len(g), n),
+                            bb.initial_state.reshape(len(g), n, -1))
+        out = []
+        for mech, j, calib in plan:
+            tips, conv, init = solved[mech]
+            out.append(Prediction(tips_mm=calib.to_measurement_frame(tips[j]), robot_tips_mm=tips[j],
+                                  converged=conv[j], initial_state=init[j]))
+        return out
+
+
+@dataclass
+class FitResult:
+    """A fitted effect. Parameters in file units; ``std`` from ``s^2 (J^T J)^-1``."""
+
+    effect: Effect
+    params: list[Param]
+    x0: np.ndarray
+    x: np.ndarray
+    std: np.ndarray
+    robot: Robot
+    calibration: Calibration
+    rss: float
+    n_residuals: int
+    bic: float
+    nfev: int
+    njev: int
+    success: bool
+    message: str
+    seconds: float = 0.0
+    identifiable: np.ndarray = field(default=None)  # type: ignore[assignment]
+
+    @property
+    def name(self) -> str:
+        return self.effect.name
+
+    @property
+    def k(self) -> int:
+        return len(self.params)
+
+    @property
+    def rms_mm(self) -> float:
+        return float(np.sqrt(self.rss / max(self.n_residuals, 1)))
+
+    derived: dict = field(default_factory=dict)
+
+    def parameters(self) -> dict[str, dict]:
+        out = {}
+        for p, v, s, v0, ok in zip(self.params, self.x, self.std, self.x0, self.identifiable, strict=True):
+            out[p.name] = {"value": float(v), "std": float(s) if np.isfinite(s) and ok else None,
+                           "nominal": float(v0), "unit": p.unit}
+            if min(abs(v - p.lower), abs(v - p.upper)) < 1e-6 * p.scale:
+                out[p.name]["at_bound"] = True  # the data push it to its limit: std not meaningful
+        return out
+
+
+def bic(rss: float, n: int, k: int) -> float:
+    """Bayesian information criterion of a Gaussian least-squares fit."""
+    return float(n * np.log(max(rss, 1e-300) / n) + k * np.log(n))
+
+
+def residual_vector(measured: np.ndarray, pred: Prediction, tubes: Sequence[int],
+                    fallback: np.ndarray | None = None) -> np.ndarray:
+    """Stacked residuals measured - predicted over the measured tubes (mm). Rows that did not
+    converge take the ``fallback`` prediction (the last converged one) so the fit stays smooth."""
+    tips = pred.tips_mm
+    if fallback is not None and not pred.converged.all():
+        tips = np.where(pred.converged[:, None, None], tips, fallback)
+    t = list(tubes)
+    return (measured[:, t, :] - tips[:, t, :]).reshape(-1)
+
+
+def fit_effect(effect: Effect, base_robot: Robot, base_calib: Calibration, ev: Evaluator,
+               measured: np.ndarray, tubes: Sequence[int], nominal: Prediction,
+               x_start: np.ndarray | None = None, max_nfev: int = 30) -> FitResult:
+    """Least-squares fit of ``effect`` to ``measured`` (n, 3, 3) on the rows of ``ev``.
+
+    ``nominal`` is the base model's prediction on these rows (warm starts, fallback).
+    ``x_start`` overrides the starting parameters (e.g. from a single-cause fit).
+    """
+    import time
+
+    t0 = time.perf_counter()
+    params = effect.params(base_robot, base_calib)
+    x0 = effect.x0(base_robot, base_calib)
+    scale = np.array([p.scale for p in params])
+    start = x0.copy() if x_start is None else np.asarray(x_start, dtype=float).copy()
+    if x_start is None:
+        t = list(tubes)
+        g = effect.initial_guess(base_robot, base_calib, nominal.robot_tips_mm[:, t].reshape(-1, 3),
+                                 measured[:, t].reshape(-1, 3))
+        if g is not None:
+            start = g
+    lower = np.array([p.lower for p in params])
+    upper = np.array([p.upper for p in params])
+    start = np.clip(start, lower + 1e-12 * scale, upper - 1e-12 * scale)
+    state = {"guess": nominal.initial_state.copy(), "fallback": nominal.tips_mm.copy()}
+    cache: dict[bytes, tuple[np.ndarray, Prediction]] = {}
+
+    def phys(z):
+        return start + scale * z
+
+    def evaluate(z):
+        key = np.asarray(z, dtype=float).tobytes()
+        hit = cache.get(key)
+        if hit is None:
+            robot, calib = effect.apply(base_robot, base_calib, phys(z))
+            pred = ev.predict([(robot, calib)], guess=state["guess"])[0]
+            ok = pred.converged
+            state["guess"][ok] = pred.initial_state[ok]
+            r = residual_vector(measured, pred, tubes, state["fallback"])
+            state["fallback"][ok] = pred.tips_mm[ok]
+            if len(cache) > 8:
+                cache.pop(next(iter(cache)))
+            hit = cache[key] = (r, pred)
+        return hit
+
+    def fun(z):
+        return evaluate(z)[0]
+
+    def jac(z):
+        r, pred = evaluate(z)
+        guess = np.where(pred.converged[:, None], pred.initial_state, state["guess"])
+        fallback = np.where(pred.converged[:, None, None], pred.tips_mm, state["fallback"])
+        models = []
+        for j in range(len(params)):
+            zj = np.array(z, dtype=float)
+            zj[j] += FD_STEP
+            models.append(effect.apply(base_robot, base_calib, phys(zj)))
+        preds = ev.predict(models, guess=guess)
+        J = np.empty((r.size, len(params)))
+        for j, pj in enumerate(preds):
+            J[:, j] = (residual_vector(measured, pj, tubes, fallback) - r) / FD_STEP
+        return J
+
+    bounds = ((lower - start) / scale, (upper - start) / scale)
+    res = least_squares(fun, np.zeros(len(params)), jac=jac, bounds=bounds, method="trf",
+                        x_scale=1.0, ftol=FIT_TOL, xtol=FIT_TOL, gtol=1e-10, max_nfev=max_nfev)
+    x = phys(res.x)
+    r, pred = evaluate(res.x)
+    rss = float(r @ r)
+    n = r.size
+    k = len(params)
+    J = res.jac
+    std, ident = _uncertainty(J, rss, n, k)
+    robot, calib = effect.apply(base_robot, base_calib, x)
+    derived = effect.derived(base_robot, base_calib, x)
+    return FitResult(derived=derived, effect=effect, params=params, x0=x0, x=x, std=std * scale, robot=robot,
+                     calibration=calib, rss=rss, n_residuals=n, bic=bic(rss, n, k), nfev=res.nfev,
+                     njev=res.njev or 0, success=bool(res.success), message=str(res.message),
+                     seconds=time.perf_counter() - t0, identifiable=ident)
+
+
+def _uncertainty(J: np.ndarray, rss: float, n: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Standard deviations (scaled units) from ``s^2 (J^T J)^-1``; directions the data cannot
+    resolve (relative singular value < 1e-8) are marked not identifiable."""
+    s2 = rss / max(n - k, 1)
+    U, sv, Vt = np.linalg.svd(J, full_matrices=False)
+    ok = sv > 1e-8 * sv.max() if sv.size and sv.max() > 0 else np.zeros_like(sv, dtype=bool)
+    inv = np.where(ok, 1.0 / np.where(ok, sv, 1.0) ** 2, 0.0)
+    cov = (Vt.T * inv) @ Vt * s2
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    # a parameter is identifiable if it has no weight on an unresolved direction
+    weak = (np.abs(Vt[~ok]) > 1e-3).any(axis=0) if (~ok).any() else np.zeros(k, dtype=bool)
+    std = np.where(weak, np.inf, std)
+    return std, ~weak
+
+
+def partner_scores(fit: FitResult, partners: Sequence[Effect], ev: Evaluator, measured: np.ndarray,
+                   tubes: Sequence[int], guess: Prediction) -> list[float]:
+    """Linearised training RSS if each partner effect were added to the fitted ``fit`` (a score test:
+    one finite-difference Jacobian of the partner's parameters at the fitted model, one batched solve
+    per mechanical parameter, then linear least squares on the fit's residual). Lower is better."""
+    base_pred = ev.predict([(fit.robot, fit.calibration)], guess=guess.initial_state)[0]
+    fallback = np.where(base_pred.converged[:, None, None], base_pred.tips_mm, guess.tips_mm)
+    r = residual_vector(measured, base_pred, tubes, fallback)
+    models, cols = [], []
+    for p_eff in partners:
+        params = p_eff.params(fit.robot, fit.calibration)
+        x0 = p_eff.x0(fit.robot, fit.calibration)
+        for j, p in enumerate(params):
+            x = x0.copy()
+            x[j] += FD_STEP * p.scale
+            models.append(p_eff.apply(fit.robot, fit.calibration, x))
+        cols.append(len(params))
+    preds = ev.predict(models, guess=np.where(base_pred.converged[:, None], base_pred.initial_state,
+                                              guess.initial_state))
+    scores, i = [], 0
+    for k in cols:
+        J = np.stack([(residual_vector(measured, preds[i + j], tubes, fallback) - r) / FD_STEP
+                      for j in range(k)], axis=1)
+        i += k
+        delta, *_ = np.linalg.lstsq(J, -r, rcond=None)
+        rl = r + J @ delta
+        scores.append(float(rl @ rl))
+    return scores

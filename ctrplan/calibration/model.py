@@ -1,0 +1,153 @@
+"""`Calibration`: the measurement-side model extensions that are not mechanics.
+
+Mechanical extensions (curvature, stiffness ratio, joint offsets, gravity, tip force) are plain
+`Robot` parameters solved by the Cosserat backend. Two effects found in measured data are not
+mechanics:
+
+* registration -- the rigid transform between the robot frame and the frame the tips were measured
+  in: ``p_measured = R(rotation_vector) p_robot + translation``;
+* backlash -- a direction-dependent lag of the rotation joints: the tube turns to
+  ``alpha_i - backlash_i * d_i``, with ``d_i`` in {-1, 0, +1} the direction of the latest motion of
+  alpha_i (from consecutive rows, `motion_direction`).
+
+This module imports nothing else from ctrplan but `yamlio`/`errors`, so `ctrplan.robot` can hold a
+`Calibration` without an import cycle. In a robot file it is the top-level mapping::
+
+    calibration:
+      registration: {rotation_vector_rad: [rx, ry, rz], translation_mm: [tx, ty, tz]}
+      backlash_rad: [b1, b2, b3]
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ctrplan.yamlio import YamlDoc
+
+CALIBRATION_KEY = "calibration"
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Registration (robot frame -> measurement frame) and backlash of alpha_1..3.
+
+    Attributes:
+        rotation_vector_rad: axis * angle of the registration rotation R (rad).
+        translation_mm: registration translation t (mm).
+        backlash_rad: lag of alpha_1..3 behind the command in the direction of motion (rad).
+    """
+
+    rotation_vector_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    translation_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    backlash_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @property
+    def is_identity(self) -> bool:
+        return not any(self.rotation_vector_rad) and not any(self.translation_mm) \
+            and not any(self.backlash_rad)
+
+    @property
+    def has_registration(self) -> bool:
+        return any(self.rotation_vector_rad) or any(self.translation_mm)
+
+    @property
+    def rotation(self) -> np.ndarray:
+        return Rotation.from_rotvec(np.asarray(self.rotation_vector_rad, dtype=float)).as_matrix()
+
+    @property
+    def registration_matrix(self) -> np.ndarray:
+        """4x4 homogeneous transform taking robot-frame points (mm) to the measurement frame."""
+        T = np.eye(4)
+        T[:3, :3] = self.rotation
+        T[:3, 3] = self.translation_mm
+        return T
+
+    def to_measurement_frame(self, points_mm: np.ndarray) -> np.ndarray:
+        """Robot-frame points (..., 3) -> measurement frame."""
+        if not self.has_registration:
+            return np.asarray(points_mm, dtype=float)
+        return np.asarray(points_mm) @ self.rotation.T + np.asarray(self.translation_mm)
+
+    def to_robot_frame(self, points_mm: np.ndarray) -> np.ndarray:
+        """Measured points (..., 3) -> robot frame (the inverse of `to_measurement_frame`)."""
+        if not self.has_registration:
+            return np.asarray(points_mm, dtype=float)
+        return (np.asarray(points_mm) - np.asarray(self.translation_mm)) @ self.rotation
+
+    def effective_joints(self, q: np.ndarray, direction: np.ndarray | None = None) -> np.ndarray:
+        """Joints the tubes actually reach (N, 6) for commanded joints q (N, 6) in acquisition order.
+
+        ``direction`` (N, 6) is the direction of the latest motion (`motion_direction(q)` if None).
+        """
+        q = np.asarray(q, dtype=float)
+        if not any(self.backlash_rad):
+            return q
+        d = motion_direction(np.atleast_2d(q)) if direction is None else np.asarray(direction)
+        out = np.array(q, dtype=float, copy=True)
+        out[..., 3:] -= np.asarray(self.backlash_rad) * d[..., 3:]
+        return out
+
+    # ---- file format ------------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        return {"registration": {"rotation_vector_rad": [float(v) for v in self.rotation_vector_rad],
+                                 "translation_mm": [float(v) for v in self.translation_mm]},
+                "backlash_rad": [float(v) for v in self.backlash_rad]}
+
+    @classmethod
+    def from_doc(cls, doc: YamlDoc, keys: tuple = (CALIBRATION_KEY,)) -> Calibration:
+        """Validated `Calibration` from the ``calibration`` mapping of a parsed robot file."""
+        raw = doc.data.get(keys[0]) if len(keys) == 1 else None
+        if raw is None:
+            return cls()
+        if not isinstance(raw, dict):
+            raise doc.error(keys, "expected a mapping with 'registration' and/or 'backlash_rad'")
+        for k in raw:
+            if k not in ("registration", "backlash_rad"):
+                raise doc.error(keys + (k,), "unknown key (allowed: backlash_rad, registration)")
+        kw: dict[str, tuple] = {}
+        reg = raw.get("registration")
+        if reg is not None:
+            if not isinstance(reg, dict):
+                raise doc.error(keys + ("registration",), "expected a mapping with rotation_vector_rad "
+                                                          "and translation_mm")
+            for k in reg:
+                if k not in ("rotation_vector_rad", "translation_mm"):
+                    raise doc.error(keys + ("registration", k),
+                                    "unknown key (allowed: rotation_vector_rad, translation_mm)")
+            for k in ("rotation_vector_rad", "translation_mm"):
+                if k in reg:
+                    kw[k] = _vector3(doc, keys + ("registration", k), reg[k])
+        if "backlash_rad" in raw:
+            kw["backlash_rad"] = _vector3(doc, keys + ("backlash_rad",), raw["backlash_rad"])
+        return cls(**kw)
+
+
+def _vector3(doc: YamlDoc, keys: tuple, value: Any) -> tuple[float, float, float]:
+    ok = isinstance(value, list) and len(value) == 3 and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
+    if not ok:
+        raise doc.error(keys, f"expected a list of 3 finite numbers, got {value!r}")
+    return tuple(float(v) for v in value)  # type: ignore[return-value]
+
+
+def motion_direction(q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    """Direction of the latest motion of every joint (N, 6) in {-1, 0, +1}, from consecutive rows.
+
+    A joint that did not move keeps the direction of its last move (a backlash gap stays taken up on
+    the side it was last driven); before its first move the direction is 0.
+    """
+    q = np.asarray(q, dtype=float)
+    d = np.zeros_like(q)
+    step = np.diff(q, axis=0)
+    cur = np.zeros(q.shape[1])
+    for r in range(1, len(q)):
+        s = step[r - 1]
+        moved = np.abs(s) > tol
+        cur = np.where(moved, np.sign(s), cur)
+        d[r] = cur
+    return d

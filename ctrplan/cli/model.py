@@ -1,0 +1,127 @@
+"""`ctrplan train` and `ctrplan eval-model`: train, ship and evaluate PINN surrogates."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from ctrplan.cli import app
+from ctrplan.cli.bench import output_dir
+from ctrplan.cli.kinematics import RobotOpt
+from ctrplan.errors import InputError
+from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
+from ctrplan.kinematics.pinn import PinnBackend
+from ctrplan.robot import Robot
+from ctrplan.training.evaluate import compare
+from ctrplan.training.trainer import RECIPES, get_recipe
+from ctrplan.training.trainer import train as run_training
+
+ModelOpt = Annotated[str | None, typer.Option(
+    "--model", help=f"Model name in models/ or path to a .safetensors file (default {DEFAULT_MODEL}).")]
+
+
+@app.command()
+def train(
+    name: Annotated[str | None, typer.Option(
+        "--name", help="Model name: writes models/NAME.safetensors and models/NAME.json "
+                       "(default: ROBOT_RECIPE).")] = None,
+    robot: RobotOpt = None,
+    recipe: Annotated[str, typer.Option("--recipe", help=f"Recipe: {' | '.join(RECIPES)}.")] = "fast",
+    steps: Annotated[int | None, typer.Option(
+        "--steps", help="Optimiser steps (recipe default).")] = None,
+    time_limit: Annotated[float | None, typer.Option(
+        "--time-limit", help="Stop after this many minutes (the learning-rate schedule fits it).")] = None,
+    seed: Annotated[int, typer.Option("--seed")] = 0,
+    device: Annotated[str, typer.Option("--device", help="cpu | cuda | cuda:N")] = "cpu",
+    threads: Annotated[int | None, typer.Option("--threads", help="CPU threads for torch.")] = None,
+    resume: Annotated[bool, typer.Option(
+        "--resume", help="Continue from the last checkpoint of NAME.")] = False,
+    init: Annotated[str | None, typer.Option(
+        "--init", help="Start from a model's weights (e.g. `--recipe polish --init NAME`).")] = None,
+    out_dir: Annotated[Path, typer.Option("--out-dir", help="Where models are written.")] = MODELS_DIR,
+) -> None:
+    """Train a PINN on the Cosserat-rod equations (paper III) and write it with its model card.
+
+    Checkpoints go to NAME.ckpt.* beside the model every two minutes; `--resume` picks them up.
+    The card records the robot (and its fingerprint), recipe, sample counts, wall time, hardware and
+    accuracy on 100 unseen configurations.
+    """
+    import torch
+
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise InputError(f"--device: {device} requested but no CUDA device is available")
+    if threads:
+        torch.set_num_threads(threads)
+    model_robot = Robot.load(robot)
+    rec = get_recipe(recipe, steps=steps)
+    out = output_dir(out_dir) / (name or f"{model_robot.name}_{rec.name}")
+    start = PinnBackend.load(init, model_robot).net if init else None
+    console = Console(stderr=True)
+    bar = Progress(TextColumn("train {task.fields[recipe]}"), BarColumn(), MofNCompleteColumn(),
+                   TimeElapsedColumn(), TextColumn("loss {task.fields[loss]}"), console=console)
+    with bar:
+        task = bar.add_task("train", total=rec.steps, recipe=rec.name, loss="-")
+
+        def progress(step: int, total: int, stats: dict) -> None:
+            bar.update(task, completed=step, loss=f"{stats['loss']:.4g}")
+
+        result = run_training(
+            model_robot, rec, out, seed=seed, device=device, resume=resume, init_from=start,
+            time_limit_s=time_limit * 60 if time_limit else None, progress=progress,
+            evaluate=lambda net: compare(PinnBackend(model_robot, net), model_robot).metrics())
+    m = result.card["metrics"]["backbone_error_pct"]
+    console.print(f"wrote {out.with_suffix('.safetensors')} and {out.with_suffix('.json')}: "
+                  f"{result.steps} steps in {result.wall_time_s / 60:.1f} min; backbone error on 100 "
+                  f"unseen configurations: mean {m['mean']:.3f} %, max {m['max']:.3f} %")
+
+
+@app.command("eval-model")
+def eval_model(
+    model: ModelOpt = None,
+    robot: RobotOpt = None,
+    n: Annotated[int, typer.Option("--n", help="Unseen configurations (fixed seed).")] = 100,
+    points: Annotated[int, typer.Option("--points", help="Backbone points per configuration.")] = 100,
+    out: Annotated[Path, typer.Option(
+        "--out", help="Directory for the figures.")] = Path("runs/eval_model"),
+    as_json: Annotated[bool, typer.Option("--json", help="Print the metrics as JSON on stdout.")] = False,
+) -> None:
+    """Accuracy of a PINN against the exact solver on unseen configurations, with the paper's figures:
+    3-D shapes (fig4_shapes.png), error band (fig5_error_band.png), states (fig6_states.png)."""
+    from ctrplan.viz.model_figures import error_band_figure, shapes_figure, states_figure
+
+    if n < 1 or points < 2:
+        raise InputError("--n must be >= 1 and --points >= 2")
+    model_robot = Robot.load(robot)
+    pinn = PinnBackend.load(model, model_robot)
+    cmp = compare(pinn, model_robot, n=n, points=points)
+    out = output_dir(out)
+    figures = [shapes_figure(cmp, out / "fig4_shapes.png"),
+               error_band_figure(cmp, out / "fig5_error_band.png"),
+               states_figure(cmp, out / "fig6_states.png")]
+    card = pinn.card
+    training = {k: card.get(k) for k in ("recipe", "wall_time_s", "hardware", "steps", "seed")}
+    training["stages"] = [{"recipe": s["recipe"]["name"], "wall_time_s": s["wall_time_s"],
+                           "hardware": s["hardware"], "steps": s["steps"]} for s in card.get("stages", [])]
+    training["recipe"] = (training["recipe"] or {}).get("name")
+    metrics = {"model": str(model or DEFAULT_MODEL), **cmp.metrics(), "training": training,
+               "figures": [str(f) for f in figures]}
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    if as_json:
+        typer.echo(json.dumps(metrics, indent=2))
+        return
+    e, tip = metrics["backbone_error_pct"], metrics["tip_error_mm"]
+    console = Console()
+    console.print(f"[bold]{metrics['model']}[/] on {n} unseen configurations:")
+    console.print(f"  backbone error / arc length: mean {e['mean']:.3f} %, p95 {e['p95']:.3f} %, "
+                  f"max {e['max']:.3f} %")
+    for tube, v in tip.items():
+        console.print(f"  {tube} tip error: mean {v['mean']:.3f} mm, max {v['max']:.3f} mm")
+    console.print(f"  u_z RMSE {metrics['u_z_rmse_1_per_m']:.3f} 1/m, theta RMSE "
+                  f"{metrics['theta_rmse_rad']:.4f} rad, orientation error mean "
+                  f"{metrics['orientation_error_deg']['mean']:.2f} deg")
+    console.print(f"  figures in {out}/")

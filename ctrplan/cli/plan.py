@@ -1,0 +1,221 @@
+"""`ctrplan plan`: plan a collision-free motion through a scene, validate it with the exact model.
+
+Exit codes (DESIGN §3): 0 solved, 1 not solved in time (or not safe under the exact model), 2 bad
+input. ``--json`` prints one JSON document on stdout; progress and the readable summary then go to
+stderr.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+
+from ctrplan.cli import app
+from ctrplan.errors import InputError
+from ctrplan.scene import PLANNERS
+
+SceneArg = Annotated[Path, typer.Argument(metavar="SCENE.yaml", show_default=False,
+                                          help="Scene file (robot, base pose, obstacles, target, start).")]
+
+
+def _check_out(out: Path | None) -> None:
+    if out is None:
+        return
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out: {out} exists and is not a directory")
+    if not out.exists() and not out.parent.is_dir():
+        raise InputError(f"--out: parent directory {str(out.parent)!r} does not exist")
+
+
+@app.command("plan")
+def plan_command(
+    scene: SceneArg,
+    backend: Annotated[str | None, typer.Option(
+        "--backend", show_default=False,
+        help="Kinematics backend for planning: pinn | cosserat | hybrid (default: pinn if available, "
+             "else cosserat). The path is always re-validated with the exact Cosserat model.")] = None,
+    planner: Annotated[str | None, typer.Option(
+        "--planner", show_default=False,
+        help=f"OMPL planner: {' | '.join(PLANNERS)} (default: the scene's, rrtconnect).")] = None,
+    time_limit: Annotated[float | None, typer.Option(
+        "--time-limit", metavar="S", show_default=False,
+        help="Planning time limit in seconds (default: the scene's, 10).")] = None,
+    seed: Annotated[int | None, typer.Option(
+        "--seed", metavar="N", show_default=False, help="Random seed (OMPL and goal sampling).")] = None,
+    out: Annotated[Path | None, typer.Option(
+        "--out", metavar="DIR", show_default=False,
+        help="Write path.json, obstacles.ply, plan.png and plan.html into DIR.")] = None,
+    json_out: Annotated[bool, typer.Option(
+        "--json", help="Print one JSON summary on stdout (progress and summary go to stderr).")] = False,
+) -> None:
+    """Plan a motion of the robot's tip into the scene's target region.
+
+    Exit code 0: solved and confirmed collision-free by the exact Cosserat model; 1: not solved in
+    time, or the path is not safe under the exact model and could not be repaired; 2: bad input.
+    """
+    from rich.console import Console
+
+    if planner is not None and planner not in PLANNERS:
+        raise InputError(f"--planner: unknown planner {planner!r} (choose from {', '.join(PLANNERS)})")
+    if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
+        raise InputError(f"--time-limit: must be a positive number of seconds, got {time_limit}")
+    if seed is not None and seed < 0:
+        raise InputError(f"--seed: must be >= 0, got {seed}")
+    _check_out(out)
+
+    from ompl import util as ou
+
+    from ctrplan.planning import plan, resolve_backend
+    from ctrplan.scene import load_scene
+
+    ou.setLogLevel(ou.LOG_WARN)  # OMPL's info lines go to stdout otherwise
+    sc = load_scene(scene)
+    be = resolve_backend(backend, sc.robot)
+    console = Console(stderr=json_out, highlight=False)
+    err = Console(stderr=True, highlight=False)
+
+    with _Progress(err) as progress:
+        result = plan(sc, be, planner=planner, time_limit_s=time_limit, seed=seed,
+                      progress=progress.update)
+    doc = result.to_json()
+    doc["scene"] = str(scene)
+    if out is not None:
+        _write_outputs(out, sc, result, doc)
+    _summary(console, sc, result, out)
+    if json_out:
+        typer.echo(json.dumps(doc))
+    if not result.solved:
+        raise NotSolved()
+
+
+class NotSolved(typer.TyperException):
+    """Exit code 1, no extra message: the summary (and the JSON) already say why.
+
+    (`typer.Exit(1)` would be swallowed: in non-standalone mode click returns its code from
+    ``app()``, which `ctrplan.cli.main` does not pass on.)
+    """
+
+    exit_code = 1
+
+    def __init__(self) -> None:
+        super().__init__("")
+
+
+class _Progress:
+    """A transient rich status line on stderr (only on a terminal)."""
+
+    def __init__(self, console):
+        self.console = console
+        self.status = None
+
+    def __enter__(self):
+        if self.console.is_terminal:
+            self.status = self.console.status("planning ...")
+            self.status.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        if self.status is not None:
+            self.status.__exit__(*exc)
+
+    def update(self, stage: str, **info) -> None:
+        if self.status is None:
+            return
+        text = {"goal": "sampling goal configurations (IK)", "search": "searching",
+                "simplify": "simplifying the path", "validate": "validating with the exact model",
+                "repair": "repairing with the exact model"}.get(stage, stage)
+        if "elapsed" in info and "limit" in info:
+            text += f"  {info['elapsed']:.1f}/{info['limit']:g} s"
+        if "kinematics_calls" in info:
+            text += f"  {info['kinematics_calls']} kinematics calls"
+        if "goals" in info:
+            text += f"  {info['goals']} goals"
+        self.status.update(text)
+
+
+def _summary(console, sc, result, out: Path | None) -> None:
+    from rich.table import Table
+
+    v = result.validated
+    ok = "[bold green]solved[/]" if result.solved else "[bold red]not solved[/]"
+    t = Table(title=f"ctrplan plan {sc.name}: {ok}", show_header=False, title_justify="left")
+    t.add_column(style="dim")
+    t.add_column()
+    t.add_row("planner / backend", f"{result.planner} / {result.backend}")
+    t.add_row("planning time", f"{result.planning_time_s:.2f} s (limit {result.time_limit_s:g} s)")
+    t.add_row("kinematics calls", str(result.kinematics_calls))
+    t.add_row("waypoints", str(len(result.path)))
+    if v is not None:
+        tip = np.asarray(v.tip_mm)
+        dist = float(sc.target.distance(tip)) if tip.size == 3 else float("nan")
+        t.add_row("exact model", f"collision-free: {v.collision_free}, clearance "
+                                 f"{v.min_clearance_mm:.2f} mm ({v.nearest_obstacle}), "
+                                 f"{v.states} states")
+        t.add_row("backend vs exact", f"max position error {v.max_position_error_mm:.3f} mm, "
+                                      f"tip error {v.max_tip_error_mm:.3f} mm")
+        t.add_row("final tip", f"{np.round(tip, 2).tolist()} mm, in target: {v.tip_in_target}"
+                               + (f" ({dist:.2f} mm outside)" if dist > 0 else ""))
+        if v.repaired:
+            t.add_row("repair", "the path was repaired with the exact model")
+    t.add_row("message", result.message)
+    if out is not None:
+        t.add_row("outputs", str(out))
+    console.print(t)
+
+
+def _write_outputs(out: Path, sc, result, doc: dict) -> None:
+    """path.json, obstacles.ply, plan.png, plan.html; each file is written completely or not at all."""
+    from ctrplan.dataio import atomic_write
+    from ctrplan.viz import plot_plan, viewer_data, write_viewer
+
+    out.mkdir(parents=True, exist_ok=True)
+    full = dict(doc)
+    bbs = radii = None
+    if result.dense is not None:
+        dense = result.dense
+        bbs = sc.to_scene(dense.exact.positions_mm)
+        radii = dense.exact.radius_mm
+        full["dense_path"] = dense.dense_q.tolist()
+        full["backbones_mm"] = np.round(np.where(np.isfinite(bbs), bbs, np.nan), 4).tolist()
+        full["backbone_radius_mm"] = np.round(radii, 4).tolist()
+        full["backbones_backend"] = "cosserat"
+        full["frame"] = "scene (mm)"
+    with atomic_write(out / "path.json") as fh:
+        fh.write(json.dumps(_nan_to_none(full)))
+    mesh = sc.merged_obstacles()
+    with atomic_write(out / "obstacles.ply", "wb") as fh:
+        fh.write(mesh.export(file_type="ply"))
+    if bbs is None:  # nothing planned: show the start
+        from ctrplan.kinematics import CosseratBackend
+
+        b = CosseratBackend(sc.robot).forward(sc.start, points=sc.settings.points, check=False)
+        bbs, radii = sc.to_scene(b.positions_mm), b.radius_mm
+    tip_path = bbs[:, -1, :]
+    tmp_png = out / ".plan.png.tmp.png"
+    plot_plan(sc, bbs, tmp_png, tip_path=tip_path,
+              title=f"{sc.name}: {result.planner}/{result.backend}, "
+                    f"{'solved' if result.solved else 'not solved'}")
+    tmp_png.replace(out / "plan.png")
+    info = {"solved": result.solved, "planner": result.planner, "backend": result.backend,
+            "planning_time_s": round(result.planning_time_s, 3)}
+    if result.validated is not None:
+        info["min_clearance_mm"] = round(result.validated.min_clearance_mm, 3)
+        info["max_position_error_mm"] = round(result.validated.max_position_error_mm, 3)
+    tmp_html = out / ".plan.html.tmp.html"
+    write_viewer(tmp_html, viewer_data(sc, bbs, radii, info), title=f"ctrplan: {sc.name}")
+    tmp_html.replace(out / "plan.html")
+
+
+def _nan_to_none(x):
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _nan_to_none(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_nan_to_none(v) for v in x]
+    return x

@@ -1,0 +1,354 @@
+"""Collision checking of a CTR backbone against the scene with FCL.
+
+The robot is a chain of capsules between consecutive backbone points; each capsule's radius is the
+outer radius of the outermost tube present on that segment plus a configurable margin. The scene is
+built once (all meshes merged into one BVH, primitives as FCL shapes); the capsules are FCL objects
+whose radius, length and pose are updated in place for every configuration (DESIGN §4: building from
+Python is slow, boolean checks are cheap, distances are for final paths only).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import fcl
+import numpy as np
+
+from ctrplan.scene import Obstacle, Scene, transform_points
+
+
+def _fcl_transform(pose: np.ndarray) -> fcl.Transform:
+    return fcl.Transform(np.ascontiguousarray(pose[:3, :3]), np.ascontiguousarray(pose[:3, 3]))
+
+
+def segment_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centres (..., M, 3), rotations (..., M, 3, 3) taking z onto each segment, and lengths (..., M)
+    for the M = N - 1 segments of polylines (..., N, 3)."""
+    p = np.asarray(points, dtype=float)
+    d = p[..., 1:, :] - p[..., :-1, :]
+    length = np.linalg.norm(d, axis=-1)
+    safe = np.where(length > 1e-12, length, 1.0)
+    u = d / safe[..., None]
+    u = np.where((length > 1e-12)[..., None], u, np.array([0.0, 0.0, 1.0]))
+    x, y, z = u[..., 0], u[..., 1], u[..., 2]
+    flip = z < -1.0 + 1e-9
+    k = 1.0 / np.where(flip, 1.0, 1.0 + z)
+    R = np.empty(u.shape[:-1] + (3, 3))
+    R[..., 0, 0] = 1 - x * x * k
+    R[..., 0, 1] = -x * y * k
+    R[..., 0, 2] = x
+    R[..., 1, 0] = -x * y * k
+    R[..., 1, 1] = 1 - y * y * k
+    R[..., 1, 2] = y
+    R[..., 2, 0] = -x
+    R[..., 2, 1] = -y
+    R[..., 2, 2] = z
+    if np.any(flip):
+        R[flip] = np.diag([1.0, -1.0, -1.0])
+    centres = 0.5 * (p[..., 1:, :] + p[..., :-1, :])
+    return centres, R, length
+
+
+def segment_radii(radius_mm: np.ndarray, margin_mm: float = 0.0) -> np.ndarray:
+    """Capsule radius per segment (..., N-1): the larger tube radius of its two ends plus margin."""
+    r = np.asarray(radius_mm, dtype=float)
+    return np.maximum(r[..., 1:], r[..., :-1]) + margin_mm
+
+
+def _split_mesh(V: np.ndarray, F: np.ndarray, max_faces: int) -> list[np.ndarray]:
+    """Face index sets of spatially compact chunks (recursive median split on the longest axis)."""
+    cent = V[F].mean(axis=1)
+    out = []
+    stack = [np.arange(len(F))]
+    while stack:
+        idx = stack.pop()
+        if len(idx) <= max_faces:
+            out.append(idx)
+            continue
+        c = cent[idx]
+        ext = np.ptp(V[F[idx]].reshape(-1, 3), axis=0)
+        ax = int(np.argmax(ext))
+        order = np.argsort(c[:, ax], kind="stable")
+        half = len(idx) // 2
+        stack += [idx[order[:half]], idx[order[half:]]]
+    return out
+
+
+class CollisionWorld:
+    """The scene's obstacles as FCL objects, built once.
+
+    Meshes are split into spatially compact chunks (one BVH each) so that an axis-aligned
+    bounding-box prefilter, vectorised over all capsules, sends only nearby capsule/chunk pairs to
+    FCL's narrow phase. ``max_faces`` bounds the chunk size.
+    """
+
+    def __init__(self, obstacles: Sequence[Obstacle], max_faces: int = 256):
+        self.obstacles = tuple(obstacles)
+        self._objects: list[fcl.CollisionObject] = []
+        self._geoms: list = []  # keep FCL geometry alive
+        self.names: list[str] = []
+        lo, hi = [], []
+        for o in self.obstacles:
+            if o.kind == "mesh":
+                V = np.ascontiguousarray(o.vertices, dtype=float)
+                F = np.ascontiguousarray(o.faces, dtype=np.int64)
+                for idx in _split_mesh(V, F, max_faces):
+                    f = F[idx]
+                    used, inv = np.unique(f.ravel(), return_inverse=True)
+                    v = np.ascontiguousarray(V[used])
+                    f = np.ascontiguousarray(inv.reshape(-1, 3), dtype=np.int64)
+                    g = fcl.BVHModel()
+                    g.beginModel(len(v), len(f))
+                    g.addSubModel(v, f)
+                    g.endModel()
+                    self._add(g, fcl.Transform(), o.name, v.min(axis=0), v.max(axis=0), lo, hi)
+                continue
+            if o.kind == "sphere":
+                g = fcl.Sphere(o.radius)
+            elif o.kind == "box":
+                g = fcl.Box(*o.size)
+            elif o.kind == "cylinder":
+                g = fcl.Cylinder(o.radius, o.length)
+            elif o.kind == "capsule":
+                g = fcl.Capsule(o.radius, o.length)
+            else:  # pragma: no cover - the loader only makes these kinds
+                raise ValueError(f"unknown obstacle kind {o.kind!r}")
+            b = _primitive_bounds(o)
+            self._add(g, _fcl_transform(o.pose), o.name, b[0], b[1], lo, hi)
+        self.aabb_lo = np.array(lo).reshape(-1, 3)
+        self.aabb_hi = np.array(hi).reshape(-1, 3)
+        self._request = fcl.CollisionRequest()
+
+    def _add(self, geom, tf, name, lo_, hi_, lo, hi) -> None:
+        self._geoms.append(geom)
+        self._objects.append(fcl.CollisionObject(geom, tf))
+        self.names.append(name)
+        lo.append(lo_)
+        hi.append(hi_)
+
+    @classmethod
+    def from_scene(cls, scene: Scene) -> CollisionWorld:
+        return cls(scene.obstacles)
+
+    def __len__(self) -> int:
+        return len(self._objects)
+
+    def overlaps(self, seg_lo: np.ndarray, seg_hi: np.ndarray, pad: float = 1e-6) -> np.ndarray:
+        """Bounding-box overlap (..., M, O) of segment boxes (..., M, 3) with every object."""
+        return np.all((seg_lo[..., :, None, :] <= self.aabb_hi + pad)
+                      & (seg_hi[..., :, None, :] >= self.aabb_lo - pad), axis=-1)
+
+    def candidates(self, seg_lo: np.ndarray, seg_hi: np.ndarray) -> np.ndarray:
+        """(capsule, object) index pairs (P, 2) whose bounding boxes overlap, distal capsules first."""
+        if len(self) == 0:
+            return np.zeros((0, 2), dtype=np.int64)
+        pairs = np.argwhere(self.overlaps(seg_lo, seg_hi)[::-1])
+        pairs[:, 0] = len(seg_lo) - 1 - pairs[:, 0]
+        return pairs
+
+
+def _primitive_bounds(o: Obstacle) -> np.ndarray:
+    """Conservative AABB (2, 3) of a primitive in the scene frame."""
+    R, c = o.pose[:3, :3], o.pose[:3, 3]
+    if o.kind == "sphere":
+        e = np.full(3, o.radius)
+    elif o.kind == "box":
+        e = np.abs(R) @ (0.5 * np.asarray(o.size))
+    else:  # cylinder / capsule along local z
+        half = 0.5 * o.length + (o.radius if o.kind == "capsule" else 0.0)
+        e = np.abs(R[:, 2]) * half + o.radius * np.sqrt(np.clip(1.0 - R[:, 2] ** 2, 0.0, 1.0))
+        if o.kind == "capsule":
+            e = np.abs(R[:, 2]) * 0.5 * o.length + o.radius
+    return np.stack([c - e - 1e-9, c + e + 1e-9])
+
+
+class CapsuleChain:
+    """A chain of ``n_segments`` FCL capsules, placed lazily and updated in place.
+
+    `set` stores the segment frames of a new configuration (vectorised); a capsule's FCL object is
+    only updated when a query needs it (capsules far from every obstacle never are).
+    """
+
+    def __init__(self, n_segments: int):
+        self.n_segments = int(n_segments)
+        self._geoms = [fcl.Capsule(0.5, 1.0) for _ in range(self.n_segments)]
+        self._objects = [fcl.CollisionObject(g, fcl.Transform()) for g in self._geoms]
+        self._active = 0
+        self._placed = np.zeros(self.n_segments, dtype=bool)
+        self.points = np.zeros((0, 3))
+
+    def set(self, points: np.ndarray, radii: np.ndarray) -> None:
+        """New configuration: points (N, 3) with per-segment radii (N-1,) (the world's frame)."""
+        p = np.asarray(points, dtype=float)
+        if p.shape[0] - 1 > self.n_segments:
+            raise ValueError(f"chain has {self.n_segments} capsules, got {p.shape[0] - 1} segments")
+        centres, R, length = segment_frames(p)
+        radii = np.asarray(radii, dtype=float)
+        r = radii[:, None]
+        self.load(centres, R, length, radii, np.minimum(p[:-1], p[1:]) - r, np.maximum(p[:-1], p[1:]) + r)
+
+    def load(self, centres, R, length, radii, seg_lo, seg_hi) -> None:
+        """New configuration from precomputed segment frames (see `segment_frames`)."""
+        self._active = len(length)
+        self._centres, self._R, self._length, self._radii = centres, R, length, radii
+        self.seg_lo, self.seg_hi = seg_lo, seg_hi
+        self._placed[:] = False
+
+    def _object(self, i: int) -> fcl.CollisionObject:
+        o = self._objects[i]
+        if not self._placed[i]:
+            g = self._geoms[i]
+            g.radius = float(self._radii[i])
+            g.lz = float(self._length[i])
+            o.setRotation(self._R[i])
+            o.setTranslation(self._centres[i])
+            self._placed[i] = True
+        return o
+
+    def collides(self, world: CollisionWorld, pairs: np.ndarray | None = None) -> bool:
+        """True if any capsule touches any obstacle (distal capsules are tested first).
+        ``pairs``: precomputed candidate (capsule, object) pairs."""
+        req = world._request
+        objs = world._objects
+        if pairs is None:
+            pairs = world.candidates(self.seg_lo, self.seg_hi)
+        for i, j in pairs:
+            if fcl.collide(self._object(i), objs[j], req, fcl.CollisionResult()):
+                return True
+        return False
+
+    def contacts(self, world: CollisionWorld) -> list[tuple[int, str]]:
+        """Every (capsule index, obstacle name) pair in contact."""
+        out = set()
+        for i, j in world.candidates(self.seg_lo, self.seg_hi):
+            if fcl.collide(self._object(i), world._objects[j], world._request, fcl.CollisionResult()):
+                out.add((int(i), world.names[j]))
+        return sorted(out)
+
+    def distance(self, world: CollisionWorld, cutoff: float = np.inf) -> Clearance:
+        """Smallest distance between the chain and the obstacles (0 when in contact).
+
+        Pairs whose bounding boxes are farther apart than the best distance found so far are
+        skipped (exact: the box gap bounds the distance from below).
+        """
+        best = Clearance(np.inf, -1, "", np.full(3, np.nan), np.full(3, np.nan))
+        if len(world) == 0 or self._active == 0:
+            return best
+        lo, hi = self.seg_lo, self.seg_hi
+        gap = np.maximum(0.0, np.maximum(world.aabb_lo[None] - hi[:, None], lo[:, None] - world.aabb_hi[None]))
+        lower = np.linalg.norm(gap, axis=-1)  # (M, O) lower bounds
+        order = np.argsort(lower, axis=None)
+        req = fcl.DistanceRequest(enable_nearest_points=True)
+        bound = min(cutoff, np.inf)
+        for flat in order:
+            i, j = divmod(int(flat), lower.shape[1])
+            if lower[i, j] >= min(best.distance_mm, bound):
+                break
+            res = fcl.DistanceResult()
+            d = fcl.distance(self._object(i), world._objects[j], req, res)
+            if d < 0 or (d == 0 and fcl.collide(self._object(i), world._objects[j], world._request,
+                                                 fcl.CollisionResult())):
+                return Clearance(0.0, i, world.names[j], np.full(3, np.nan), np.full(3, np.nan))
+            if d < best.distance_mm:
+                best = Clearance(float(d), i, world.names[j],
+                                 np.array(res.nearest_points[0], dtype=float),
+                                 np.array(res.nearest_points[1], dtype=float))
+        return best
+
+
+@dataclass(frozen=True)
+class Clearance:
+    """Result of a distance query: distance (mm, 0 on contact), capsule index, obstacle name and the
+    nearest points (scene frame; NaN on contact)."""
+
+    distance_mm: float
+    segment: int
+    obstacle: str
+    robot_point: np.ndarray
+    obstacle_point: np.ndarray
+
+
+class RobotCollisionChecker:
+    """Backbones (robot frame) against a scene: boolean checks for planning, distances for paths.
+
+    Args:
+        world: the scene's `CollisionWorld` (built once, shareable).
+        base_pose: robot base in the scene frame (4x4).
+        points: backbone points per configuration (capsules = points - 1).
+        margin_mm: added to every capsule radius in the boolean checks.
+    """
+
+    def __init__(self, world: CollisionWorld, base_pose: np.ndarray, points: int,
+                 margin_mm: float = 0.0):
+        self.world = world
+        self.base_pose = np.asarray(base_pose, dtype=float)
+        self.points = int(points)
+        self.margin_mm = float(margin_mm)
+        self.chain = CapsuleChain(self.points - 1)
+        self.checks = 0
+
+    @classmethod
+    def for_scene(cls, scene: Scene, points: int | None = None, margin_mm: float | None = None,
+                  world: CollisionWorld | None = None) -> RobotCollisionChecker:
+        s = scene.settings
+        return cls(world or CollisionWorld.from_scene(scene), scene.base_pose,
+                   s.points if points is None else points, s.margin_mm if margin_mm is None else margin_mm)
+
+    def _place(self, positions: np.ndarray, radius: np.ndarray, margin: float) -> None:
+        self.chain.set(transform_points(self.base_pose, positions), segment_radii(radius, margin))
+
+    def is_free(self, positions: np.ndarray, radius: np.ndarray) -> bool:
+        """Boolean check of one backbone: positions (N, 3) robot frame, tube radius (N,)."""
+        return bool(self.free_batch(positions[None], radius[None])[0])
+
+    def free_batch(self, positions: np.ndarray, radius: np.ndarray,
+                   order: Sequence[int] | None = None, stop_at_first: bool = False) -> np.ndarray:
+        """Boolean checks of B backbones (B, N, 3) robot frame / radii (B, N); NaN rows are not free.
+        Frames and bounding-box candidates are computed for the whole batch at once. With
+        ``stop_at_first``, rows after the first collision (in ``order``) are left not free."""
+        positions = np.asarray(positions, dtype=float)
+        b = positions.shape[0]
+        free = np.zeros(b, dtype=bool)
+        finite = np.all(np.isfinite(positions), axis=(1, 2))
+        p = transform_points(self.base_pose, np.where(finite[:, None, None], positions, 0.0))
+        radii = segment_radii(radius, self.margin_mm)
+        radii = np.where(np.isfinite(radii), radii, 0.0)
+        centres, R, length = segment_frames(p)
+        lo = np.minimum(p[:, :-1], p[:, 1:]) - radii[..., None]
+        hi = np.maximum(p[:, :-1], p[:, 1:]) + radii[..., None]
+        if len(self.world):
+            ov = self.world.overlaps(lo, hi)[:, ::-1]  # distal capsules first
+            has = ov.any(axis=(1, 2))
+        else:
+            has = np.zeros(b, dtype=bool)
+        m = p.shape[1] - 1
+        for i in (range(b) if order is None else order):
+            self.checks += 1
+            if not finite[i]:
+                ok = False
+            elif not has[i]:
+                ok = True
+            else:
+                pairs = np.argwhere(ov[i])
+                pairs[:, 0] = m - 1 - pairs[:, 0]
+                self.chain.load(centres[i], R[i], length[i], radii[i], lo[i], hi[i])
+                ok = not self.chain.collides(self.world, pairs)
+            free[i] = ok
+            if stop_at_first and not ok:
+                break
+        return free
+
+    def contacts(self, positions: np.ndarray, radius: np.ndarray) -> list[tuple[int, str]]:
+        """(segment, obstacle) pairs in contact for one backbone (with the margin)."""
+        self._place(positions, radius, self.margin_mm)
+        return self.chain.contacts(self.world)
+
+    def clearance(self, positions: np.ndarray, radius: np.ndarray) -> Clearance:
+        """Distance from the robot's surface (no margin) to the nearest obstacle; 0 on contact."""
+        if not np.all(np.isfinite(positions)):
+            return Clearance(0.0, -1, "", np.full(3, np.nan), np.full(3, np.nan))
+        if len(self.world) == 0:
+            return Clearance(np.inf, -1, "", np.full(3, np.nan), np.full(3, np.nan))
+        self._place(positions, radius, 0.0)
+        return self.chain.distance(self.world)

@@ -1,0 +1,219 @@
+"""Tabular data files: strict CSV reading with line-numbered errors, and atomic writing.
+
+Every reading problem raises `InputError` naming the file, the row (its line number in the file,
+header = line 1) and the column, so the CLI can report it in one line. Writers never leave a
+half-written file: they write a temporary file beside the target and rename it over the target.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import secrets
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+
+from ctrplan.errors import InputError
+from ctrplan.robot import JOINT_NAMES, Robot
+
+#: Tip columns of the measured-data format (mm, robot frame), tubes 1..3.
+TIP_NAMES = tuple(f"tip{i}_{a}" for i in (1, 2, 3) for a in "xyz")
+
+
+@dataclass(frozen=True)
+class Table:
+    """Numeric columns read from a CSV file.
+
+    Attributes:
+        path: the file.
+        columns: names of the columns in ``values``, in the order asked for.
+        values: (R, C) float array, all finite.
+        lines: (R,) line number of each row in the file (header = line 1).
+    """
+
+    path: Path
+    columns: tuple[str, ...]
+    values: np.ndarray
+    lines: np.ndarray
+
+    def column(self, name: str) -> np.ndarray:
+        """One column (R,)."""
+        return self.values[:, self.columns.index(name)]
+
+    @property
+    def joints(self) -> np.ndarray:
+        """Joint columns (R, 6) in `JOINT_NAMES` order (mm, rad)."""
+        return self.values[:, [self.columns.index(n) for n in JOINT_NAMES]]
+
+
+#: Cells a reader that allows missing values reads as NaN (compared in lower case).
+MISSING_CELLS = frozenset({"", "nan", "na", "n/a", "null", "none"})
+
+
+def read_text(path: str | Path) -> str:
+    """The text of the data file ``path`` (UTF-8, a leading byte-order mark dropped).
+
+    Raises `InputError` naming the file if it is missing, a directory or unreadable.
+    """
+    path = Path(path)
+    try:
+        return path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise InputError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a directory, expected a CSV file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read ({exc})") from None
+
+
+def parse_number(cell: str, path: str | Path, line: int, name: str, *,
+                 allow_missing: bool = False) -> float:
+    """The number in ``cell`` (field ``name`` on line ``line`` of ``path``, for messages).
+
+    Raises `InputError` for text that is not a number and, unless ``allow_missing``, for a
+    non-finite number. With ``allow_missing`` a `MISSING_CELLS` cell reads as NaN and non-finite
+    numbers are returned: the caller checks them.
+    """
+    cell = cell.strip()
+    try:
+        value = float(cell)
+    except ValueError:
+        if allow_missing and cell.lower() in MISSING_CELLS:
+            return math.nan
+        raise InputError(f"{path}: row {line}: {name} = {cell!r} is not a number") from None
+    if not allow_missing and not math.isfinite(value):
+        raise InputError(f"{path}: row {line}: {name} = {cell!r} is not a finite number")
+    return value
+
+
+def read_table(path: str | Path, columns: Sequence[str], *, optional: Sequence[str] = (),
+               allow_missing: bool = False) -> Table:
+    """Read the named numeric ``columns`` of a CSV file with a header line; other columns are ignored.
+
+    ``optional`` columns are read too when the header has them: ``Table.columns`` is ``columns``
+    followed by the optional ones found. Blank lines (also before the header) are skipped. Raises
+    `InputError` for a missing or empty file, a header without data rows, a missing or repeated
+    column, a row too short to hold the columns, or a cell that is not a finite number (see
+    `parse_number` for ``allow_missing``).
+    """
+    path = Path(path)
+    return parse_table(read_text(path), path, columns, optional=optional, allow_missing=allow_missing)
+
+
+def parse_table(text: str, path: str | Path, columns: Sequence[str], *,
+                optional: Sequence[str] = (), allow_missing: bool = False) -> Table:
+    """`read_table` on the already read ``text`` of ``path``."""
+    path = Path(path)
+    reader = csv.reader(text.splitlines())
+    header = next((cells for cells in reader if any(c.strip() for c in cells)), None)
+    if header is None:
+        raise InputError(f"{path}: empty file (expected a header line: {','.join(columns)})")
+    head = reader.line_num
+    names = [h.strip() for h in header]
+    missing = [c for c in columns if c not in names]
+    if missing:
+        raise InputError(f"{path}: row {head}: missing column{'s' if len(missing) > 1 else ''} "
+                         f"{', '.join(repr(m) for m in missing)} (header has: {','.join(names)})")
+    wanted = list(columns) + [c for c in optional if c in names and c not in columns]
+    index = []
+    for name in wanted:
+        hits = [i for i, h in enumerate(names) if h == name]
+        if len(hits) > 1:
+            raise InputError(f"{path}: row {head}: column {name!r} appears {len(hits)} times")
+        index.append(hits[0])
+    needed = max(index) + 1
+    values, lines = [], []
+    for cells in reader:
+        if not any(c.strip() for c in cells):
+            continue
+        line = reader.line_num
+        if len(cells) < needed:
+            raise InputError(f"{path}: row {line}: expected {len(names)} fields, got {len(cells)}")
+        values.append([parse_number(cells[i], path, line, name, allow_missing=allow_missing)
+                       for name, i in zip(wanted, index, strict=True)])
+        lines.append(line)
+    if not values:
+        raise InputError(f"{path}: no data rows after the header")
+    return Table(path=path, columns=tuple(wanted), values=np.array(values, dtype=float),
+                 lines=np.array(lines, dtype=np.int64))
+
+
+def read_joints(path: str | Path, robot: Robot, *, allow_outside_domain: bool = False) -> Table:
+    """Read a configurations CSV (header ``beta1,...,alpha3``) and validate every row against ``robot``.
+
+    Out-of-domain rows raise `DomainError` (or warn, with ``allow_outside_domain``) naming the row's
+    line and the violated inequality; physically impossible rows always raise `InputError`.
+    """
+    table = read_table(path, JOINT_NAMES)
+    check_joint_rows(robot, table.joints, table.lines, str(table.path),
+                     allow_outside_domain=allow_outside_domain)
+    return table
+
+
+def check_joint_rows(robot: Robot, q: np.ndarray, lines: np.ndarray, where: str, *,
+                     allow_outside_domain: bool = False) -> None:
+    """`Robot.check_joints` on joints ``q`` (N, 6) read from lines ``lines`` (N,) of file ``where``,
+    so that every message names the row's line in the file."""
+    if len(q) == 0:
+        return
+    # check_joints numbers rows from an offset; split where skipped blank lines break the numbering.
+    runs = np.split(np.arange(len(q)), np.flatnonzero(np.diff(lines) != 1) + 1)
+    for run in runs:
+        robot.check_joints(q[run], allow_outside_domain=allow_outside_domain, where=where,
+                           row_offset=int(lines[run[0]]))
+
+
+def output_dir(path: str | Path, option: str = "--out") -> Path:
+    """Create the output directory ``path`` (and its parents) if needed; return it as a `Path`.
+
+    Raises `InputError` naming ``option`` if ``path`` (or a parent) is a file or cannot be created.
+    """
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise InputError(f"{option}: {path} exists and is not a directory") from None
+    except OSError as exc:
+        raise InputError(f"{option}: cannot create {path} ({exc.strerror})") from None
+    return path
+
+
+@contextmanager
+def atomic_write(path: str | Path, mode: str = "w") -> Iterator[IO]:
+    """Open a temporary file beside ``path``; rename it onto ``path`` only if the block succeeds.
+
+    Raises `InputError` if the target is a directory or its directory does not exist or cannot be
+    written. The file gets the usual permissions (0666 less the umask).
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, expected a file name")
+    if not path.parent.is_dir():
+        raise InputError(f"{path}: output directory {str(path.parent)!r} does not exist")
+    tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write ({exc.strerror})") from None
+    try:
+        with os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8", "newline": ""})) as fh:
+            yield fh
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def format_csv(header: Sequence[str] | None, rows: np.ndarray, formats: Sequence[str]) -> str:
+    """CSV text: a header line (none if ``header`` is None), then ``rows`` (R, C) with one %-format
+    per column (``"%r"`` writes a float exactly)."""
+    lines = [] if header is None else [",".join(header)]
+    fmt = ",".join(formats)
+    lines.extend(fmt % tuple(r) for r in rows.tolist())
+    return "\n".join(lines) + "\n"

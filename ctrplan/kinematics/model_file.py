@@ -1,0 +1,135 @@
+"""PINN model files: weights in safetensors (no pickle) plus a JSON model card.
+
+The card records the robot the model was trained for (its parameters and fingerprint), the network
+size, the training recipe, sample counts, wall time, hardware and metrics, and the SHA-256 of the
+weights file. Loading refuses a model trained for another robot or whose weights do not match the card.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+
+from ctrplan.errors import InputError
+from ctrplan.kinematics.pinn import FEATURES, PinnNet
+from ctrplan.robot import Robot
+
+MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+DEFAULT_MODEL = "pinn_nominal"
+CARD_FORMAT = "ctrplan-pinn/1"
+
+
+def resolve_model(model: str | Path | None) -> Path:
+    """Path of a model's ``.safetensors`` from a name in ``models/`` or a path (with or without suffix)."""
+    if model is None:
+        model = DEFAULT_MODEL
+    path = Path(model)
+    if path.suffix in (".safetensors", ".json"):
+        path = path.with_suffix("")
+    if not path.parent.parts and not path.with_suffix(".safetensors").exists():
+        path = MODELS_DIR / path
+    return path.with_suffix(".safetensors")
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _atomic_write(path: Path, write) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def save_model(net: PinnNet, robot: Robot, path: str | Path, card: dict[str, Any]) -> Path:
+    """Write ``<path>.safetensors`` and ``<path>.json`` (card completed with robot, network, hash)."""
+    weights = Path(path).with_suffix(".safetensors")
+    tensors = {k: v.detach().cpu().contiguous().float() for k, v in net.state_dict().items()}
+    _atomic_write(weights, lambda tmp: save_file(tensors, tmp))
+    full = {
+        "format": CARD_FORMAT,
+        "robot": robot.to_dict(),
+        "robot_fingerprint": robot.fingerprint,
+        "network": {"inputs": FEATURES[net.features_mode], "features": net.features_mode,
+                    "hidden": net.hidden, "layers": net.layers, "outputs": 15, "activation": "tanh"},
+        **card,
+        "weights_file": weights.name,
+        "weights_sha256": file_sha256(weights),
+    }
+    text = json.dumps(full, indent=2, default=_jsonable)
+    _atomic_write(weights.with_suffix(".json"), lambda tmp: Path(tmp).write_text(text))
+    return weights
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"not JSON serialisable: {type(obj)}")
+
+
+def read_card(weights: Path) -> dict[str, Any]:
+    card_path = weights.with_suffix(".json")
+    try:
+        card = json.loads(card_path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{card_path}: model card not found (every model needs its JSON card)") from None
+    except (OSError, json.JSONDecodeError) as exc:
+        raise InputError(f"{card_path}: unreadable model card ({exc})") from None
+    if not isinstance(card, dict) or card.get("format") != CARD_FORMAT:
+        raise InputError(f"{card_path}: not a ctrplan PINN model card (format {CARD_FORMAT!r} expected)")
+    return card
+
+
+def load_model(model: str | Path | None, robot: Robot) -> tuple[PinnNet, dict[str, Any]]:
+    """Load and verify a model for ``robot``; `InputError` naming the file on any mismatch."""
+    weights = resolve_model(model)
+    if not weights.exists():
+        raise InputError(f"{weights}: PINN model not found (train one with `ctrplan train`)")
+    card = read_card(weights)
+    if card.get("robot_fingerprint") != robot.fingerprint:
+        trained_for = card.get("robot", {}).get("name", "?")
+        raise InputError(
+            f"{weights}: model was trained for robot {trained_for!r} "
+            f"(fingerprint {str(card.get('robot_fingerprint'))[:12]}), not for robot {robot.name!r} "
+            f"(fingerprint {robot.fingerprint[:12]}); retrain with `ctrplan train --robot ...`")
+    if file_sha256(weights) != card.get("weights_sha256"):
+        raise InputError(f"{weights}: weights do not match the SHA-256 in the model card "
+                         "(file modified or corrupted)")
+    try:
+        tensors = load_file(str(weights))
+    except (SafetensorError, OSError, ValueError) as exc:
+        raise InputError(f"{weights}: corrupted weights file ({exc})") from None
+    netcfg = card.get("network", {})
+    features = netcfg.get("features", "paper")
+    if features not in FEATURES:
+        raise InputError(f"{weights.with_suffix('.json')}: unknown network features {features!r}")
+    net = PinnNet(robot, hidden=int(netcfg.get("hidden", 100)), layers=int(netcfg.get("layers", 6)),
+                  features=features)
+    try:
+        net.load_state_dict(tensors)
+    except RuntimeError as exc:
+        raise InputError(f"{weights}: weights do not fit the network in the card ({exc})") from None
+    if not all(torch.isfinite(v).all() for v in tensors.values()):
+        raise InputError(f"{weights}: weights contain NaN or inf")
+    return net, card

@@ -1,0 +1,192 @@
+"""PINN surrogate backend: the paper's MLP (6x100 tanh -> 15) maps (arc length, joints) to the
+15-state. Evaluation is one batched forward pass, so its cost hardly depends on the configuration.
+
+Two input encodings (``features``):
+
+* ``paper`` -- 7 inputs: ``2 s/l1 - 1`` and the joints' snap-free box coordinates scaled to [-1, 1].
+* ``equivariant`` (default) -- uses an exact symmetry of the mechanics: adding c to every alpha rotates
+  the whole robot about z by c. The network sees ``2 s/l1 - 1``, the three beta box coordinates and
+  ``cos, sin`` of ``alpha2 - alpha1`` and ``alpha3 - alpha1`` (the mechanics is 2 pi-periodic in them);
+  positions and orientation it predicts are rotated by ``Rz(alpha1)`` and the twist angles are
+  ``theta_i = alpha_i - alpha1 + (learned deviation)``. 8 inputs, one dimension fewer to learn.
+
+The output transform builds the known structure in exactly (hard constraints):
+``p = s e3 + (s^2 / L_ref) * net_p`` (so p(0) = 0 and p'(0) = e3 for every configuration),
+``theta1 = 0``, ``m_b = 0`` when the robot has no loads, and a unit quaternion.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from ctrplan.kinematics._pinn_infer import infer
+from ctrplan.kinematics.backbone import Backbone
+from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, arc_fractions, outer_radius_along
+from ctrplan.robot import Robot
+
+P_REF_MM = 100.0
+FEATURES = {"paper": 7, "equivariant": 8}
+
+
+class PinnNet(nn.Module):
+    """The MLP with its input normalisation and output transform. Works in float32 or float64.
+
+    ``forward(sigma (B,), q (B, 6)) -> state (B, 15)`` with ``sigma = s / l1`` in [0, 1] and q in
+    mm/rad (offsets already applied). ``scales`` (15,) sets the size of each raw output.
+    """
+
+    def __init__(self, robot: Robot, hidden: int = 100, layers: int = 6,
+                 scales: np.ndarray | None = None, features: str = "equivariant"):
+        super().__init__()
+        if features not in FEATURES:
+            raise ValueError(f"features must be one of {sorted(FEATURES)}, got {features!r}")
+        self.features_mode = features
+        dims = [FEATURES[features]] + [hidden] * layers
+        mods: list[nn.Module] = []
+        for a, b in zip(dims[:-1], dims[1:], strict=True):
+            mods += [nn.Linear(a, b), nn.Tanh()]
+        mods.append(nn.Linear(hidden, 15))
+        self.mlp = nn.Sequential(*mods)
+        for m in self.mlp:
+            if isinstance(m, nn.Linear):
+                nn.init.xavier_normal_(m.weight)
+                nn.init.zeros_(m.bias)
+        self.hidden, self.layers = hidden, layers
+        self.register_buffer("box_lower", torch.tensor(robot.domain.box_lower, dtype=torch.float32))
+        self.register_buffer("box_upper", torch.tensor(robot.domain.box_upper, dtype=torch.float32))
+        self.register_buffer("lengths", torch.tensor(robot.lengths_mm, dtype=torch.float32))
+        self.register_buffer("scales", torch.ones(15) if scales is None
+                             else torch.tensor(scales, dtype=torch.float32))
+        self.register_buffer("loaded", torch.tensor(float(not robot.loads.is_free)))
+
+    def features(self, sigma: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        """Normalised network input (B, 7 | 8)."""
+        b1, b2, b3 = q[:, 0], q[:, 1], q[:, 2]
+        box = torch.stack([b3, b3 - b2, b2 - b1, q[:, 3], q[:, 4], q[:, 5]], -1)
+        zq = 2 * (box - self.box_lower) / (self.box_upper - self.box_lower) - 1
+        zs = 2 * sigma[:, None] - 1
+        if self.features_mode == "paper":
+            return torch.cat([zs, zq], -1)
+        dalpha = q[:, 4:6] - q[:, 3:4]
+        return torch.cat([zs, zq[:, :3], torch.cos(dalpha), torch.sin(dalpha)], -1)
+
+    def forward(self, sigma: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        raw = self.mlp(self.features(sigma, q)) * self.scales
+        s = (sigma * (q[:, 0] + self.lengths[0]))[:, None]
+        mb = raw[:, 0:2] * self.loaded
+        uz = raw[:, 2:5]
+        theta = torch.cat([torch.zeros_like(raw[:, 5:6]), raw[:, 6:8]], -1)
+        e3 = torch.zeros_like(raw[:, 8:11])
+        e3[:, 2] = 1.0
+        p = s * e3 + (s * s / P_REF_MM) * raw[:, 8:11]
+        h = raw[:, 11:15]
+        h = h / h.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+        if self.features_mode == "equivariant":
+            a1 = q[:, 3:4]
+            theta = theta + torch.cat([torch.zeros_like(a1), q[:, 4:6] - a1], -1)
+            c, sn = torch.cos(a1), torch.sin(a1)
+            p = torch.cat([c * p[:, 0:1] - sn * p[:, 1:2], sn * p[:, 0:1] + c * p[:, 1:2], p[:, 2:3]], -1)
+            cw, sz = torch.cos(0.5 * a1), torch.sin(0.5 * a1)    # h <- qz(alpha1) (x) h
+            w, x, y, z = h[:, 0:1], h[:, 1:2], h[:, 2:3], h[:, 3:4]
+            h = torch.cat([cw * w - sz * z, cw * x - sz * y, cw * y + sz * x, cw * z + sz * w], -1)
+        return torch.cat([mb, uz, theta, p, h], -1)
+
+
+class PinnBackend(Backend):
+    """Backbones from a trained `PinnNet`. Single-threaded-friendly float32 inference.
+
+    Load with `PinnBackend.load(path_or_name, robot)`; the model card is checked against the robot
+    and the weights' hash (see `ctrplan.kinematics.model_file`).
+    """
+
+    name = "pinn"
+
+    def __init__(self, robot: Robot, net: PinnNet, card: dict | None = None):
+        super().__init__(robot)
+        self.net = net.eval().float()
+        self.card = card or {}
+        for p in self.net.parameters():
+            p.requires_grad_(False)
+        self._compiled = self._export(self.net)
+
+    @staticmethod
+    def _export(net: PinnNet) -> tuple:
+        """Weights and constants for the compiled kernel `_pinn_infer.infer` (float32, x @ W layout)."""
+        linear = [m for m in net.mlp if isinstance(m, nn.Linear)]
+
+        def w(m: nn.Linear) -> np.ndarray:
+            return np.ascontiguousarray(m.weight.detach().numpy().T, dtype=np.float32)
+
+        def b(m: nn.Linear) -> np.ndarray:
+            return m.bias.detach().numpy().astype(np.float32)
+
+        hidden = linear[1:-1]
+        return (net.box_lower.numpy().astype(float), net.box_upper.numpy().astype(float),
+                float(net.lengths[0]), net.scales.numpy().astype(float), float(net.loaded),
+                net.features_mode == "equivariant", w(linear[0]), b(linear[0]),
+                np.ascontiguousarray(np.stack([w(m) for m in hidden])), np.stack([b(m) for m in hidden]),
+                w(linear[-1]), b(linear[-1]))
+
+    @classmethod
+    def load(cls, model: str | Path | None = None, robot: Robot | None = None) -> PinnBackend:
+        from ctrplan.kinematics.model_file import load_model
+
+        robot = robot or Robot.nominal()
+        net, card = load_model(model, robot)
+        return cls(robot, net, card)
+
+    def _evaluate(self, q: np.ndarray, frac: np.ndarray) -> np.ndarray:
+        """States (B, F, 15) at arc fractions frac (B, F) for joints q (B, 6) with offsets applied."""
+        out = np.empty((frac.shape[0], frac.shape[1], 15))
+        infer(np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(frac, dtype=float),
+              *self._compiled, out)
+        return out
+
+    def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
+                check: bool = True) -> Backbone:
+        q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
+        qm = self.robot.apply_offset(q)
+        frac = arc_fractions(points)
+        ends = qm[:, :3] + self.robot.lengths_mm
+        # one pass: output points, the three tube ends and s = 0
+        extra = np.concatenate([ends / ends[:, :1], np.zeros((len(qm), 1))], axis=1)
+        all_frac = np.concatenate([np.broadcast_to(frac, (len(qm), frac.size)), extra], axis=1)
+        states = self._evaluate(qm, all_frac)
+        n = frac.size
+        at_ends = states[:, n:n + 3]
+        s_mm = frac[None, :] * ends[:, :1]
+        gj = np.array([t.torsional_stiffness_nmm2 for t in self.robot.tubes])
+        ei1 = self.robot.tubes[0].bending_stiffness_nmm2
+        twist = np.abs(at_ends[:, [0, 1, 2], [2, 3, 4]] * gj / gj[0]).max(1)
+        moment = np.abs(at_ends[:, 0, 0:2] / ei1).max(1)
+        return Backbone(
+            q=q, s_mm=s_mm, state=states[:, :n], tube_ends_mm=ends,
+            tips_mm=at_ends[:, :, 8:11].copy(),
+            radius_mm=outer_radius_along(self.robot, s_mm, ends),
+            converged=np.isfinite(states).all(axis=(1, 2)),
+            initial_state=states[:, n + 3].copy(), iterations=np.zeros(len(qm), dtype=np.int64),
+            residual=np.maximum(twist, moment) * 1e3, backend=self.name,
+        )
+
+    def initial_states(self, q: np.ndarray) -> np.ndarray:
+        """Predicted 15-state at s = 0 (B, 15) for joints q (B, 6): a warm start for shooting."""
+        qm = self.robot.apply_offset(np.atleast_2d(q))
+        return self._evaluate(qm, np.zeros((len(qm), 1)))[:, 0]
+
+    def tip_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tip of tube 1 (B, 3) mm and its Jacobian d tip / d q (B, 3, 6) by autograd."""
+        qm = torch.from_numpy(self.robot.apply_offset(np.atleast_2d(q)).astype(np.float32))
+        one = torch.ones(len(qm))
+
+        def tip(qq: torch.Tensor) -> torch.Tensor:
+            return self.net(one[:1], qq[None])[0, 8:11]
+
+        with torch.enable_grad():
+            jac = torch.func.vmap(torch.func.jacrev(tip))(qm)
+        with torch.inference_mode():
+            tips = self.net(one, qm)[:, 8:11]
+        return tips.numpy().astype(float), jac.detach().numpy().astype(float)

@@ -1,0 +1,203 @@
+"""The goal: the robot tip inside the target region, made sampleable by inverse kinematics.
+
+`GoalSampler` produces collision-free goal configurations in batches: it draws random
+configurations, keeps those whose tip lies nearest the target, moves them into the region with
+damped-least-squares IK (`ctrplan.planning.ik`, one batched Jacobian call per iteration) and keeps the
+valid ones; later batches also start from perturbed copies of goals already found, which matters when
+the valid goal set is thin. `TipGoal` exposes it to OMPL as a ``GoalSampleableRegion`` so
+bidirectional planners (RRTConnect) and goal-biased ones work.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from ompl import base as ob
+
+from ctrplan.planning.ik import TipJacobian, backend_tip_jacobian, solve_ik
+from ctrplan.planning.validity import ConfigurationChecker
+from ctrplan.scene import TargetRegion
+
+
+@dataclass
+class GoalStats:
+    batches: int = 0
+    seeds: int = 0
+    ik_reached: int = 0
+    valid: int = 0
+    closest_mm: float = float("inf")
+
+
+class GoalSampler:
+    """Collision-free configurations whose tip (scene frame) lies in ``region``.
+
+    Args:
+        checker: validity + kinematics (its backend is used for IK; calls are counted).
+        region: the target region (scene frame).
+        rng: numpy generator (seeded by the planner).
+        jacobian: tip Jacobian (default: the backend's ``tip_jacobian`` or finite differences).
+        seeds_per_batch: IK seeds per batch.
+        candidates_per_seed: random configurations drawn per seed to pick seeds near the target.
+        start: the start configuration (seeds are derived from it).
+        rotation_weight: IK cost of rotations relative to translations (see `solve_ik`).
+    """
+
+    def __init__(self, checker: ConfigurationChecker, region: TargetRegion, rng: np.random.Generator,
+                 jacobian: TipJacobian | None = None, seeds_per_batch: int = 24,
+                 candidates_per_seed: int = 10, start: np.ndarray | None = None,
+                 rotation_weight: float = 8.0):
+        self.checker = checker
+        self.region = region
+        self.rng = rng
+        self.space = checker.space
+        self.jacobian = jacobian or backend_tip_jacobian(checker.backend, self.space,
+                                                         forward=checker.forward)
+        self.seeds_per_batch = int(seeds_per_batch)
+        self.candidates_per_seed = int(candidates_per_seed)
+        self.goals: list[np.ndarray] = []
+        self.stats = GoalStats()
+        self._near: list[np.ndarray] = []  # IK solutions that reached the region but collide
+        self.start = None if start is None else np.asarray(start, dtype=float)
+        self.rotation_weight = float(rotation_weight)
+
+    def _random_seeds(self, n: int) -> np.ndarray:
+        m = n * self.candidates_per_seed
+        q = self.space.sample(m, self.rng)
+        bb = self.checker.forward(q, points=2)
+        tips = self.checker.scene.to_scene(bb.tip_mm)
+        d = self.region.distance(tips)
+        d = np.where(bb.converged & np.isfinite(d), d, np.inf)
+        return q[np.argsort(d)[:n]]
+
+    def _frontier(self, m: int) -> np.ndarray:
+        """Valid states met so far (e.g. by the planner's trees) whose tips are nearest the target,
+        slightly perturbed: IK from there stays in the free space more often than from random
+        seeds."""
+        if m <= 0 or not self.checker.valid_q:
+            return np.zeros((0, 6))
+        tips = np.asarray(self.checker.valid_tips)
+        d = self.region.distance(tips)
+        d = np.where(np.isfinite(d), d, np.inf)
+        best = np.argsort(d)[: max(m, 1) * 3]
+        pick = self.rng.choice(best, size=m, replace=len(best) < m)
+        return self._perturbed([self.checker.valid_q[i] for i in pick], m, sigma=1.0)
+
+    def _perturbed(self, base: list[np.ndarray], n: int, sigma: float) -> np.ndarray:
+        pick = self.rng.integers(len(base), size=n)
+        y = self.space.to_coords(np.stack([base[i] for i in pick]))
+        y = y + self.rng.normal(scale=sigma, size=y.shape)
+        return self.space.to_joints(self.space.clip(y))
+
+    def sample_batch(self) -> list[np.ndarray]:
+        """Run one IK batch; return the new valid goal configurations (also kept in ``goals``)."""
+        n = self.seeds_per_batch
+        parts = []
+        if self.goals:
+            parts.append(self._perturbed(self.goals, n // 3, sigma=3.0))
+        elif self._near:
+            parts.append(self._perturbed(self._near, n // 4, sigma=3.0))
+        if self.start is not None:
+            # the start is valid: in narrow anatomy its shape leads to valid goals (IK that prefers
+            # insertion over rotation); one coordinate per seed is redrawn at random so that e.g.
+            # one tube's rotation can change entirely
+            m = n // 3 if self.goals else n // 2
+            y = self.space.to_coords(self._perturbed([self.start], m, sigma=1.0))
+            # each tube turned by a quarter, half and three-quarter turn; the rest: one
+            # coordinate redrawn at random (mostly a rotation)
+            j = np.where(self.rng.uniform(size=m) < 0.75, self.rng.integers(3, 6, size=m),
+                         self.rng.integers(0, 3, size=m))
+            quarters = self.rng.integers(1, 4, size=m)
+            use_turn = np.zeros(m, dtype=bool)
+            k = min(m, 9)  # every (tube, quarter turn) pair once per batch
+            j[:k] = 3 + np.arange(k) // 3
+            quarters[:k] = 1 + np.arange(k) % 3
+            use_turn[:k] = True
+            redrawn = self.rng.uniform(self.space.lower[j], self.space.upper[j])
+            w = self.space.mm_per_rad
+            turn = y[np.arange(m), j] + w * (quarters * 0.5 * np.pi + self.rng.normal(scale=0.1, size=m))
+            lo, hi = self.space.lower[j], self.space.upper[j]
+            turn = lo + np.mod(turn - lo, hi - lo)  # wrap into the box
+            y[np.arange(m), j] = np.where(use_turn, turn, redrawn)
+            parts.append(self.space.to_joints(y))
+        frontier = self._frontier(min(n // 4, n - sum(len(p) for p in parts)))
+        if len(frontier):
+            parts.append(frontier)
+        k = max(n // 6, n - sum(len(p) for p in parts))
+        parts.append(self._random_seeds(k))
+        seeds = np.concatenate(parts)
+        targets_scene = self.region.sample(len(seeds), self.rng)
+        shrink = 0.7  # aim well inside the region
+        targets_scene = self.region.center + shrink * (targets_scene - self.region.center)
+        targets = self.checker.scene.to_robot(targets_scene)
+        tol = min(0.3, 0.25 * self.region.tolerance_mm)
+        res = solve_ik(self.jacobian, self.space, seeds, targets, tol_mm=tol, max_iterations=25,
+                       rotation_weight=self.rotation_weight)
+        tips_scene = self.checker.scene.to_scene(res.tip)
+        dist = self.region.distance(tips_scene)
+        dist = np.where(np.isfinite(dist), dist, np.inf)
+        self.stats.batches += 1
+        self.stats.seeds += len(seeds)
+        self.stats.closest_mm = float(min(self.stats.closest_mm, dist.min(initial=np.inf)))
+        inside = np.flatnonzero(dist <= 0.0)
+        self.stats.ik_reached += inside.size
+        new = []
+        if inside.size:
+            valid = self.checker.check(res.q[inside])
+            for i, ok in zip(inside, valid, strict=True):
+                # the planning backend's own tip (cached by `check`) must be in the region too
+                tip = self.checker.tip(res.q[i])
+                if ok and self.region.contains(tip):
+                    new.append(res.q[i])
+                elif not ok:
+                    self._near.append(res.q[i])
+        self._near = self._near[-200:]
+        self.stats.valid += len(new)
+        self.goals.extend(new)
+        return new
+
+
+class TipGoal(ob.GoalSampleableRegion):
+    """OMPL goal region: the tip inside the target region; samples come from a `GoalSampler`.
+
+    ``sampleGoal`` hands out the goals found so far in turn and runs a new IK batch when it has
+    handed out all of them (up to ``max_batches`` batches); when there is nothing to give it writes
+    an out-of-bounds state, which OMPL's goal sampling rejects.
+    """
+
+    def __init__(self, si, sampler: GoalSampler, max_batches: int = 200):
+        super().__init__(si)
+        self.sampler = sampler
+        self.checker = sampler.checker
+        self.space = sampler.space
+        self.max_batches = int(max_batches)
+        self.setThreshold(1e-9)
+        self._next = 0
+        self.handed_out = 0
+
+    def distanceGoal(self, state) -> float:  # noqa: N802 - OMPL API
+        tip = self.checker.tip(self.space.state_to_q(state))
+        d = float(self.sampler.region.distance(tip))
+        return d if np.isfinite(d) else 1e9
+
+    def sampleGoal(self, state) -> None:  # noqa: N802 - OMPL API
+        goals = self.sampler.goals
+        if self._next >= len(goals) and self.sampler.stats.batches < self.max_batches:
+            self.sampler.sample_batch()
+            goals = self.sampler.goals
+        if not goals:
+            for i in range(6):
+                state[i] = float(self.space.upper[i] + 1.0)
+            return
+        q = goals[self._next % len(goals)]
+        self._next += 1
+        self.handed_out += 1
+        self.space.set_state(state, q)
+
+    def maxSampleCount(self) -> int:  # noqa: N802 - OMPL API
+        if self.sampler.stats.batches >= self.max_batches:
+            return len(self.sampler.goals)
+        return 1_000_000
+
+    def couldSample(self) -> bool:  # noqa: N802 - OMPL API
+        return self.maxSampleCount() > 0

@@ -1,0 +1,198 @@
+"""Damped-least-squares inverse kinematics on the tip position, for a batch of seeds at once.
+
+The solver works in the planner's scaled box coordinates (`BoxSpace`), so every iterate stays inside
+the snap-free domain (clipped to the box) and the damping is isotropic in the planning metric. The tip
+Jacobian comes from a function ``q (B, 6) -> (tips (B, 3), J (B, 3, 6), ok (B,))`` in the robot frame
+(mm per mm/rad): a backend with an analytic or autograd Jacobian (the PINN's ``tip_and_jacobian``)
+plugs in directly; `fd_tip_jacobian` makes one from any backend with forward differences through a
+single batched backend call.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from ctrplan.kinematics.backbone import Backbone
+from ctrplan.planning.space import BoxSpace
+
+TipJacobian = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+ForwardFn = Callable[..., Backbone]
+
+
+class FDTipJacobian:
+    """Forward-difference tip Jacobian of ``forward(q, points=2[, guess=])`` (a backend's ``forward``
+    or `ConfigurationChecker.forward`): 7 configurations per seed in one batched call. Steps are taken
+    in box coordinates, towards the interior at the domain boundary. Pass ``guess`` (B, 15) initial
+    states to warm-start a shooting backend; `last_initial_state` holds those of the last call."""
+
+    def __init__(self, forward: ForwardFn, space: BoxSpace, eps: float = 1e-3, warm: bool = False):
+        self.forward = forward
+        self.space = space
+        self.eps = float(eps)
+        self.warm = bool(warm)
+        self._Minv = np.linalg.inv(space.joint_from_coords)
+        self.last_initial_state: np.ndarray | None = None
+
+    def __call__(self, q: np.ndarray, guess: np.ndarray | None = None):
+        q = np.atleast_2d(q)
+        b = q.shape[0]
+        sp, eps = self.space, self.eps
+        y = sp.to_coords(q)
+        h = np.where(y + eps <= sp.upper, eps, -eps)  # (B, 6)
+        Y = np.repeat(y[:, None, :], 7, axis=1)
+        for j in range(6):
+            Y[:, j + 1, j] += h[:, j]
+        Q = sp.to_joints(Y.reshape(-1, 6))
+        if self.warm and guess is not None:
+            bb = self.forward(Q, points=2, guess=np.repeat(guess, 7, axis=0))
+        else:
+            bb = self.forward(Q, points=2)
+        tips = bb.tip_mm.reshape(b, 7, 3)
+        ok = bb.converged.reshape(b, 7).all(axis=1)
+        self.last_initial_state = bb.initial_state.reshape(b, 7, -1)[:, 0]
+        Jy = (tips[:, 1:, :] - tips[:, :1, :]).transpose(0, 2, 1) / h[:, None, :]  # (B, 3, 6)
+        return tips[:, 0], Jy @ self._Minv[None], ok
+
+
+def fd_tip_jacobian(forward: ForwardFn, space: BoxSpace, eps: float = 1e-3,
+                    warm: bool = False) -> FDTipJacobian:
+    """Finite-difference tip Jacobian through one batched call of ``forward`` per evaluation."""
+    return FDTipJacobian(forward, space, eps, warm)
+
+
+class _FasterJacobian:
+    """Two Jacobian implementations; the first call times both and keeps the faster one."""
+
+    def __init__(self, first, second):
+        self.candidates = [first, second]
+        self.chosen = None
+        self.warm = False
+
+    def __call__(self, q: np.ndarray, guess: np.ndarray | None = None):
+        import time
+
+        if self.chosen is None:
+            times = []
+            for f in self.candidates:
+                t = time.perf_counter()
+                out = f(q)
+                times.append(time.perf_counter() - t)
+            self.chosen = self.candidates[int(np.argmin(times))]
+            return out
+        return self.chosen(q)
+
+
+def backend_tip_jacobian(backend, space: BoxSpace, forward: ForwardFn | None = None) -> TipJacobian:
+    """A tip Jacobian for ``backend``: its own ``tip_and_jacobian(q) -> (tips, J)`` (the PINN's
+    autograd Jacobian; robot frame, mm per mm/rad) or forward differences through ``forward``
+    (default: the backend's), whichever runs faster here; forward differences alone for backends
+    without their own Jacobian."""
+    import inspect
+
+    warm = "guess" in inspect.signature(backend.forward).parameters
+    if forward is None:
+        def forward(q, points=2, guess=None):
+            if guess is not None:
+                return backend.forward(q, points=points, check=False, guess=guess)
+            return backend.forward(q, points=points, check=False)
+    fd = fd_tip_jacobian(forward, space, warm=warm)
+    own = getattr(backend, "tip_and_jacobian", None) or getattr(backend, "tip_jacobian", None)
+    if not callable(own):
+        return fd
+
+    def analytic(q: np.ndarray):
+        out = own(np.atleast_2d(q))
+        tips, J = np.asarray(out[0], dtype=float), np.asarray(out[1], dtype=float)
+        ok = np.asarray(out[2], dtype=bool) if len(out) > 2 else np.all(np.isfinite(tips), axis=1)
+        return tips, J, ok
+
+    return _FasterJacobian(analytic, fd)
+
+
+@dataclass(frozen=True)
+class IKResult:
+    """Per seed: joints (B, 6), tip (B, 3) robot frame, error to its target (B,), success (B,)."""
+
+    q: np.ndarray
+    tip: np.ndarray
+    error_mm: np.ndarray
+    success: np.ndarray
+    iterations: int
+
+
+def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets: np.ndarray, *,
+             tol_mm: float = 0.05, max_iterations: int = 40, damping: float = 1.0,
+             max_step: float = 15.0, rotation_weight: float = 1.0) -> IKResult:
+    """Move every seed (B, 6) so its tip reaches its target (B, 3) (robot frame, mm).
+
+    Levenberg-style: a step is kept only if it lowers that seed's error; otherwise the damping of
+    the seed grows. Each iteration is one call of ``jacobian`` for all seeds still running.
+    ``rotation_weight`` > 1 makes tube rotations costlier than translations in the least-squares
+    step (insertion-first solutions, which stay closer to a seed's shape).
+    """
+    seeds = np.atleast_2d(np.asarray(seeds, dtype=float))
+    targets = np.broadcast_to(np.asarray(targets, dtype=float), (seeds.shape[0], 3))
+    b = seeds.shape[0]
+    M = space.joint_from_coords
+    wcol = np.array([1.0, 1.0, 1.0] + [1.0 / float(rotation_weight)] * 3)  # dy = wcol * dz
+    y = space.clip(space.to_coords(seeds))
+    lam = np.full(b, float(damping))
+    best_err = np.full(b, np.inf)
+    best_y = y.copy()
+    best_tip = np.full((b, 3), np.nan)
+    best_J = np.zeros((b, 3, 6))
+    active = np.ones(b, dtype=bool)
+    warm = bool(getattr(jacobian, "warm", False))
+    best_init = None
+    it = 0
+    for it in range(1, max_iterations + 1):  # noqa: B007 - reported
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        if warm and best_init is not None:
+            g = best_init[idx]
+            g = np.where(np.isfinite(g), g, 0.0) if np.isfinite(g).all() else None
+            tips, Jq, ok = jacobian(space.to_joints(y[idx]), guess=g)
+        else:
+            tips, Jq, ok = jacobian(space.to_joints(y[idx]))
+        init = getattr(jacobian, "last_initial_state", None) if warm else None
+        err = np.linalg.norm(targets[idx] - tips, axis=1)
+        err = np.where(ok & np.isfinite(err), err, np.inf)
+        better = err < best_err[idx]
+        # accept improvements, grow damping on failures
+        acc, rej = idx[better], idx[~better]
+        best_err[acc] = err[better]
+        best_y[acc] = y[acc]
+        best_tip[acc] = tips[better]
+        best_J[acc] = (Jq @ M[None])[better]
+        if init is not None:
+            if best_init is None:
+                best_init = np.full((b, init.shape[1]), np.nan)
+            best_init[acc] = init[better]
+        lam[acc] *= 0.5
+        lam[rej] *= 4.0
+        done = best_err[idx] <= tol_mm
+        active[idx[done]] = False
+        active[idx[lam[idx] > 1e6]] = False
+        idx = np.flatnonzero(active & np.isfinite(best_err))
+        active[~np.isfinite(best_err)] = False
+        if idx.size == 0:
+            break
+        e = targets[idx] - best_tip[idx]
+        yb = best_y[idx]
+        J = best_J[idx] * wcol[None, None, :]
+        for _ in range(3):  # active set: drop coordinates at a bound that the step pushes outwards
+            A = J @ J.transpose(0, 2, 1) + (lam[idx] ** 2)[:, None, None] * np.eye(3)[None]
+            dy = (J.transpose(0, 2, 1) @ np.linalg.solve(A, e[:, :, None]))[:, :, 0]
+            blocked = ((yb <= space.lower + 1e-9) & (dy < 0)) | ((yb >= space.upper - 1e-9) & (dy > 0))
+            if not blocked.any():
+                break
+            J[np.broadcast_to(blocked[:, None, :], J.shape)] = 0.0
+        dy = dy * wcol[None, :]
+        n = np.linalg.norm(dy, axis=1, keepdims=True)
+        dy *= np.minimum(1.0, max_step / np.maximum(n, 1e-12))
+        y[idx] = space.clip(best_y[idx] + dy)
+    return IKResult(space.to_joints(best_y), best_tip, best_err, best_err <= tol_mm, it)

@@ -1,0 +1,194 @@
+"""Safety net: re-validate a planned path with the exact Cosserat model, and repair it if needed.
+
+Whatever backend planned the path, `validate_path` densifies it at the planner's resolution, solves
+every state with the exact model, and reports the position error between the planning backend and the
+exact model along the whole backbone, whether the exact robot is collision-free (same capsules and
+margin as in planning), its clearance, and whether its tip ends in the target. `repair_path` keeps the
+exact-valid prefix of a path that fails and re-plans the rest with the exact model; a path that still
+fails is never reported as solved.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from ctrplan.collision import CollisionWorld, RobotCollisionChecker
+from ctrplan.kinematics.backbone import Backbone
+from ctrplan.kinematics.base import Backend
+from ctrplan.kinematics.cosserat import CosseratBackend
+from ctrplan.planning.space import BoxSpace
+from ctrplan.scene import Scene
+
+
+@dataclass
+class Validation:
+    """Exact-model check of a path. Lengths in mm, scene frame.
+
+    ``min_clearance_mm`` is the smallest distance between the exact robot's surface (no margin) and
+    any obstacle over the checked states (0 on contact); ``max_position_error_mm`` the largest
+    distance between corresponding backbone points of the planning backend and the exact model.
+    """
+
+    backend: str = "cosserat"
+    collision_free: bool = False
+    min_clearance_mm: float = 0.0
+    max_position_error_mm: float = 0.0
+    max_tip_error_mm: float = 0.0
+    tip_in_target: bool = False
+    converged: bool = False
+    states: int = 0
+    colliding_states: list[int] = field(default_factory=list)
+    first_collision: dict | None = None
+    nearest_obstacle: str = ""
+    tip_mm: list[float] = field(default_factory=list)
+    repaired: bool = False
+    time_s: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        return self.collision_free and self.tip_in_target and self.converged
+
+    def to_json(self) -> dict:
+        d = asdict(self)
+        d["colliding_states"] = len(self.colliding_states)
+        for k in ("min_clearance_mm", "max_position_error_mm", "max_tip_error_mm"):
+            d[k] = _finite(d[k])
+        return d
+
+
+def _finite(x: float):
+    return float(x) if np.isfinite(x) else None
+
+
+@dataclass
+class ValidatedPath:
+    """A dense path (K, 6) with its exact and planning-backend backbones and the report."""
+
+    dense_q: np.ndarray
+    exact: Backbone
+    planned: Backbone | None
+    report: Validation
+
+
+def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | None = None, *,
+                  exact: Backend | None = None, resolution: float | None = None,
+                  points: int | None = None, margin_mm: float | None = None,
+                  world: CollisionWorld | None = None, clearance_stride: int = 1) -> ValidatedPath:
+    """Re-validate ``path_q`` (K, 6) with the exact model at ``resolution`` (planning metric, mm).
+
+    ``planning_backend`` (if given and not exact itself) is evaluated on the same states for the
+    position error. ``clearance_stride`` > 1 computes distances on every n-th state only (plus the
+    colliding-free minimum over all states is still exact for collisions).
+    """
+    t0 = time.perf_counter()
+    s = scene.settings
+    resolution = float(resolution or s.resolution_mm)
+    points = int(points or s.points)
+    margin = s.margin_mm if margin_mm is None else float(margin_mm)
+    space = BoxSpace.for_scene(scene)
+    exact = exact or CosseratBackend(scene.robot)
+    dense = space.densify(path_q, resolution)
+    ebb = exact.forward(dense, points=points, check=False)
+    report = Validation(backend=exact.name, states=len(dense))
+    report.converged = bool(ebb.converged.all())
+
+    pbb = None
+    if planning_backend is not None and planning_backend is not exact:
+        pbb = planning_backend.forward(dense, points=points, check=False)
+        err = np.linalg.norm(pbb.positions_mm - ebb.positions_mm, axis=-1)
+        tip_err = np.linalg.norm(pbb.tip_mm - ebb.tip_mm, axis=-1)
+        report.max_position_error_mm = float(np.nanmax(err)) if np.isfinite(err).any() else np.inf
+        report.max_tip_error_mm = float(np.nanmax(tip_err)) if np.isfinite(tip_err).any() else np.inf
+        if not np.all(np.isfinite(err)):
+            report.max_position_error_mm = np.inf
+
+    checker = RobotCollisionChecker(world or CollisionWorld.from_scene(scene), scene.base_pose,
+                                    points, margin)
+    bad = []
+    for i in range(len(dense)):
+        if not ebb.converged[i] or not checker.is_free(ebb.positions_mm[i], ebb.radius_mm[i]):
+            bad.append(i)
+    report.colliding_states = bad
+    report.collision_free = not bad and report.converged
+    if bad:
+        i = bad[0]
+        names = sorted({n for _, n in checker.contacts(ebb.positions_mm[i], ebb.radius_mm[i])}) \
+            if ebb.converged[i] else ["(exact model did not converge)"]
+        report.first_collision = {"state": i, "obstacles": names}
+
+    best = np.inf
+    nearest = ""
+    idx = list(range(0, len(dense), max(1, int(clearance_stride))))
+    if len(dense) - 1 not in idx:
+        idx.append(len(dense) - 1)
+    for i in sorted(set(idx) | set(bad[:1])):
+        c = checker.clearance(ebb.positions_mm[i], ebb.radius_mm[i])
+        if c.distance_mm < best:
+            best, nearest = c.distance_mm, c.obstacle
+    report.min_clearance_mm = float(best) if np.isfinite(best) else float("inf")
+    report.nearest_obstacle = nearest
+
+    tip = scene.to_scene(ebb.tip_mm[-1])
+    report.tip_mm = tip.tolist()
+    report.tip_in_target = bool(ebb.converged[-1] and scene.target.contains(tip))
+    report.time_s = time.perf_counter() - t0
+    return ValidatedPath(dense, ebb, pbb, report)
+
+
+Replanner = Callable[[np.ndarray, "np.ndarray | None", float], "np.ndarray | None"]
+
+
+def repair_path(validated: ValidatedPath, replan: Replanner, time_limit_s: float,
+                pad: int = 2) -> np.ndarray | None:
+    """Re-plan the stretches of a path that fail exact validation.
+
+    Every run of failing dense states is replaced by a path between exact-valid states ``pad``
+    states before and after it (``replan(start_q, goal_q, time_limit_s)``); a run that reaches the
+    end -- or an end whose exact tip misses the target -- is re-planned to the target region
+    (``goal_q=None``). Returns the repaired dense path, or None if a stretch cannot be re-planned.
+    """
+    rep = validated.report
+    dense = validated.dense_q
+    n = len(dense)
+    bad = sorted(set(rep.colliding_states))
+    runs: list[list[int]] = []
+    for i in bad:
+        if runs and i - runs[-1][1] <= 2 * pad + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    badset = set(bad)
+    deadline = time.perf_counter() + time_limit_s
+    pieces = []
+    cur = 0
+    to_region_from = None
+    for a, b in runs:
+        pre = max(a - 1 - pad, cur)
+        while pre > cur and pre in badset:
+            pre -= 1
+        if b >= n - 1 - pad:
+            to_region_from = pre
+            break
+        post = min(b + 1 + pad, n - 1)
+        while post < n - 1 and post in badset:
+            post += 1
+        seg = replan(dense[pre], dense[post], max(0.5, deadline - time.perf_counter()))
+        if seg is None:
+            return None
+        pieces += [dense[cur:pre + 1], np.atleast_2d(seg)[1:-1]]
+        cur = post
+    if to_region_from is None and not rep.tip_in_target:
+        to_region_from = n - 1
+    if to_region_from is not None:
+        pieces.append(dense[cur:to_region_from + 1])
+        seg = replan(dense[to_region_from], None, max(0.5, deadline - time.perf_counter()))
+        if seg is None:
+            return None
+        pieces.append(np.atleast_2d(seg)[1:])
+    else:
+        pieces.append(dense[cur:])
+    return np.concatenate([p for p in pieces if len(p)])

@@ -1,0 +1,244 @@
+"""State validity and batched motion validation for OMPL.
+
+A configuration is valid when the kinematics backend converged and the capsule chain around its
+backbone touches no obstacle. `ConfigurationChecker` does that for batches of joint vectors (one
+backend call per batch), keeps a small cache (tip, validity, warm start) per checked state and counts
+kinematics calls. `ValidityChecker` and `BatchMotionValidator` adapt it to OMPL; both are usable with
+any OMPL planner from user code (see ``examples/custom_planner.py``).
+"""
+
+from __future__ import annotations
+
+import inspect
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from ompl import base as ob
+
+from ctrplan.collision import CollisionWorld, RobotCollisionChecker
+from ctrplan.kinematics.backbone import Backbone
+from ctrplan.kinematics.base import Backend
+from ctrplan.planning.space import BoxSpace
+from ctrplan.scene import Scene
+
+
+@dataclass
+class Counters:
+    """Work done so far: configurations sent to the backend, backend calls, collision checks."""
+
+    kinematics_calls: int = 0
+    kinematics_batches: int = 0
+    collision_checks: int = 0
+    motions: int = 0
+    valid_motions: int = 0
+    kinematics_s: float = 0.0
+    collision_s: float = 0.0
+
+
+@dataclass
+class _Entry:
+    valid: bool
+    tip: np.ndarray  # scene frame, mm (NaN when not converged)
+    initial_state: np.ndarray | None = None
+
+
+@dataclass
+class ConfigurationChecker:
+    """Backend + scene collision for batches of configurations, with a state cache.
+
+    Args:
+        scene: the planning scene (base pose, obstacles, settings).
+        backend: any `Backend`; if its ``forward`` accepts ``guess=`` (Cosserat) edges are
+            warm-started from the solution at their first state.
+        points: backbone points per configuration (default: scene setting).
+        margin_mm: capsule margin (default: scene setting).
+        world: a prebuilt `CollisionWorld` to share.
+    """
+
+    scene: Scene
+    backend: Backend
+    points: int | None = None
+    margin_mm: float | None = None
+    world: CollisionWorld | None = None
+    cache_size: int = 200_000
+    counters: Counters = field(default_factory=Counters)
+    hook: Callable[[], None] | None = None
+
+    def __post_init__(self) -> None:
+        s = self.scene.settings
+        self.points = int(self.points or s.points)
+        self.margin_mm = s.margin_mm if self.margin_mm is None else float(self.margin_mm)
+        self.world = self.world or CollisionWorld.from_scene(self.scene)
+        self.collision = RobotCollisionChecker(self.world, self.scene.base_pose, self.points,
+                                               self.margin_mm)
+        self.space = BoxSpace.for_scene(self.scene)
+        try:
+            params = inspect.signature(self.backend.forward).parameters
+            self.warm_start = "guess" in params
+        except (TypeError, ValueError):  # pragma: no cover - exotic callables
+            self.warm_start = False
+        self._cache: OrderedDict[bytes, _Entry] = OrderedDict()
+        #: joints and scene-frame tips of recently found valid states (seeds for goal sampling)
+        self.valid_q: list[np.ndarray] = []
+        self.valid_tips: list[np.ndarray] = []
+
+    # ---- kinematics ------------------------------------------------------------------------------
+    def forward(self, q: np.ndarray, guess: np.ndarray | None = None,
+                points: int | None = None) -> Backbone:
+        """Backbones of joints (B, 6) (no joint checks: planner states lie in the domain)."""
+        q = np.atleast_2d(q)
+        t = time.perf_counter()
+        if guess is not None and self.warm_start:
+            bb = self.backend.forward(q, points=points or self.points, check=False, guess=guess)
+        else:
+            bb = self.backend.forward(q, points=points or self.points, check=False)
+        self.counters.kinematics_s += time.perf_counter() - t
+        self.counters.kinematics_calls += q.shape[0]
+        self.counters.kinematics_batches += 1
+        if self.hook is not None:
+            self.hook()
+        return bb
+
+    def tips_scene(self, bb: Backbone) -> np.ndarray:
+        return self.scene.to_scene(bb.tip_mm)
+
+    def backbone_valid(self, bb: Backbone, i: int) -> bool:
+        """Row i of a backbone batch: converged, finite and collision-free."""
+        return bool(self.backbones_valid(bb, [i])[i])
+
+    def backbones_valid(self, bb: Backbone, order=None, stop_at_first: bool = False) -> np.ndarray:
+        """Validity of the rows of a backbone batch (B,), tested in ``order`` (default: all);
+        with ``stop_at_first`` rows after the first invalid one stay False."""
+        t = time.perf_counter()
+        pos = np.where(bb.converged[:, None, None], bb.positions_mm, np.nan)
+        free = self.collision.free_batch(pos, bb.radius_mm, order=order, stop_at_first=stop_at_first)
+        self.counters.collision_s += time.perf_counter() - t
+        self.counters.collision_checks += len(bb) if order is None else len(order)
+        return free & bb.converged
+
+    # ---- cache ---------------------------------------------------------------------------------
+    @staticmethod
+    def key(q: np.ndarray) -> bytes:
+        return np.round(np.asarray(q, dtype=float), 9).tobytes()
+
+    def lookup(self, q: np.ndarray) -> _Entry | None:
+        return self._cache.get(self.key(q))
+
+    def _store(self, q: np.ndarray, entry: _Entry) -> None:
+        k = self.key(q)
+        if entry.valid and k not in self._cache:
+            self.valid_q.append(np.array(q, dtype=float))
+            self.valid_tips.append(entry.tip)
+            if len(self.valid_q) > 20_000:
+                del self.valid_q[:5_000], self.valid_tips[:5_000]
+        self._cache[k] = entry
+        if len(self._cache) > self.cache_size:
+            self._cache.popitem(last=False)
+
+    def _entry(self, bb: Backbone, i: int, valid: bool) -> _Entry:
+        tip = self.scene.to_scene(bb.tip_mm[i]) if bb.converged[i] else np.full(3, np.nan)
+        init = bb.initial_state[i].copy() if bb.converged[i] else None
+        return _Entry(valid, tip, init)
+
+    # ---- public checks -----------------------------------------------------------------------------
+    def check(self, q: np.ndarray) -> np.ndarray:
+        """Validity of configurations (B, 6) -> (B,) bool (cached; one backend call for the misses)."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        out = np.zeros(q.shape[0], dtype=bool)
+        miss = []
+        for i, qi in enumerate(q):
+            e = self.lookup(qi)
+            if e is None:
+                miss.append(i)
+            else:
+                out[i] = e.valid
+        if miss:
+            bb = self.forward(q[miss])
+            valid = self.backbones_valid(bb)
+            for j, i in enumerate(miss):
+                self._store(q[i], self._entry(bb, j, bool(valid[j])))
+                out[i] = valid[j]
+        return out
+
+    def is_valid(self, q: np.ndarray) -> bool:
+        return bool(self.check(q)[0])
+
+    def tip(self, q: np.ndarray) -> np.ndarray:
+        """Tip position in the scene frame (NaN if the backend did not converge)."""
+        e = self.lookup(q)
+        if e is None:
+            self.check(q)
+            e = self.lookup(q)
+        return e.tip
+
+    def check_motion(self, q1: np.ndarray, q2: np.ndarray, resolution: float) -> bool:
+        """Whether the straight coordinate line q1 -> q2 is valid at ``resolution`` (mm in the
+        planning metric); q1 is assumed valid. The end state is checked first (cached); then all
+        interior states in one batched backend call, collision-checked in bisection order."""
+        self.counters.motions += 1
+        e2 = self.lookup(q2)
+        if e2 is None:  # the end state first: most failing edges fail there, for one evaluation
+            self.check(q2)
+            e2 = self.lookup(q2)
+        if not e2.valid:
+            return False
+        d = float(self.space.distance(q1, q2))
+        n = max(1, int(np.ceil(d / resolution)))
+        if n > 1:
+            qs = self.space.interpolate(q1, q2, np.arange(1, n) / n)
+            e1 = self.lookup(q1)
+            guess = e1.initial_state[None, :] if (e1 is not None and e1.initial_state is not None) \
+                else None
+            bb = self.forward(qs, guess=guess)
+            # interior states in bisection order (like OMPL's DiscreteMotionValidator)
+            order = [i - 1 for i in bisection_order(n)]
+            if not self.backbones_valid(bb, order, stop_at_first=True).all():
+                return False
+        self.counters.valid_motions += 1
+        return True
+
+
+def bisection_order(n: int) -> list[int]:
+    """Interior indices 1..n-1 of a segment split in n, in bisection order (midpoints first)."""
+    out: list[int] = []
+    queue = [(0, n)]
+    while queue:
+        nxt = []
+        for a, b in queue:
+            if b - a < 2:
+                continue
+            m = (a + b) // 2
+            out.append(m)
+            nxt += [(a, m), (m, b)]
+        queue = nxt
+    return out
+
+
+class ValidityChecker(ob.StateValidityChecker):
+    """OMPL state validity: backend converged and collision-free (cached)."""
+
+    def __init__(self, si, checker: ConfigurationChecker):
+        super().__init__(si)
+        self.checker = checker
+        self.space = checker.space
+
+    def isValid(self, state) -> bool:  # noqa: N802 - OMPL API
+        return self.checker.is_valid(self.space.state_to_q(state))
+
+
+class BatchMotionValidator(ob.MotionValidator):
+    """OMPL motion validator: a whole edge in one batched kinematics call at ``resolution`` mm."""
+
+    def __init__(self, si, checker: ConfigurationChecker, resolution: float | None = None):
+        super().__init__(si)
+        self.checker = checker
+        self.space = checker.space
+        self.resolution = float(resolution or checker.scene.settings.resolution_mm)
+
+    def checkMotion(self, s1, s2, *rest) -> bool:  # noqa: N802 - OMPL API
+        # The 2.0.1 bindings route the lastValid overload to this two-argument form.
+        return self.checker.check_motion(self.space.state_to_q(s1), self.space.state_to_q(s2),
+                                         self.resolution)

@@ -1,0 +1,632 @@
+"""Planning scenes: robot, robot base pose, obstacles, target region, start configuration, settings.
+
+A scene is a YAML file in mm (scene frame). Everything is validated on load and every error names the
+file, the key and the line (`ctrplan.yamlio`). Layout::
+
+    name: skullbase                       # optional
+    description: ...                      # optional
+    robot: nominal                        # built-in name or robot YAML file (relative to the scene)
+    base_pose:                            # robot frame (front plate, z = insertion) in the scene frame
+      position: [x, y, z]                 # mm
+      rotation: {rpy_deg: [r, p, y]}      # or {matrix: 3x3} | {quaternion_wxyz: [...]} |
+                                          #    {axis_angle_deg: {axis: [...], angle: a}} |
+                                          #    {z_axis: [...], y_axis: [...]} (y projected)
+    obstacles:
+      - {name: septum, mesh: meshes/septum.stl}             # STL/OBJ/PLY, path relative to the scene;
+                                                           # optional position/rotation/scale
+      - {name: ball, sphere: {center: [...], radius: r}}
+      - {name: wall, box: {center: [...], size: [a, b, c], rotation: {...}}}
+      - {name: rod, cylinder: {center: [...], radius: r, length: l, axis: [...]}}
+      - {name: pin, capsule: {center: [...], radius: r, length: l, axis: [...]}}
+    target:                               # tip must end inside this region (scene frame)
+      point: [x, y, z]                    # with
+      tolerance_mm: 2.0
+      # or: ellipsoid: {center: [...], semi_axes_mm: [a, b, c], rotation: {...}}
+    start: [beta1, beta2, beta3, alpha1, alpha2, alpha3]    # mm, rad; inside the snap-free domain
+    joint_limits:                         # optional: narrow the planning box (box coordinates)
+      alpha1_deg: [-60, 60]               # keys: beta3_mm, beta3_minus_beta2_mm, beta2_minus_beta1_mm,
+                                          #       alpha1_deg, alpha2_deg, alpha3_deg
+    planner:                              # defaults, all optional (see `PlannerSettings`)
+      planner: rrtconnect
+      time_limit_s: 10
+      ...
+
+Cylinders and capsules are given by their centre, radius, length (of the straight part for capsules)
+and either an ``axis`` direction or a ``rotation`` (local z = axis).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ctrplan.errors import InputError
+from ctrplan.robot import Robot
+from ctrplan.yamlio import YamlDoc, load_yaml
+
+PLANNERS = ("rrtconnect", "rrt", "rrtstar", "bitstar", "kpiece")
+PRIMITIVES = ("sphere", "box", "cylinder", "capsule")
+MESH_SUFFIXES = (".stl", ".obj", ".ply")
+
+
+# ---- small geometry helpers ------------------------------------------------------------------------
+def rot_x(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def rot_y(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0, s], [0, 1.0, 0], [-s, 0, c]])
+
+
+def rot_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Fixed-axis roll (x), pitch (y), yaw (z), radians: ``Rz(yaw) Ry(pitch) Rx(roll)``."""
+    return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
+
+
+def frame_from_z(z_axis: np.ndarray, y_hint: np.ndarray | None = None) -> np.ndarray:
+    """Rotation whose third column is ``z_axis``; the second column is ``y_hint`` made orthogonal."""
+    z = np.asarray(z_axis, dtype=float)
+    z = z / np.linalg.norm(z)
+    if y_hint is None:
+        y_hint = np.array([0.0, 1.0, 0.0]) if abs(z[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    y = np.asarray(y_hint, dtype=float) - np.dot(y_hint, z) * z
+    y = y / np.linalg.norm(y)
+    x = np.cross(y, z)
+    return np.column_stack([x, y, z])
+
+
+def make_pose(rotation: np.ndarray, position: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = rotation
+    T[:3, 3] = position
+    return T
+
+
+def transform_points(T: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Apply a 4x4 pose to points (..., 3)."""
+    p = np.asarray(p, dtype=float)
+    return p @ T[:3, :3].T + T[:3, 3]
+
+
+# ---- scene model ---------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Obstacle:
+    """One obstacle in the scene frame (mm).
+
+    ``kind`` is ``mesh`` (``vertices`` (V, 3), ``faces`` (F, 3), already in the scene frame) or a
+    primitive: ``sphere`` (radius), ``box`` (size (3,)), ``cylinder``/``capsule`` (radius, length along
+    the local z axis), placed by ``pose`` (4x4, local -> scene).
+    """
+
+    name: str
+    kind: str
+    pose: np.ndarray = field(default_factory=lambda: np.eye(4))
+    radius: float = 0.0
+    length: float = 0.0
+    size: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    vertices: np.ndarray | None = None
+    faces: np.ndarray | None = None
+    source: str | None = None
+
+    def to_trimesh(self):
+        """Triangle mesh of the obstacle in the scene frame (primitives tessellated)."""
+        import trimesh
+
+        if self.kind == "mesh":
+            return trimesh.Trimesh(self.vertices, self.faces, process=False)
+        if self.kind == "sphere":
+            m = trimesh.creation.icosphere(subdivisions=3, radius=self.radius)
+        elif self.kind == "box":
+            m = trimesh.creation.box(extents=self.size)
+        elif self.kind == "cylinder":
+            m = trimesh.creation.cylinder(radius=self.radius, height=self.length, sections=32)
+        elif self.kind == "capsule":
+            m = trimesh.creation.capsule(height=self.length, radius=self.radius, count=[24, 12])
+        else:  # pragma: no cover - guarded by the loader
+            raise ValueError(self.kind)
+        m.apply_transform(self.pose)
+        return m
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """Axis-aligned bounds (2, 3) in the scene frame."""
+        v = self.vertices if self.kind == "mesh" else np.asarray(self.to_trimesh().vertices)
+        return np.stack([v.min(axis=0), v.max(axis=0)])
+
+
+@dataclass(frozen=True)
+class TargetRegion:
+    """Where the tip must end: an ellipsoid (a sphere when all semi-axes are equal), scene frame."""
+
+    center: np.ndarray
+    semi_axes: np.ndarray
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    kind: str = "sphere"
+
+    @classmethod
+    def sphere(cls, center, radius: float) -> TargetRegion:
+        return cls(np.asarray(center, dtype=float), np.full(3, float(radius)), np.eye(3), "sphere")
+
+    @property
+    def tolerance_mm(self) -> float:
+        """Sphere radius; for an ellipsoid its smallest semi-axis."""
+        return float(np.min(self.semi_axes))
+
+    def _local(self, p: np.ndarray) -> np.ndarray:
+        return (np.asarray(p, dtype=float) - self.center) @ self.rotation
+
+    def normalized_radius(self, p: np.ndarray) -> np.ndarray:
+        """1 on the surface, < 1 inside (..., )."""
+        return np.linalg.norm(self._local(p) / self.semi_axes, axis=-1)
+
+    def contains(self, p: np.ndarray, slack: float = 1e-9) -> np.ndarray:
+        return self.normalized_radius(p) <= 1.0 + slack
+
+    def distance(self, p: np.ndarray) -> np.ndarray:
+        """Distance outside the region along the ray from the centre (exact for spheres), 0 inside."""
+        rho = self.normalized_radius(p)
+        r = np.linalg.norm(np.asarray(p, dtype=float) - self.center, axis=-1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = np.where(rho > 1.0, r * (1.0 - 1.0 / np.maximum(rho, 1e-300)), 0.0)
+        return d
+
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` points uniformly inside the region (n, 3)."""
+        u = rng.normal(size=(n, 3))
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        r = rng.uniform(size=(n, 1)) ** (1.0 / 3.0)
+        return (u * r * self.semi_axes) @ self.rotation.T + self.center
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "center_mm": self.center.tolist(),
+                "semi_axes_mm": self.semi_axes.tolist(), "rotation": self.rotation.tolist()}
+
+
+@dataclass(frozen=True)
+class PlannerSettings:
+    """Planner defaults of a scene; the CLI overrides planner, time limit and seed.
+
+    Attributes:
+        planner: one of `PLANNERS`.
+        time_limit_s: wall-clock budget for goal sampling plus search.
+        seed: OMPL and numpy seed (None: random).
+        margin_mm: added to every capsule radius in planning and validation.
+        surrogate_margin_mm: extra margin while planning with an approximate backend (pinn,
+            hybrid) so that its error rarely makes the exact robot touch; validation uses
+            ``margin_mm`` alone.
+        points: backbone points (capsules + 1) per configuration.
+        resolution_mm: edge checking resolution in the planning metric (mm; radians weighted by
+            ``mm_per_rad``).
+        mm_per_rad: metric weight of a tube rotation against a translation.
+        range_mm: maximum edge length of tree planners (None: OMPL default, 20 % of the extent).
+        simplify: shortcut and smooth the path after solving.
+        goal_samples: goal configurations produced per inverse-kinematics batch.
+        repair: try to repair a path that collides under the exact model.
+    """
+
+    planner: str = "rrtconnect"
+    time_limit_s: float = 10.0
+    seed: int | None = None
+    margin_mm: float = 0.2
+    surrogate_margin_mm: float = 0.3
+    points: int = 40
+    resolution_mm: float = 1.0
+    mm_per_rad: float = 40.0
+    range_mm: float | None = None
+    simplify: bool = True
+    goal_samples: int = 8
+    repair: bool = True
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated planning problem. Lengths in mm, angles in rad, poses 4x4 (local -> scene)."""
+
+    name: str
+    robot: Robot
+    base_pose: np.ndarray
+    obstacles: tuple[Obstacle, ...]
+    target: TargetRegion
+    start: np.ndarray
+    settings: PlannerSettings = field(default_factory=PlannerSettings)
+    description: str = ""
+    path: Path | None = None
+    joint_limits: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def joint_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """Planning box (lower, upper) in box coordinates (mm, rad): the robot's snap-free domain,
+        narrowed by the scene's ``joint_limits``."""
+        if self.joint_limits is not None:
+            return self.joint_limits
+        return self.robot.domain.box_lower, self.robot.domain.box_upper
+
+    def with_settings(self, **changes: Any) -> Scene:
+        return replace(self, settings=replace(self.settings, **changes))
+
+    @cached_property
+    def base_inverse(self) -> np.ndarray:
+        T = np.eye(4)
+        R = self.base_pose[:3, :3]
+        T[:3, :3] = R.T
+        T[:3, 3] = -R.T @ self.base_pose[:3, 3]
+        return T
+
+    def to_scene(self, p_robot: np.ndarray) -> np.ndarray:
+        """Robot-frame points (..., 3) -> scene frame."""
+        return transform_points(self.base_pose, p_robot)
+
+    def to_robot(self, p_scene: np.ndarray) -> np.ndarray:
+        return transform_points(self.base_inverse, p_scene)
+
+    def merged_obstacles(self):
+        """All obstacles as one trimesh (scene frame, mm)."""
+        import trimesh
+
+        meshes = [o.to_trimesh() for o in self.obstacles]
+        if not meshes:
+            return trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=int))
+        return trimesh.util.concatenate(meshes)
+
+
+# ---- loading ---------------------------------------------------------------------------------------
+_TOP_KEYS = {"name", "description", "robot", "base_pose", "obstacles", "target", "start", "planner",
+             "joint_limits"}
+JOINT_LIMIT_KEYS = ("beta3_mm", "beta3_minus_beta2_mm", "beta2_minus_beta1_mm", "alpha1_deg", "alpha2_deg",
+                    "alpha3_deg")
+
+
+def _num(doc: YamlDoc, keys: tuple, value: Any, *, positive: bool = False,
+         nonneg: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise doc.error(keys, f"expected a finite number, got {value!r}")
+    if positive and value <= 0:
+        raise doc.error(keys, f"must be > 0, got {value!r}")
+    if nonneg and value < 0:
+        raise doc.error(keys, f"must be >= 0, got {value!r}")
+    return float(value)
+
+
+def _vec(doc: YamlDoc, keys: tuple, value: Any, n: int) -> np.ndarray:
+    if not isinstance(value, list) or len(value) != n:
+        raise doc.error(keys, f"expected a list of {n} numbers, got {value!r}")
+    return np.array([_num(doc, keys + (i,), v) for i, v in enumerate(value)])
+
+
+def _mapping(doc: YamlDoc, keys: tuple, value: Any, allowed: set[str],
+             required: tuple[str, ...] = ()) -> dict:
+    if not isinstance(value, dict):
+        raise doc.error(keys, f"expected a mapping, got {value!r}")
+    for k in value:
+        if k not in allowed:
+            raise doc.error(keys + (k,), f"unknown key (allowed: {', '.join(sorted(allowed))})")
+    for k in required:
+        if k not in value:
+            raise doc.error(keys, f"missing required key {k!r}")
+    return value
+
+
+def _direction(doc: YamlDoc, keys: tuple, value: Any) -> np.ndarray:
+    v = _vec(doc, keys, value, 3)
+    n = np.linalg.norm(v)
+    if n < 1e-12:
+        raise doc.error(keys, "direction must not be the zero vector")
+    return v / n
+
+
+def _rotation(doc: YamlDoc, keys: tuple, value: Any) -> np.ndarray:
+    spec = _mapping(doc, keys, value, {"rpy_deg", "matrix", "quaternion_wxyz", "axis_angle_deg",
+                                       "z_axis", "y_axis"})
+    forms = [k for k in ("rpy_deg", "matrix", "quaternion_wxyz", "axis_angle_deg", "z_axis") if k in spec]
+    if len(forms) != 1:
+        raise doc.error(keys, "give exactly one of rpy_deg, matrix, quaternion_wxyz, axis_angle_deg, "
+                              "z_axis (+ optional y_axis)")
+    form = forms[0]
+    if "y_axis" in spec and form != "z_axis":
+        raise doc.error(keys + ("y_axis",), "y_axis is only allowed together with z_axis")
+    k = keys + (form,)
+    if form == "rpy_deg":
+        r, p, y = np.radians(_vec(doc, k, spec[form], 3))
+        return rpy_matrix(r, p, y)
+    if form == "matrix":
+        raw = spec[form]
+        if not isinstance(raw, list) or len(raw) != 3:
+            raise doc.error(k, "expected a 3x3 matrix (list of 3 rows)")
+        R = np.stack([_vec(doc, k + (i,), row, 3) for i, row in enumerate(raw)])
+        if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+            raise doc.error(k, "not a rotation matrix (must be orthonormal with determinant +1)")
+        return R
+    if form == "quaternion_wxyz":
+        qv = _vec(doc, k, spec[form], 4)
+        n = np.linalg.norm(qv)
+        if n < 1e-12:
+            raise doc.error(k, "quaternion must not be zero")
+        w, x, y, z = qv / n
+        return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    if form == "axis_angle_deg":
+        aa = _mapping(doc, k, spec[form], {"axis", "angle"}, ("axis", "angle"))
+        axis = _direction(doc, k + ("axis",), aa["axis"])
+        ang = math.radians(_num(doc, k + ("angle",), aa["angle"]))
+        K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+        return np.eye(3) + math.sin(ang) * K + (1 - math.cos(ang)) * K @ K
+    z = _direction(doc, k, spec["z_axis"])
+    y = None
+    if "y_axis" in spec:
+        y = _direction(doc, keys + ("y_axis",), spec["y_axis"])
+        if abs(np.dot(y, z)) > 0.999:
+            raise doc.error(keys + ("y_axis",), "y_axis must not be parallel to z_axis")
+    return frame_from_z(z, y)
+
+
+def _pose(doc: YamlDoc, keys: tuple, value: Any) -> np.ndarray:
+    spec = _mapping(doc, keys, value, {"position", "rotation", "matrix"})
+    if "matrix" in spec:
+        if len(spec) != 1:
+            raise doc.error(keys, "give either matrix (4x4) or position/rotation, not both")
+        raw = spec["matrix"]
+        if not isinstance(raw, list) or len(raw) != 4:
+            raise doc.error(keys + ("matrix",), "expected a 4x4 matrix (list of 4 rows)")
+        T = np.stack([_vec(doc, keys + ("matrix", i), row, 4) for i, row in enumerate(raw)])
+        R = T[:3, :3]
+        if not np.allclose(T[3], [0, 0, 0, 1]) or not np.allclose(R.T @ R, np.eye(3), atol=1e-6) \
+                or np.linalg.det(R) < 0:
+            raise doc.error(keys + ("matrix",), "not a rigid transform (rotation must be orthonormal, "
+                                                "last row 0 0 0 1)")
+        return T
+    if "position" not in spec:
+        raise doc.error(keys, "missing required key 'position'")
+    pos = _vec(doc, keys + ("position",), spec["position"], 3)
+    R = _rotation(doc, keys + ("rotation",), spec["rotation"]) if "rotation" in spec else np.eye(3)
+    return make_pose(R, pos)
+
+
+def _load_mesh(doc: YamlDoc, keys: tuple, rel: Any):
+    import trimesh
+
+    if not isinstance(rel, str) or not rel:
+        raise doc.error(keys, f"expected a mesh file name, got {rel!r}")
+    path = Path(rel)
+    if not path.is_absolute():
+        path = doc.path.parent / path
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise doc.error(keys, f"unsupported mesh format {path.suffix!r} (use STL, OBJ or PLY)")
+    if not path.is_file():
+        raise doc.error(keys, f"mesh file not found: {path}")
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many types on corrupt files
+        raise doc.error(keys, f"cannot read mesh {path} ({exc})") from None
+    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64)
+    verts = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=float)
+    if faces.ndim != 2 or faces.shape[0] == 0 or faces.shape[1] != 3:
+        raise doc.error(keys, f"mesh {path} has no triangles")
+    if not np.all(np.isfinite(verts)):
+        raise doc.error(keys, f"mesh {path} has non-finite vertices")
+    return verts, faces, str(path)
+
+
+def _obstacle(doc: YamlDoc, keys: tuple, raw: Any, index: int) -> Obstacle:
+    allowed = {"name", "mesh", "position", "rotation", "scale"} | set(PRIMITIVES)
+    raw = _mapping(doc, keys, raw, allowed)
+    kinds = [k for k in ("mesh", *PRIMITIVES) if k in raw]
+    if len(kinds) != 1:
+        raise doc.error(keys, f"give exactly one of mesh, {', '.join(PRIMITIVES)}")
+    kind = kinds[0]
+    name = raw.get("name", f"obstacle{index}")
+    if not isinstance(name, str) or not name:
+        raise doc.error(keys + ("name",), f"expected a non-empty string, got {name!r}")
+    if kind == "mesh":
+        verts, faces, src = _load_mesh(doc, keys + ("mesh",), raw["mesh"])
+        scale = _num(doc, keys + ("scale",), raw["scale"], positive=True) if "scale" in raw else 1.0
+        pos = _vec(doc, keys + ("position",), raw["position"], 3) if "position" in raw else np.zeros(3)
+        R = _rotation(doc, keys + ("rotation",), raw["rotation"]) if "rotation" in raw else np.eye(3)
+        verts = (verts * scale) @ R.T + pos
+        return Obstacle(name=name, kind="mesh", vertices=verts, faces=faces, source=src)
+    for k in ("position", "rotation", "scale"):
+        if k in raw:
+            raise doc.error(keys + (k,), f"{k!r} belongs inside the {kind} mapping (or use a mesh)")
+    k = keys + (kind,)
+    if kind == "sphere":
+        spec = _mapping(doc, k, raw[kind], {"center", "radius"}, ("center", "radius"))
+        c = _vec(doc, k + ("center",), spec["center"], 3)
+        r = _num(doc, k + ("radius",), spec["radius"], positive=True)
+        return Obstacle(name=name, kind=kind, pose=make_pose(np.eye(3), c), radius=r)
+    if kind == "box":
+        spec = _mapping(doc, k, raw[kind], {"center", "size", "rotation"}, ("center", "size"))
+        c = _vec(doc, k + ("center",), spec["center"], 3)
+        size = _vec(doc, k + ("size",), spec["size"], 3)
+        if np.any(size <= 0):
+            raise doc.error(k + ("size",), f"all sizes must be > 0, got {size.tolist()}")
+        R = _rotation(doc, k + ("rotation",), spec["rotation"]) if "rotation" in spec else np.eye(3)
+        return Obstacle(name=name, kind=kind, pose=make_pose(R, c), size=tuple(size.tolist()))
+    spec = _mapping(doc, k, raw[kind], {"center", "radius", "length", "axis", "rotation"},
+                    ("center", "radius", "length"))
+    c = _vec(doc, k + ("center",), spec["center"], 3)
+    r = _num(doc, k + ("radius",), spec["radius"], positive=True)
+    length = _num(doc, k + ("length",), spec["length"], nonneg=kind == "capsule",
+                  positive=kind == "cylinder")
+    if "axis" in spec and "rotation" in spec:
+        raise doc.error(k, "give either axis or rotation, not both")
+    if "rotation" in spec:
+        R = _rotation(doc, k + ("rotation",), spec["rotation"])
+    else:
+        axis = _direction(doc, k + ("axis",), spec["axis"]) if "axis" in spec else np.array([0, 0, 1.0])
+        R = frame_from_z(axis)
+    return Obstacle(name=name, kind=kind, pose=make_pose(R, c), radius=r, length=length)
+
+
+def _target(doc: YamlDoc, raw: Any) -> TargetRegion:
+    keys = ("target",)
+    spec = _mapping(doc, keys, raw, {"point", "tolerance_mm", "ellipsoid"})
+    if "ellipsoid" in spec:
+        if len(spec) != 1:
+            raise doc.error(keys, "give either point + tolerance_mm or ellipsoid")
+        k = keys + ("ellipsoid",)
+        e = _mapping(doc, k, spec["ellipsoid"], {"center", "semi_axes_mm", "rotation"},
+                     ("center", "semi_axes_mm"))
+        c = _vec(doc, k + ("center",), e["center"], 3)
+        ax = _vec(doc, k + ("semi_axes_mm",), e["semi_axes_mm"], 3)
+        if np.any(ax <= 0):
+            raise doc.error(k + ("semi_axes_mm",), f"semi-axes must be > 0, got {ax.tolist()}")
+        R = _rotation(doc, k + ("rotation",), e["rotation"]) if "rotation" in e else np.eye(3)
+        return TargetRegion(c, ax, R, "ellipsoid")
+    if "point" not in spec:
+        raise doc.error(keys, "missing required key 'point' (or give an ellipsoid)")
+    if "tolerance_mm" not in spec:
+        raise doc.error(keys, "missing required key 'tolerance_mm'")
+    c = _vec(doc, keys + ("point",), spec["point"], 3)
+    tol = _num(doc, keys + ("tolerance_mm",), spec["tolerance_mm"], positive=True)
+    return TargetRegion.sphere(c, tol)
+
+
+def _settings(doc: YamlDoc, raw: Any) -> PlannerSettings:
+    keys = ("planner",)
+    names = {f.name for f in fields(PlannerSettings)}
+    spec = _mapping(doc, keys, raw, names)
+    kw: dict[str, Any] = {}
+    for name, value in spec.items():
+        k = keys + (name,)
+        if name == "planner":
+            if value not in PLANNERS:
+                raise doc.error(k, f"unknown planner {value!r} (choose from {', '.join(PLANNERS)})")
+            kw[name] = value
+        elif name in ("simplify", "repair"):
+            if not isinstance(value, bool):
+                raise doc.error(k, f"expected true or false, got {value!r}")
+            kw[name] = value
+        elif name in ("seed", "points", "goal_samples"):
+            if value is None and name == "seed":
+                kw[name] = None
+                continue
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise doc.error(k, f"expected an integer, got {value!r}")
+            lo = {"seed": 0, "points": 3, "goal_samples": 1}[name]
+            if value < lo:
+                raise doc.error(k, f"must be >= {lo}, got {value!r}")
+            kw[name] = int(value)
+        elif name == "range_mm":
+            kw[name] = None if value is None else _num(doc, k, value, positive=True)
+        elif name in ("margin_mm", "surrogate_margin_mm"):
+            kw[name] = _num(doc, k, value, nonneg=True)
+        else:
+            kw[name] = _num(doc, k, value, positive=True)
+    return PlannerSettings(**kw)
+
+
+def _joint_limits(doc: YamlDoc, raw: Any, robot: Robot) -> tuple[np.ndarray, np.ndarray]:
+    keys = ("joint_limits",)
+    spec = _mapping(doc, keys, raw, set(JOINT_LIMIT_KEYS))
+    lo, hi = robot.domain.box_lower.copy(), robot.domain.box_upper.copy()
+    for i, name in enumerate(JOINT_LIMIT_KEYS):
+        if name not in spec:
+            continue
+        a, b = _vec(doc, keys + (name,), spec[name], 2)
+        if name.endswith("_deg"):
+            a, b = math.radians(a), math.radians(b)
+        if a >= b:
+            raise doc.error(keys + (name,), f"lower limit must be below the upper limit, got {spec[name]}")
+        tol = 1e-9
+        if a < lo[i] - tol or b > hi[i] + tol:
+            unit = "deg" if name.endswith("_deg") else "mm"
+            f = math.degrees if name.endswith("_deg") else float
+            raise doc.error(keys + (name,), f"must lie inside the robot's snap-free domain "
+                                            f"[{f(lo[i]):g}, {f(hi[i]):g}] {unit}")
+        lo[i], hi[i] = max(a, lo[i]), min(b, hi[i])
+    return lo, hi
+
+
+def scene_from_yaml(doc: YamlDoc) -> Scene:
+    """Build a validated `Scene` from a parsed YAML document (errors name key and line)."""
+    d = doc.data
+    for k in d:
+        if k not in _TOP_KEYS:
+            raise doc.error((k,), f"unknown key (allowed: {', '.join(sorted(_TOP_KEYS))})")
+    for k in ("robot", "base_pose", "target", "start"):
+        if k not in d:
+            raise doc.error((), f"missing required key {k!r}")
+
+    spec = d["robot"]
+    if not isinstance(spec, str) or not spec:
+        raise doc.error(("robot",), f"expected a built-in robot name or a robot file, got {spec!r}")
+    from ctrplan.robot import BUILTIN_ROBOTS
+
+    if spec not in BUILTIN_ROBOTS:
+        rpath = Path(spec)
+        if not rpath.is_absolute():
+            rpath = doc.path.parent / rpath
+        if not rpath.is_file():
+            raise doc.error(("robot",), f"not a built-in robot ({', '.join(BUILTIN_ROBOTS)}) and no "
+                                        f"such file: {rpath}")
+        spec = rpath
+    try:
+        robot = Robot.load(spec)
+    except InputError as exc:
+        raise doc.error(("robot",), str(exc)) from None
+
+    base_pose = _pose(doc, ("base_pose",), d["base_pose"])
+
+    raw_obs = d.get("obstacles", [])
+    if raw_obs is None:
+        raw_obs = []
+    if not isinstance(raw_obs, list):
+        raise doc.error(("obstacles",), "expected a list of obstacles")
+    obstacles = tuple(_obstacle(doc, ("obstacles", i), o, i) for i, o in enumerate(raw_obs))
+    seen: dict[str, int] = {}
+    for i, o in enumerate(obstacles):
+        if o.name in seen:
+            raise doc.error(("obstacles", i, "name"), f"duplicate obstacle name {o.name!r} "
+                                                      f"(also obstacles[{seen[o.name]}])")
+        seen[o.name] = i
+
+    target = _target(doc, d["target"])
+    reach = float(robot.lengths_mm[0] + robot.domain.box_upper[0])  # l1 at full extension
+    gap = float(np.linalg.norm(target.center - base_pose[:3, 3]) - np.max(target.semi_axes))
+    if gap > reach:
+        raise doc.error(("target",), f"out of reach: the target region is {gap:.1f} mm from the robot "
+                                     f"base, but the robot is at most {reach:.1f} mm long")
+    start = _vec(doc, ("start",), d["start"], 6)
+    try:
+        robot.check_joints(start, where="start")
+    except InputError as exc:
+        raise doc.error(("start",), str(exc).removeprefix("start: ").removeprefix("row 0: ")) from None
+    settings = _settings(doc, d["planner"]) if "planner" in d else PlannerSettings()
+    limits = None
+    if "joint_limits" in d:
+        limits = _joint_limits(doc, d["joint_limits"], robot)
+        box = robot.domain.to_box(start)
+        out = np.flatnonzero((box < limits[0] - 1e-9) | (box > limits[1] + 1e-9))
+        if out.size:
+            i = int(out[0])
+            raise doc.error(("start",), f"outside the scene's joint_limits: {JOINT_LIMIT_KEYS[i]}")
+
+    name = d.get("name", doc.path.stem)
+    desc = d.get("description", "")
+    if not isinstance(name, str):
+        raise doc.error(("name",), f"expected a string, got {name!r}")
+    if not isinstance(desc, str):
+        raise doc.error(("description",), f"expected a string, got {desc!r}")
+    return Scene(name=name, robot=robot, base_pose=base_pose, obstacles=obstacles, target=target,
+                 start=start, settings=settings, description=desc.strip(), path=doc.path,
+                 joint_limits=limits)
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Load and validate a scene file (see the module docstring for the format)."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, expected a scene YAML file")
+    return scene_from_yaml(load_yaml(path))

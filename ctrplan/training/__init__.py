@@ -1,0 +1,1 @@
+"""Training of the PINN surrogate: physics residuals, samplers, losses, recipes and the trainer."""

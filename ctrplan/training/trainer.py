@@ -1,0 +1,310 @@
+"""Training loop for the PINN: recipes, on-device sampling, checkpoints and resume.
+
+Two recipes ship:
+
+* ``paper`` -- the paper's setup: fixed 20,000 collocation / 1,000 boundary / 1,000 tip-observation
+  samples, L2-norm group losses, L-BFGS with strong-Wolfe line search, full batch.
+* ``fast`` -- what fits a 2-core CPU: Adam on mini-batches resampled every step (collocation points,
+  boundary configurations) plus dense supervision from exact Cosserat states (cheap: the shooting
+  solver gives 5,000 full solutions a second), with the ODE and boundary residuals kept as physics
+  terms; hard output constraints (see `PinnNet`); cosine learning-rate decay.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+from safetensors.torch import load_file, save_file
+
+from ctrplan.errors import InputError
+from ctrplan.kinematics.model_file import save_model
+from ctrplan.kinematics.pinn import PinnNet
+from ctrplan.robot import Robot
+from ctrplan.training.losses import (
+    boundary_residual,
+    observation_residual,
+    ode_residual,
+    supervised_residual,
+)
+from ctrplan.training.physics import TubeTensors
+from ctrplan.training.samples import solve_dense, state_scales
+
+GROUP_WEIGHTS = (1.0, 1.0, 1.0, 1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A training recipe. Counts are samples; ``steps`` are optimiser steps (L-BFGS: outer steps)."""
+
+    name: str
+    optimizer: str                  # "adam" | "lbfgs"
+    steps: int
+    lr: float
+    norm: str = "mse"               # group residual: "l2" (paper) | "mse"
+    collocation: int = 20_000       # per step (resampled) or fixed (paper)
+    boundary: int = 1_000
+    observations: int = 1_000       # tip observations from the Cosserat model
+    dense_configs: int = 0          # configurations solved densely for supervision (0 = none)
+    dense_points: int = 65
+    dense_batch: int = 0            # supervised (config, s) pairs per step
+    resample: bool = False
+    weights: dict = field(default_factory=lambda: {"ode": 1.0, "bc": 1.0, "obs": 1.0, "dense": 0.0})
+    lr_final: float = 1e-5
+    lbfgs_history: int = 50
+    features: str = "equivariant"   # network input encoding, see `PinnNet`
+
+
+RECIPES = {
+    "paper": Recipe(name="paper", optimizer="lbfgs", steps=300_000, lr=1.0, norm="l2", features="paper"),
+    "fast": Recipe(name="fast", optimizer="adam", steps=40_000, lr=2e-3, collocation=2048, boundary=512,
+                   observations=0, dense_configs=20_000, dense_points=65, dense_batch=4096,
+                   resample=True, weights={"ode": 0.05, "bc": 0.05, "obs": 0.0, "dense": 1.0}),
+    # second stage after `fast` (use with init_from): full-batch L-BFGS with tip observations
+    "polish": Recipe(name="polish", optimizer="lbfgs", steps=1000, lr=1.0, collocation=2048, boundary=512,
+                     observations=2000, dense_configs=10_000, dense_points=65, dense_batch=8192,
+                     weights={"ode": 0.05, "bc": 0.05, "obs": 0.05, "dense": 1.0}),
+}
+
+
+def get_recipe(name: str, **overrides) -> Recipe:
+    if name not in RECIPES:
+        raise InputError(f"--recipe: unknown recipe {name!r} (available: {', '.join(RECIPES)})")
+    return replace(RECIPES[name], **{k: v for k, v in overrides.items() if v is not None})
+
+
+def hardware(device: torch.device) -> str:
+    if device.type == "cuda":
+        return f"{torch.cuda.get_device_name(device)} (CUDA), torch {torch.__version__}"
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{cpu}, {torch.get_num_threads()} threads, torch {torch.__version__}"
+
+
+class Sampler:
+    """Draws training batches on the training device; step ``k`` always gives the same batch."""
+
+    def __init__(self, robot: Robot, seed: int, device: torch.device):
+        self.lo = torch.tensor(robot.domain.box_lower, dtype=torch.float32, device=device)
+        self.hi = torch.tensor(robot.domain.box_upper, dtype=torch.float32, device=device)
+        self.seed, self.device = seed, device
+
+    def generator(self, step: int, stream: int) -> torch.Generator:
+        g = torch.Generator(device=self.device)
+        g.manual_seed(hash((self.seed, step, stream)) & 0x7FFF_FFFF_FFFF)
+        return g
+
+    def joints(self, n: int, g: torch.Generator) -> torch.Tensor:
+        x = self.lo + (self.hi - self.lo) * torch.rand(n, 6, generator=g, device=self.device)
+        b3 = x[:, 0]
+        b2 = b3 - x[:, 1]
+        return torch.stack([b2 - x[:, 2], b2, b3, x[:, 3], x[:, 4], x[:, 5]], -1)
+
+    def collocation(self, n: int, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        return torch.rand(n, generator=g, device=self.device), self.joints(n, g)
+
+
+@dataclass
+class TrainResult:
+    net: PinnNet
+    steps: int
+    wall_time_s: float
+    history: list[dict]
+    card: dict
+
+
+def _checkpoint_paths(out: Path) -> tuple[Path, Path]:
+    return out.with_suffix(".ckpt.safetensors"), out.with_suffix(".ckpt.json")
+
+
+def _save_checkpoint(out: Path, net: PinnNet, opt: torch.optim.Optimizer, meta: dict) -> None:
+    weights, info = _checkpoint_paths(out)
+    tensors = {f"net.{k}": v.detach().cpu().contiguous() for k, v in net.state_dict().items()}
+    if isinstance(opt, torch.optim.Adam):
+        for i, p in enumerate(net.parameters()):
+            st = opt.state.get(p)
+            if st:
+                tensors[f"adam.{i}.exp_avg"] = st["exp_avg"].detach().cpu().contiguous()
+                tensors[f"adam.{i}.exp_avg_sq"] = st["exp_avg_sq"].detach().cpu().contiguous()
+                meta["adam_step"] = float(st["step"])
+    weights.parent.mkdir(parents=True, exist_ok=True)
+    save_file(tensors, str(weights))
+    info.write_text(json.dumps(meta, indent=2))
+
+
+def _load_checkpoint(out: Path, net: PinnNet, opt: torch.optim.Optimizer, device) -> dict:
+    weights, info = _checkpoint_paths(out)
+    if not weights.exists() or not info.exists():
+        raise InputError(f"{weights}: no checkpoint to resume from")
+    tensors = load_file(str(weights), device=str(device))
+    net.load_state_dict({k[4:]: v for k, v in tensors.items() if k.startswith("net.")})
+    meta = json.loads(info.read_text())
+    if isinstance(opt, torch.optim.Adam):
+        for i, p in enumerate(net.parameters()):
+            if f"adam.{i}.exp_avg" in tensors:
+                opt.state[p] = {"step": torch.tensor(meta.get("adam_step", 0.0)),
+                                "exp_avg": tensors[f"adam.{i}.exp_avg"],
+                                "exp_avg_sq": tensors[f"adam.{i}.exp_avg_sq"]}
+    return meta
+
+
+def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str = "cpu",
+          resume: bool = False, init_from: PinnNet | None = None, time_limit_s: float | None = None,
+          checkpoint_every_s: float = 120.0,
+          progress: Callable[[int, int, dict], None] | None = None,
+          evaluate: Callable[[PinnNet], dict] | None = None) -> TrainResult:
+    """Train a PINN for ``robot`` with ``recipe``; write ``out.safetensors`` + ``out.json``.
+
+    ``init_from`` continues from an existing network (its input encoding and output scales are kept).
+    ``progress(step, total, stats)`` is called every few steps; ``evaluate(net) -> metrics`` at the
+    end (metrics go into the model card). Stops at ``recipe.steps`` or ``time_limit_s``.
+    """
+    dev = torch.device(device)
+    torch.manual_seed(seed)
+    t_start = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    tt = TubeTensors.from_robot(robot, device=dev)
+
+    # exact solutions: dense supervision pool and/or tip observations, plus output scales
+    n_exact = max(recipe.dense_configs, recipe.observations, 2000)
+    pool = solve_dense(robot, robot.sample_joints(n_exact, rng), recipe.dense_points)
+    if init_from is not None:
+        net = init_from.to(dev).train()
+        for p in net.parameters():
+            p.requires_grad_(True)
+    else:
+        net = PinnNet(robot, scales=state_scales(pool, recipe.features), features=recipe.features).to(dev)
+    data_time = time.perf_counter() - t_start
+
+    def to_dev(a: np.ndarray) -> torch.Tensor:
+        return torch.as_tensor(np.asarray(a, dtype=np.float32), device=dev)
+
+    dense_q, dense_x = to_dev(pool.q), to_dev(pool.states)
+    sigma_grid = to_dev(pool.sigma)
+    obs_q, obs_tips = to_dev(pool.q[:recipe.observations]), to_dev(pool.tips[:recipe.observations])
+    sampler = Sampler(robot, seed, dev)
+    fixed_colloc = None if recipe.resample else sampler.collocation(recipe.collocation,
+                                                                    sampler.generator(0, 1))
+    fixed_bc = None if recipe.resample else sampler.joints(recipe.boundary, sampler.generator(0, 2))
+    w = recipe.weights
+    gw = torch.tensor(GROUP_WEIGHTS, device=dev)
+
+    if recipe.optimizer == "adam":
+        opt: torch.optim.Optimizer = torch.optim.Adam(net.parameters(), lr=recipe.lr)
+    elif recipe.optimizer == "lbfgs":
+        opt = torch.optim.LBFGS(net.parameters(), lr=recipe.lr, max_iter=20, tolerance_grad=1e-10,
+                                tolerance_change=1e-12, history_size=recipe.lbfgs_history,
+                                line_search_fn="strong_wolfe")
+    else:
+        raise InputError(f"recipe {recipe.name}: unknown optimizer {recipe.optimizer!r}")
+
+    step, elapsed_before, history = 0, 0.0, []
+    if resume:
+        meta = _load_checkpoint(out, net, opt, dev)
+        if meta.get("recipe") != asdict(recipe) or meta.get("seed") != seed:
+            raise InputError(f"{out}: checkpoint was made with another recipe or seed; "
+                             "resume with the same --recipe/--seed or start afresh")
+        step, elapsed_before, history = meta["step"], meta["elapsed_s"], meta.get("history", [])
+
+    def losses(k: int) -> tuple[torch.Tensor, dict]:
+        terms: dict[str, torch.Tensor] = {}
+        if w.get("ode", 0):
+            sg, qc = fixed_colloc or sampler.collocation(recipe.collocation, sampler.generator(k, 1))
+            terms["ode"] = (gw * ode_residual(net, sg, qc, tt, recipe.norm)).sum()
+        if w.get("bc", 0):
+            qb = fixed_bc if fixed_bc is not None else sampler.joints(recipe.boundary,
+                                                                      sampler.generator(k, 2))
+            terms["bc"] = (gw * boundary_residual(net, qb, tt, recipe.norm)).sum()
+        if w.get("obs", 0) and recipe.observations:
+            terms["obs"] = observation_residual(net, obs_q, obs_tips, tt, recipe.norm)
+        if w.get("dense", 0) and recipe.dense_batch:
+            g = sampler.generator(k if recipe.resample else 0, 3)
+            ci = torch.randint(0, dense_q.shape[0], (recipe.dense_batch,), generator=g, device=dev)
+            pi = torch.randint(0, sigma_grid.shape[0], (recipe.dense_batch,), generator=g, device=dev)
+            terms["dense"] = (gw * supervised_residual(net, sigma_grid[pi], dense_q[ci],
+                                                       dense_x[ci, pi])).sum()
+        total = sum(w[k_] * v for k_, v in terms.items())
+        return total, {k_: v.detach() for k_, v in terms.items()}
+
+    t0 = time.perf_counter()
+    last_ckpt = t0
+    stats: dict = {}
+    while step < recipe.steps:
+        if time_limit_s is not None and elapsed_before + time.perf_counter() - t0 >= time_limit_s:
+            break
+        if recipe.optimizer == "adam":
+            # the schedule runs to whichever ends first: the step budget or the time limit
+            frac = step / max(recipe.steps - 1, 1)
+            if time_limit_s:
+                frac = max(frac, (elapsed_before + time.perf_counter() - t0) / time_limit_s)
+            frac = min(frac, 1.0)
+            lr = recipe.lr_final + 0.5 * (recipe.lr - recipe.lr_final) * (1 + math.cos(math.pi * frac))
+            for group in opt.param_groups:
+                group["lr"] = lr
+            opt.zero_grad(set_to_none=True)
+            total, stats = losses(step)
+            total.backward()
+            opt.step()
+        else:
+            def closure(k: int = step, out: dict = stats) -> torch.Tensor:
+                opt.zero_grad(set_to_none=True)
+                total_, stats_ = losses(k)
+                total_.backward()
+                out.update(stats_)
+                return total_
+
+            total = opt.step(closure)
+        step += 1
+        if step % 10 and step != recipe.steps:
+            continue  # host-device syncs only every 10 steps
+        loss = float(total.detach())
+        if not math.isfinite(loss):
+            raise RuntimeError(f"training diverged at step {step} (loss {loss}); lower --lr")
+        now = time.perf_counter()
+        values = {"loss": loss, **{k_: float(v) for k_, v in stats.items()}}
+        if step % 50 == 0 or step == recipe.steps:
+            history.append({"step": step, "time_s": round(elapsed_before + now - t0, 2), **values})
+        if progress is not None:
+            progress(step, recipe.steps, values)
+        if now - last_ckpt > checkpoint_every_s:
+            _save_checkpoint(out, net, opt, {"step": step, "elapsed_s": elapsed_before + now - t0,
+                                             "recipe": asdict(recipe), "seed": seed,
+                                             "history": history})
+            last_ckpt = now
+    wall = elapsed_before + time.perf_counter() - t0 + data_time
+    _save_checkpoint(out, net, opt, {"step": step, "elapsed_s": wall - data_time,
+                                     "recipe": asdict(recipe), "seed": seed, "history": history})
+    net = net.cpu().eval()
+    metrics = evaluate(net) if evaluate is not None else {}
+    card = {
+        "recipe": asdict(recipe),
+        "seed": seed,
+        "steps": step,
+        "samples": {
+            "exact_solutions": len(pool),
+            "dense_points_per_solution": recipe.dense_points if recipe.dense_configs else 0,
+            "collocation": recipe.collocation * (step if recipe.resample else 1),
+            "boundary": recipe.boundary * (step if recipe.resample else 1),
+            "observations": recipe.observations,
+        },
+        "wall_time_s": round(wall, 1),
+        "data_generation_s": round(data_time, 1),
+        "hardware": hardware(dev),
+        "metrics": metrics,
+        "history_tail": history[-5:],
+    }
+    save_model(net, robot, out, card)
+    return TrainResult(net=net, steps=step, wall_time_s=wall, history=history, card=card)

@@ -1,0 +1,321 @@
+"""Measured-data readers (measured-data CSV, CRL 40 columns), the block split, the direction of
+motion and the extended robot file -- on files generated here."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ctrplan.calibration import (
+    Calibration,
+    load_extended_robot,
+    motion_direction,
+    read_measured,
+    split_blocks,
+    write_crl_csv,
+    write_extended_robot,
+    write_measured_csv,
+)
+from ctrplan.calibration.data import matrix_quaternion, quaternion_matrix
+from ctrplan.calibration.effects import kabsch
+from ctrplan.calibration.synthetic import generate
+from ctrplan.errors import InputError
+from ctrplan.kinematics import CosseratBackend
+from ctrplan.robot import Loads, Robot
+
+
+@pytest.fixture(scope="module")
+def syn():
+    return generate(60, "none", seed=11)
+
+
+def _lines(path):
+    return path.read_text().splitlines()
+
+
+def _write_lines(path, lines):
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _set_cell(lines, line_no, col, value):
+    """Replace field ``col`` (0-based) of file line ``line_no`` (1-based) in ``lines``."""
+    cells = lines[line_no - 1].split(",")
+    cells[col] = value
+    lines[line_no - 1] = ",".join(cells)
+
+
+# ---- measured-data CSV ----------------------------------------------------------------------------
+def test_csv_round_trip_ignores_other_columns(tmp_path, syn):
+    p = tmp_path / "data.csv"
+    extra = {"timestamp": np.arange(len(syn.data)) * 0.1}
+    write_measured_csv(p, syn.data.q, syn.data.tips_mm, extra=extra)
+    # shuffle the column order: columns are found by name
+    rows = [r.split(",") for r in _lines(p)]
+    order = [len(rows[0]) - 1] + list(range(len(rows[0]) - 1))[::-1]
+    _write_lines(p, [",".join(r[i] for i in order) for r in rows])
+    d = read_measured(p)
+    assert d.format == "csv" and d.tubes == (0, 1, 2)
+    np.testing.assert_allclose(d.q, syn.data.q)
+    np.testing.assert_allclose(d.tips_mm, syn.data.tips_mm)
+    assert d.lines[0] == 2 and d.lines[-1] == len(syn.data) + 1
+    assert not d.outside_domain.any()
+
+
+def test_csv_tube1_only(tmp_path, syn):
+    p = tmp_path / "tip1.csv"
+    write_measured_csv(p, syn.data.q, syn.data.tips_mm, tubes=(0,))
+    d = read_measured(p)
+    assert d.tubes == (0,)
+    assert np.isnan(d.tips_mm[:, 1:]).all() and np.isfinite(d.tips_mm[:, 0]).all()
+
+
+def test_csv_missing_columns_named(tmp_path, syn):
+    p = tmp_path / "d.csv"
+    write_measured_csv(p, syn.data.q, syn.data.tips_mm)
+    lines = _lines(p)
+    _write_lines(p, [lines[0].replace("tip1_y", "tipY")] + lines[1:])
+    with pytest.raises(InputError, match=r"d\.csv: row 1: missing column 'tip1_y'"):
+        read_measured(p)
+    _write_lines(p, [lines[0].replace("tip2_z", "t2z")] + lines[1:])
+    with pytest.raises(InputError, match=r"tube 2 tip is incomplete: missing column 'tip2_z'"):
+        read_measured(p)
+
+
+def test_csv_nan_rows_named(tmp_path, syn):
+    p = tmp_path / "nan.csv"
+    write_measured_csv(p, syn.data.q, syn.data.tips_mm)
+    lines = _lines(p)
+    for line_no, col, val in ((6, 7, "nan"), (10, 8, ""), (31, 2, "NaN")):
+        _set_cell(lines, line_no, col, val)
+    _write_lines(p, lines)
+    with pytest.raises(InputError) as exc:
+        read_measured(p)
+    msg = str(exc.value)
+    assert "rows 6, 10, 31" in msg and "tip1_y" in msg and "\n" not in msg
+
+
+def test_csv_text_cell_named(tmp_path, syn):
+    p = tmp_path / "txt.csv"
+    write_measured_csv(p, syn.data.q, syn.data.tips_mm)
+    lines = _lines(p)
+    _set_cell(lines, 5, 3, "ten")
+    _write_lines(p, lines)
+    with pytest.raises(InputError, match=r"txt\.csv: row 5: alpha1 = 'ten' is not a number"):
+        read_measured(p)
+    # blank lines before the header count too: "row N" stays line N of the file
+    _write_lines(p, ["", ""] + lines)
+    with pytest.raises(InputError, match=r"txt\.csv: row 7: alpha1 = 'ten' is not a number"):
+        read_measured(p)
+
+
+def test_written_files_get_the_permissions_of_a_plain_open(tmp_path, syn):
+    (tmp_path / "plain.csv").write_text("x\n")
+    plain = (tmp_path / "plain.csv").stat().st_mode & 0o777
+    write_measured_csv(tmp_path / "m.csv", syn.data.q, syn.data.tips_mm)
+    write_crl_csv(tmp_path / "crl.csv", syn.data.q, syn.data.tips_mm)
+    write_extended_robot(tmp_path / "robot.yaml", Robot.nominal())
+    for name in ("m.csv", "crl.csv", "robot.yaml"):
+        assert (tmp_path / name).stat().st_mode & 0o777 == plain, name
+
+
+def test_impossible_joints_rejected_with_row(tmp_path, syn):
+    q = syn.data.q.copy()
+    q[7, 0] = q[7, 1] + 4.0          # tube 1 base in front of tube 2's: impossible
+    p = tmp_path / "imp.csv"
+    write_measured_csv(p, q, syn.data.tips_mm)
+    with pytest.raises(InputError, match=r"imp\.csv: row 9: tube order violated"):
+        read_measured(p)
+
+
+def test_too_few_rows(tmp_path, syn):
+    p = tmp_path / "few.csv"
+    write_measured_csv(p, syn.data.q[:12], syn.data.tips_mm[:12])
+    with pytest.raises(InputError, match=r"only 12 data rows"):
+        read_measured(p)
+
+
+def test_outside_domain_accepted_and_flagged(tmp_path):
+    """CRL-like configurations (beta1 down to -128 mm, alpha up to +-60 deg, beta2 - beta1 > 15 mm)
+    leave the snap-free planning domain: accepted, flagged."""
+    rng = np.random.default_rng(3)
+    robot = Robot.nominal()
+    q = robot.sample_joints(40, rng)
+    q[:5, 0] = -128.0 + rng.uniform(0, 5, 5)   # CRL-like extension: beta up to -128 mm
+    q[:5, 1] = -100.0
+    q[:5, 2] = -50.0
+    q[:, 3:] = rng.uniform(-math.pi / 3, math.pi / 3, (40, 3))
+    tips = CosseratBackend(robot).forward(q, points=2, check=False).tips_mm
+    p = tmp_path / "wide.csv"
+    write_measured_csv(p, q, tips)
+    d = read_measured(p)
+    assert d.outside_domain.sum() == 5 and d.outside_domain[:5].all()
+
+
+def test_not_a_data_file(tmp_path):
+    p = tmp_path / "x.csv"
+    p.write_text("a,b,c\n1,2,3\n")
+    with pytest.raises(InputError, match=r"row 1: header lacks the joint columns"):
+        read_measured(p)
+    p.write_text("1,2,3\n4,5,6\n")
+    with pytest.raises(InputError, match=r"3 numeric columns"):
+        read_measured(p)
+    p.write_text("")
+    with pytest.raises(InputError, match=r"empty file"):
+        read_measured(p)
+    with pytest.raises(InputError, match=r"file not found"):
+        read_measured(tmp_path / "missing.csv")
+
+
+# ---- CRL 40-column format -------------------------------------------------------------------------
+def _random_pose(rng):
+    axis = rng.normal(size=3)
+    angle = rng.uniform(0.3, 2.5)
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle).as_matrix()
+    T[:3, 3] = rng.uniform(-200, 200, 3)
+    return T
+
+
+def test_crl_reader_relative_to_base_sensor(tmp_path, syn):
+    rng = np.random.default_rng(5)
+    T = _random_pose(rng)
+    p = tmp_path / "crl.csv"
+    write_crl_csv(p, syn.data.q, syn.data.tips_mm, base_pose=T, rng=rng)
+    raw = np.loadtxt(p, delimiter=",")
+    assert raw.shape == (len(syn.data), 40)
+    # the file is in the tracker frame: the raw sensor positions are far from the robot-frame tips
+    assert np.abs(raw[:, 33:36] - syn.data.tips_mm[:, 0]).max() > 10
+    # alpha1 beta1 alpha2 beta2 alpha3 beta3 order
+    np.testing.assert_allclose(raw[:, 0], syn.data.q[:, 3])
+    np.testing.assert_allclose(raw[:, 1], syn.data.q[:, 0])
+    d = read_measured(p)
+    assert d.format == "crl" and d.tubes == (0, 1, 2)
+    np.testing.assert_allclose(d.q, syn.data.q)
+    # inv(T_base) T_sensor: inner -> tube 1, middle -> tube 2, outer -> tube 3
+    np.testing.assert_allclose(d.tips_mm, syn.data.tips_mm, atol=1e-9)
+    np.testing.assert_allclose(d.increments[1:], np.diff(syn.data.q, axis=0), atol=1e-12)
+    assert d.lines[0] == 1
+
+
+def test_crl_bad_rows(tmp_path, syn):
+    p = tmp_path / "crl.csv"
+    write_crl_csv(p, syn.data.q, syn.data.tips_mm)
+    lines = _lines(p)
+    bad = lines.copy()
+    bad[3] = ",".join(bad[3].split(",")[:39])
+    _write_lines(p, bad)
+    with pytest.raises(InputError, match=r"crl\.csv: row 4: expected 40 columns \(CRL format\), got 39"):
+        read_measured(p)
+    bad = lines.copy()
+    _set_cell(bad, 9, 14, "nan")   # base_z
+    _write_lines(p, bad)
+    with pytest.raises(InputError, match=r"row 9: missing or non-finite values \(first: base_z"):
+        read_measured(p)
+    bad = lines.copy()
+    for line_no, col, val in ((10, 0, "NA"), (20, 33, "")):
+        _set_cell(bad, line_no, col, val)
+    _write_lines(p, bad)
+    with pytest.raises(InputError) as exc:
+        read_measured(p)
+    assert "rows 10, 20: missing or non-finite values (first: alpha1 in row 10)" in str(exc.value)
+    _set_cell(bad, 30, 5, "x")
+    _write_lines(p, bad)
+    with pytest.raises(InputError, match=r"row 30: column 6 \(beta3\) = 'x' is not a number"):
+        read_measured(p)
+
+
+def test_quaternion_round_trip():
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        R = _random_pose(rng)[:3, :3]
+        np.testing.assert_allclose(quaternion_matrix(matrix_quaternion(R)), R, atol=1e-12)
+
+
+# ---- split and direction --------------------------------------------------------------------------
+def test_split_contiguous_blocks_and_seed():
+    train, held = split_blocks(200, 0.25, blocks=10, seed=4)
+    assert len(np.intersect1d(train, held)) == 0 and len(train) + len(held) == 200
+    assert len(held) == 60 or len(held) == 40 or len(held) == 50
+    # held-out rows form whole blocks of 20 consecutive rows
+    runs = np.split(held, np.flatnonzero(np.diff(held) != 1) + 1)
+    assert all(len(r) % 20 == 0 for r in runs)
+    again, _ = split_blocks(200, 0.25, blocks=10, seed=4)
+    other, _ = split_blocks(200, 0.25, blocks=10, seed=5)
+    np.testing.assert_array_equal(train, again)
+    assert not np.array_equal(train, other)
+    with pytest.raises(InputError):
+        split_blocks(100, 1.5)
+
+
+def test_motion_direction_persists_when_joint_rests():
+    a = np.array([0.0, 0.1, 0.1, 0.05, 0.05, 0.2])
+    q = np.zeros((6, 6))
+    q[:, 3] = a
+    d = motion_direction(q)
+    np.testing.assert_array_equal(d[:, 3], [0, 1, 1, -1, -1, 1])
+    assert not d[:, [0, 1, 2, 4, 5]].any()
+
+
+# ---- calibration and the extended robot file ------------------------------------------------------
+def _same_robot(a: Robot, b: Robot) -> None:
+    da, db = a.to_dict(), b.to_dict()
+    assert da.keys() == db.keys() and da["name"] == db["name"]
+    for k in da:
+        if k == "name":
+            continue
+        if k == "tubes":
+            for ta, tb in zip(da[k], db[k], strict=True):
+                assert ta.keys() == tb.keys()
+                np.testing.assert_allclose([ta[x] for x in ta], [tb[x] for x in ta], rtol=1e-12)
+        elif k == "domain":
+            assert da[k] == db[k]
+        elif k == "loads":
+            for x in da[k]:
+                np.testing.assert_allclose(da[k][x], db[k][x], rtol=1e-12)
+        else:
+            np.testing.assert_allclose(da[k], db[k], rtol=1e-12)
+
+
+def test_calibration_transforms():
+    c = Calibration(rotation_vector_rad=(0.01, -0.03, 0.02), translation_mm=(1.0, -0.5, 0.2),
+                    backlash_rad=(0.02, 0.0, 0.05))
+    p = np.random.default_rng(1).normal(size=(10, 3, 3)) * 50
+    np.testing.assert_allclose(c.to_robot_frame(c.to_measurement_frame(p)), p, atol=1e-12)
+    T = c.registration_matrix
+    np.testing.assert_allclose(c.to_measurement_frame(p[0]), p[0] @ T[:3, :3].T + T[:3, 3])
+    q = np.zeros((3, 6))
+    q[:, 3] = [0.0, 0.2, 0.1]
+    qe = c.effective_joints(q)
+    np.testing.assert_allclose(qe[:, 3], [0.0, 0.2 - 0.02, 0.1 + 0.02])
+    R, t = kabsch(p.reshape(-1, 3), c.to_measurement_frame(p).reshape(-1, 3))
+    np.testing.assert_allclose(R, c.rotation, atol=1e-10)
+    np.testing.assert_allclose(t, c.translation_mm, atol=1e-8)
+
+
+def test_extended_robot_file_round_trip(tmp_path):
+    base = Robot.nominal()
+    robot = base.with_changes(loads=Loads(gravity_m_s2=(0.0, -9.7, 0.3)),
+                              joint_offset=(0.5, 0.0, -1.0, 0.02, 0.0, 0.0), name="ext")
+    # mechanics only: a plain robot file that Robot.load (fk, plan, train) accepts
+    p = tmp_path / "mech.yaml"
+    write_extended_robot(p, robot, Calibration(), comment="from test")
+    assert p.read_text().startswith("# from test\n")
+    _same_robot(Robot.load(p), robot)
+    # with a calibration
+    cal = Calibration(rotation_vector_rad=(0.01, 0.0, -0.02), translation_mm=(1.0, 2.0, 3.0),
+                      backlash_rad=(0.03, 0.0, 0.01))
+    p2 = tmp_path / "cal.yaml"
+    write_extended_robot(p2, robot, cal)
+    r2, c2 = load_extended_robot(p2)
+    _same_robot(r2, robot)
+    assert c2 == cal
+    text = p2.read_text().replace("backlash_rad: [0.03, 0.0, 0.01]", "backlash_rad: [0.03, 0.0]")
+    p2.write_text(text)
+    with pytest.raises(InputError, match=r"cal\.yaml:\d+: calibration\.backlash_rad: expected a list of 3"):
+        load_extended_robot(p2)
+    r3, c3 = load_extended_robot("nominal")
+    assert r3 == base and c3.is_identity
