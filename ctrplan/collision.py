@@ -149,17 +149,17 @@ class CollisionWorld:
 
 
 def _primitive_bounds(o: Obstacle) -> np.ndarray:
-    """Conservative AABB (2, 3) of a primitive in the scene frame."""
+    """Axis-aligned bounds (2, 3) of a primitive in the scene frame."""
     R, c = o.pose[:3, :3], o.pose[:3, 3]
     if o.kind == "sphere":
         e = np.full(3, o.radius)
     elif o.kind == "box":
         e = np.abs(R) @ (0.5 * np.asarray(o.size))
-    else:  # cylinder / capsule along local z
-        half = 0.5 * o.length + (o.radius if o.kind == "capsule" else 0.0)
-        e = np.abs(R[:, 2]) * half + o.radius * np.sqrt(np.clip(1.0 - R[:, 2] ** 2, 0.0, 1.0))
-        if o.kind == "capsule":
-            e = np.abs(R[:, 2]) * 0.5 * o.length + o.radius
+    elif o.kind == "cylinder":  # disc of radius r swept along the axis a: |a_k| h + r sqrt(1 - a_k^2)
+        a = R[:, 2]
+        e = np.abs(a) * 0.5 * o.length + o.radius * np.sqrt(np.clip(1.0 - a**2, 0.0, 1.0))
+    else:  # capsule: segment along the axis plus a ball
+        e = np.abs(R[:, 2]) * 0.5 * o.length + o.radius
     return np.stack([c - e - 1e-9, c + e + 1e-9])
 
 
@@ -213,10 +213,7 @@ class CapsuleChain:
         objs = world._objects
         if pairs is None:
             pairs = world.candidates(self.seg_lo, self.seg_hi)
-        for i, j in pairs:
-            if fcl.collide(self._object(i), objs[j], req, fcl.CollisionResult()):
-                return True
-        return False
+        return any(fcl.collide(self._object(i), objs[j], req, fcl.CollisionResult()) for i, j in pairs)
 
     def contacts(self, world: CollisionWorld) -> list[tuple[int, str]]:
         """Every (capsule index, obstacle name) pair in contact."""
@@ -226,24 +223,23 @@ class CapsuleChain:
                 out.add((int(i), world.names[j]))
         return sorted(out)
 
-    def distance(self, world: CollisionWorld, cutoff: float = np.inf) -> Clearance:
+    def distance(self, world: CollisionWorld) -> Clearance:
         """Smallest distance between the chain and the obstacles (0 when in contact).
 
-        Pairs whose bounding boxes are farther apart than the best distance found so far are
-        skipped (exact: the box gap bounds the distance from below).
+        Pairs are visited by increasing bounding-box gap; the search stops when that gap (a lower
+        bound of the distance) reaches the best distance found, so the result is exact.
         """
         best = Clearance(np.inf, -1, "", np.full(3, np.nan), np.full(3, np.nan))
         if len(world) == 0 or self._active == 0:
             return best
         lo, hi = self.seg_lo, self.seg_hi
-        gap = np.maximum(0.0, np.maximum(world.aabb_lo[None] - hi[:, None], lo[:, None] - world.aabb_hi[None]))
-        lower = np.linalg.norm(gap, axis=-1)  # (M, O) lower bounds
-        order = np.argsort(lower, axis=None)
+        gap = np.maximum(0.0, np.maximum(world.aabb_lo[None] - hi[:, None],
+                                         lo[:, None] - world.aabb_hi[None]))
+        lower = np.linalg.norm(gap, axis=-1)  # (M, O)
         req = fcl.DistanceRequest(enable_nearest_points=True)
-        bound = min(cutoff, np.inf)
-        for flat in order:
+        for flat in np.argsort(lower, axis=None):
             i, j = divmod(int(flat), lower.shape[1])
-            if lower[i, j] >= min(best.distance_mm, bound):
+            if lower[i, j] >= best.distance_mm:
                 break
             res = fcl.DistanceResult()
             d = fcl.distance(self._object(i), world._objects[j], req, res)

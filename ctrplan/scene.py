@@ -27,12 +27,23 @@ file, the key and the line (`ctrplan.yamlio`). Layout::
       alpha1_deg: [-60, 60]               # keys: beta3_mm, beta3_minus_beta2_mm, beta2_minus_beta1_mm,
                                           #       alpha1_deg, alpha2_deg, alpha3_deg
     planner:                              # defaults, all optional (see `PlannerSettings`)
-      planner: rrtconnect
+      planner: rrtconnect                 # rrtconnect | rrt | rrtstar | bitstar | kpiece
       time_limit_s: 10
-      ...
+      seed: null
+      margin_mm: 0.2                      # added to the capsule radii (planning and validation)
+      surrogate_margin_mm: 0.3            # extra, while planning with the PINN
+      points: 40                          # backbone points (capsules + 1)
+      resolution_mm: 1.0                  # edge checking step in the planning metric
+      mm_per_rad: 40.0                    # metric weight of rotations
+      range_mm: null                      # tree planners' step (null: OMPL's default)
+      simplify: true
+      goal_samples: 8                     # IK seeds per goal batch / 3
+      repair: true                        # re-plan stretches that fail exact validation
 
-Cylinders and capsules are given by their centre, radius, length (of the straight part for capsules)
-and either an ``axis`` direction or a ``rotation`` (local z = axis).
+A target further from the base than the robot can ever reach is bad input (the loader says so);
+a start in collision is reported by the planner, naming the obstacles. Cylinders and capsules are
+given by their centre, radius, length (of the straight part for capsules) and either an ``axis``
+direction or a ``rotation`` (local z = axis).
 """
 
 from __future__ import annotations
@@ -244,6 +255,13 @@ class Scene:
     description: str = ""
     path: Path | None = None
     joint_limits: tuple[np.ndarray, np.ndarray] | None = None
+    key_lines: dict = field(default_factory=dict)
+
+    def where(self, key: str) -> str:
+        """``file:line: key`` for messages about a top-level key (as the loader's errors)."""
+        loc = str(self.path) if self.path else self.name
+        line = self.key_lines.get(key)
+        return f"{loc}:{line}: {key}" if line else f"{loc}: {key}"
 
     @property
     def joint_box(self) -> tuple[np.ndarray, np.ndarray]:
@@ -621,7 +639,8 @@ def scene_from_yaml(doc: YamlDoc) -> Scene:
         raise doc.error(("description",), f"expected a string, got {desc!r}")
     return Scene(name=name, robot=robot, base_pose=base_pose, obstacles=obstacles, target=target,
                  start=start, settings=settings, description=desc.strip(), path=doc.path,
-                 joint_limits=limits)
+                 joint_limits=limits,
+                 key_lines={k: doc.lines[(k,)] for k in d if (k,) in doc.lines})
 
 
 def load_scene(path: str | Path) -> Scene:

@@ -71,8 +71,10 @@ def test_good_scene_fields(tmp_path):
 def test_base_pose_and_mesh_transform(tmp_path):
     m = trimesh.creation.box(extents=[2, 2, 2])
     m.export(tmp_path / "cube.stl")
-    text = GOOD.replace("rotation: {rpy_deg: [0, 0, 0]}", "rotation: {axis_angle_deg: {axis: [0, 0, 1], angle: 90}}")
-    text = text.replace("  - {name: ball,", "  - {name: cube, mesh: cube.stl, position: [5, 0, 0], scale: 2}\n  - {name: ball,")
+    text = GOOD.replace("rotation: {rpy_deg: [0, 0, 0]}",
+                        "rotation: {axis_angle_deg: {axis: [0, 0, 1], angle: 90}}")
+    text = text.replace("  - {name: ball,",
+                        "  - {name: cube, mesh: cube.stl, position: [5, 0, 0], scale: 2}\n  - {name: ball,")
     sc = load_scene(write(tmp_path, text))
     assert np.allclose(sc.base_pose[:3, :3] @ [1, 0, 0], [0, 1, 0], atol=1e-12)
     cube = sc.obstacles[0]

@@ -11,31 +11,22 @@ import yaml
 
 from ctrplan.calibration.model import CALIBRATION_KEY, Calibration
 from ctrplan.dataio import atomic_write
-from ctrplan.robot import BUILTIN_ROBOTS, Robot, robot_from_yaml
-from ctrplan.yamlio import YamlDoc, load_yaml
+from ctrplan.robot import Robot
 
 __all__ = ["CALIBRATION_KEY", "Calibration", "extended_robot_dict", "load_extended_robot",
            "write_extended_robot"]
 
 
 def load_extended_robot(spec: str | Path | None) -> tuple[Robot, Calibration]:
-    """Load a robot file that may carry a ``calibration`` mapping (the extended robot file written
-    by ``ctrplan diagnose``); built-in names and plain robot files give an identity calibration."""
-    if spec is None or str(spec) in BUILTIN_ROBOTS:
-        return Robot.load(spec), Calibration()
-    doc = load_yaml(spec)
-    calib = Calibration.from_doc(doc)
-    rest = {k: v for k, v in doc.data.items() if k != CALIBRATION_KEY}
-    robot = robot_from_yaml(YamlDoc(data=rest, path=doc.path, lines=doc.lines))
-    return robot, calib
+    """A robot (built-in name or file, e.g. the extended robot file written by ``ctrplan diagnose``)
+    and its `Calibration` (identity unless the file has a ``calibration`` mapping)."""
+    robot = Robot.load(spec)
+    return robot, robot.calibration
 
 
 def extended_robot_dict(robot: Robot, calibration: Calibration | None = None) -> dict[str, Any]:
-    """`Robot.to_dict()` plus the ``calibration`` mapping when it is not the identity."""
-    d = robot.to_dict()
-    if calibration is not None and not calibration.is_identity:
-        d[CALIBRATION_KEY] = calibration.to_dict()
-    return d
+    """`Robot.to_dict()` with ``calibration`` (if given) in place of the robot's own."""
+    return robot.with_changes(calibration=calibration or robot.calibration).to_dict()
 
 
 def write_extended_robot(path: str | Path, robot: Robot, calibration: Calibration | None = None,

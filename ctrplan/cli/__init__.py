@@ -39,8 +39,13 @@ def _root(
 
 def _register() -> None:
     # Command modules attach themselves to `app` on import.
-    from ctrplan.cli import bench, diagnose, kinematics, model  # noqa: F401
-    from ctrplan.cli import plan  # noqa: F401
+    from ctrplan.cli import (  # noqa: F401
+        bench,
+        diagnose,
+        kinematics,
+        model,
+        plan,  # noqa: F401
+    )
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
@@ -52,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     _register()
     warnings.showwarning = _one_line_warning
     try:
-        app(args=argv, standalone_mode=False)
+        code = app(args=argv, standalone_mode=False)  # a command's typer.Exit(n) comes back as n
     except InputError as exc:
         print(f"ctrplan: error: {exc}", file=sys.stderr)
         return 2
@@ -66,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     except (typer.Abort, KeyboardInterrupt):
         print("ctrplan: aborted", file=sys.stderr)
         return 130
-    return 0
+    return code if isinstance(code, int) else 0
 
 
 if __name__ == "__main__":

@@ -90,20 +90,7 @@ def plan_command(
     if json_out:
         typer.echo(json.dumps(doc))
     if not result.solved:
-        raise NotSolved()
-
-
-class NotSolved(typer.TyperException):
-    """Exit code 1, no extra message: the summary (and the JSON) already say why.
-
-    (`typer.Exit(1)` would be swallowed: in non-standalone mode click returns its code from
-    ``app()``, which `ctrplan.cli.main` does not pass on.)
-    """
-
-    exit_code = 1
-
-    def __init__(self) -> None:
-        super().__init__("")
+        raise typer.Exit(1)  # the summary and the JSON already say why
 
 
 class _Progress:

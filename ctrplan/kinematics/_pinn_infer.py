@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 # Rational approximation of tanh used by Eigen for float32 (accurate to float32 rounding on the
 # clamped range); unlike libm's tanh it vectorises.
@@ -97,3 +97,16 @@ def infer(q, frac, box_lo, box_hi, length1, scales, loaded, equivariant, W0, b0,
                 w, hx, hy, hz = ch * w - sh * hz, ch * hx - sh * hy, ch * hy + sh * hx, ch * hz + sh * w
             o[8], o[9], o[10] = px, py, pz
             o[11], o[12], o[13], o[14] = w, hx, hy, hz
+
+
+@njit(cache=True, parallel=True)
+def infer_chunked(q, frac, box_lo, box_hi, length1, scales, loaded, equivariant, W0, b0, Wh, bh, Wo, bo,
+                  out, chunk):
+    """`infer` over cache-sized chunks of ``chunk`` configurations, chunks in parallel (run it with
+    single-threaded BLAS: the parallelism is across chunks)."""
+    nb = q.shape[0]
+    for c in prange((nb + chunk - 1) // chunk):
+        a = c * chunk
+        b = min(nb, a + chunk)
+        infer(q[a:b], frac[a:b], box_lo, box_hi, length1, scales, loaded, equivariant, W0, b0, Wh, bh,
+              Wo, bo, out[a:b])

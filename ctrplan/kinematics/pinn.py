@@ -21,15 +21,17 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from threadpoolctl import threadpool_limits
 from torch import nn
 
-from ctrplan.kinematics._pinn_infer import infer
+from ctrplan.kinematics._pinn_infer import infer, infer_chunked
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, arc_fractions, outer_radius_along
 from ctrplan.robot import Robot
 
 P_REF_MM = 100.0
 FEATURES = {"paper": 7, "equivariant": 8}
+CHUNK = 64  # configurations per cache-sized block of batched inference
 
 
 class PinnNet(nn.Module):
@@ -97,13 +99,18 @@ class PinnNet(nn.Module):
 
 
 class PinnBackend(Backend):
-    """Backbones from a trained `PinnNet`. Single-threaded-friendly float32 inference.
+    """Backbones from a trained `PinnNet`: compiled float32 inference (`_pinn_infer`).
+
+    Creating one sets BLAS to a single thread for the process: the many small matrix products of
+    single queries and planner edges lose far more to BLAS thread synchronisation than they gain,
+    and large batches are parallelised across cache-sized chunks instead.
 
     Load with `PinnBackend.load(path_or_name, robot)`; the model card is checked against the robot
     and the weights' hash (see `ctrplan.kinematics.model_file`).
     """
 
     name = "pinn"
+    cheap_per_state = True
 
     def __init__(self, robot: Robot, net: PinnNet, card: dict | None = None):
         super().__init__(robot)
@@ -112,6 +119,7 @@ class PinnBackend(Backend):
         for p in self.net.parameters():
             p.requires_grad_(False)
         self._compiled = self._export(self.net)
+        threadpool_limits(limits=1, user_api="blas")
 
     @staticmethod
     def _export(net: PinnNet) -> tuple:
@@ -142,8 +150,12 @@ class PinnBackend(Backend):
     def _evaluate(self, q: np.ndarray, frac: np.ndarray) -> np.ndarray:
         """States (B, F, 15) at arc fractions frac (B, F) for joints q (B, 6) with offsets applied."""
         out = np.empty((frac.shape[0], frac.shape[1], 15))
-        infer(np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(frac, dtype=float),
-              *self._compiled, out)
+        q = np.ascontiguousarray(q, dtype=float)
+        frac = np.ascontiguousarray(frac, dtype=float)
+        if len(q) <= CHUNK:
+            infer(q, frac, *self._compiled, out)
+        else:
+            infer_chunked(q, frac, *self._compiled, out, CHUNK)
         return out
 
     def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,

@@ -32,7 +32,7 @@ from ctrplan.planning.planner import (
     seed_ompl,
 )
 from ctrplan.planning.space import BoxSpace
-from ctrplan.planning.validate import Validation, ValidatedPath, repair_path, validate_path
+from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate_path
 from ctrplan.planning.validity import (
     BatchMotionValidator,
     ConfigurationChecker,
@@ -43,7 +43,7 @@ from ctrplan.planning.validity import (
 __all__ = [
     "OMPL_NAMES", "PLANNER_CLASSES", "BatchMotionValidator", "BoxSpace", "ConfigurationChecker",
     "Counters", "GoalSampler", "IKResult", "PlanResult", "PlanningProblem", "TipGoal", "Validation",
-    "ValidatedPath", "ValidityChecker", "backend_tip_jacobian", "build_problem", "fd_tip_jacobian",
-    "make_planner", "plan", "repair_path", "resolve_backend", "search", "seed_ompl", "solve_ik",
-    "validate_path",
+    "ValidatedPath", "ValidityChecker", "backend_tip_jacobian", "build_problem",
+    "fd_tip_jacobian", "make_planner", "plan", "repair_path", "resolve_backend", "search", "seed_ompl",
+    "solve_ik", "validate_path",
 ]

@@ -10,6 +10,7 @@ bidirectional planners (RRTConnect) and goal-biased ones work.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -160,20 +161,35 @@ class GoalSampler:
 class TipGoal(ob.GoalSampleableRegion):
     """OMPL goal region: the tip inside the target region; samples come from a `GoalSampler`.
 
-    ``sampleGoal`` hands out the goals found so far in turn and runs a new IK batch when it has
-    handed out all of them (up to ``max_batches`` batches); when there is nothing to give it writes
-    an out-of-bounds state, which OMPL's goal sampling rejects.
+    ``sampleGoal`` hands out the goals found so far in turn and runs a new IK batch once all have
+    been handed out -- at most every ``refill_interval_s`` seconds (always while none is known),
+    never after ``deadline`` (a `time.perf_counter` value) and at most ``max_batches`` times.
+    ``maxSampleCount`` only promises more samples when such a batch may run, so planners that drain
+    all goal samples up front (BIT*) terminate. With nothing to give, ``sampleGoal`` writes an
+    out-of-bounds state, which OMPL's goal sampling rejects.
     """
 
-    def __init__(self, si, sampler: GoalSampler, max_batches: int = 200):
+    def __init__(self, si, sampler: GoalSampler, max_batches: int = 200,
+                 refill_interval_s: float = 0.5, deadline: float | None = None):
         super().__init__(si)
         self.sampler = sampler
         self.checker = sampler.checker
         self.space = sampler.space
         self.max_batches = int(max_batches)
+        self.refill_interval_s = float(refill_interval_s)
+        self.deadline = deadline
         self.setThreshold(1e-9)
-        self._next = 0
+        self.calls = 0
         self.handed_out = 0
+        self._last_refill = -np.inf
+
+    def _may_refill(self) -> bool:
+        now = time.perf_counter()
+        if self.sampler.stats.batches >= self.max_batches:
+            return False
+        if self.deadline is not None and now >= self.deadline:
+            return False
+        return not self.sampler.goals or now - self._last_refill >= self.refill_interval_s
 
     def distanceGoal(self, state) -> float:  # noqa: N802 - OMPL API
         tip = self.checker.tip(self.space.state_to_q(state))
@@ -181,23 +197,23 @@ class TipGoal(ob.GoalSampleableRegion):
         return d if np.isfinite(d) else 1e9
 
     def sampleGoal(self, state) -> None:  # noqa: N802 - OMPL API
+        self.calls += 1
         goals = self.sampler.goals
-        if self._next >= len(goals) and self.sampler.stats.batches < self.max_batches:
+        if self.handed_out >= len(goals) and self._may_refill():
+            self._last_refill = time.perf_counter()
             self.sampler.sample_batch()
             goals = self.sampler.goals
         if not goals:
             for i in range(6):
                 state[i] = float(self.space.upper[i] + 1.0)
             return
-        q = goals[self._next % len(goals)]
-        self._next += 1
+        q = goals[self.handed_out % len(goals)]
         self.handed_out += 1
         self.space.set_state(state, q)
 
     def maxSampleCount(self) -> int:  # noqa: N802 - OMPL API
-        if self.sampler.stats.batches >= self.max_batches:
-            return len(self.sampler.goals)
-        return 1_000_000
+        # absolute, like OMPL's own goals: planners compare it with their count of samples drawn
+        return len(self.sampler.goals) + (1 if self._may_refill() else 0)
 
     def couldSample(self) -> bool:  # noqa: N802 - OMPL API
-        return self.maxSampleCount() > 0
+        return bool(self.sampler.goals) or self._may_refill()

@@ -4,8 +4,8 @@ The solver works in the planner's scaled box coordinates (`BoxSpace`), so every 
 the snap-free domain (clipped to the box) and the damping is isotropic in the planning metric. The tip
 Jacobian comes from a function ``q (B, 6) -> (tips (B, 3), J (B, 3, 6), ok (B,))`` in the robot frame
 (mm per mm/rad): a backend with an analytic or autograd Jacobian (the PINN's ``tip_and_jacobian``)
-plugs in directly; `fd_tip_jacobian` makes one from any backend with forward differences through a
-single batched backend call.
+plugs in directly (see `backend_tip_jacobian`); `fd_tip_jacobian` makes one from any backend with
+forward differences through a single batched backend call.
 """
 
 from __future__ import annotations
@@ -63,33 +63,16 @@ def fd_tip_jacobian(forward: ForwardFn, space: BoxSpace, eps: float = 1e-3,
     return FDTipJacobian(forward, space, eps, warm)
 
 
-class _FasterJacobian:
-    """Two Jacobian implementations; the first call times both and keeps the faster one."""
+def backend_tip_jacobian(backend, space: BoxSpace, forward: ForwardFn | None = None,
+                         analytic: bool | None = None) -> TipJacobian:
+    """A tip Jacobian for ``backend``.
 
-    def __init__(self, first, second):
-        self.candidates = [first, second]
-        self.chosen = None
-        self.warm = False
-
-    def __call__(self, q: np.ndarray, guess: np.ndarray | None = None):
-        import time
-
-        if self.chosen is None:
-            times = []
-            for f in self.candidates:
-                t = time.perf_counter()
-                out = f(q)
-                times.append(time.perf_counter() - t)
-            self.chosen = self.candidates[int(np.argmin(times))]
-            return out
-        return self.chosen(q)
-
-
-def backend_tip_jacobian(backend, space: BoxSpace, forward: ForwardFn | None = None) -> TipJacobian:
-    """A tip Jacobian for ``backend``: its own ``tip_and_jacobian(q) -> (tips, J)`` (the PINN's
-    autograd Jacobian; robot frame, mm per mm/rad) or forward differences through ``forward``
-    (default: the backend's), whichever runs faster here; forward differences alone for backends
-    without their own Jacobian."""
+    ``analytic=True`` uses the backend's own ``tip_and_jacobian(q) -> (tips, J)`` (the PINN's
+    autograd Jacobian; robot frame, mm per mm/rad); ``None`` (default) does so only if the backend
+    sets ``fast_tip_jacobian = True`` -- the PINN's autograd Jacobian costs more here than forward
+    differences through its compiled forward pass, plus a one-off warm-up of ~2 s. Otherwise:
+    forward differences through ``forward`` (default: the backend's), one batched call each.
+    """
     import inspect
 
     warm = "guess" in inspect.signature(backend.forward).parameters
@@ -98,18 +81,19 @@ def backend_tip_jacobian(backend, space: BoxSpace, forward: ForwardFn | None = N
             if guess is not None:
                 return backend.forward(q, points=points, check=False, guess=guess)
             return backend.forward(q, points=points, check=False)
-    fd = fd_tip_jacobian(forward, space, warm=warm)
     own = getattr(backend, "tip_and_jacobian", None) or getattr(backend, "tip_jacobian", None)
-    if not callable(own):
-        return fd
+    if analytic is None:
+        analytic = bool(getattr(backend, "fast_tip_jacobian", False))
+    if not (analytic and callable(own)):
+        return fd_tip_jacobian(forward, space, warm=warm)
 
-    def analytic(q: np.ndarray):
+    def jac(q: np.ndarray):
         out = own(np.atleast_2d(q))
         tips, J = np.asarray(out[0], dtype=float), np.asarray(out[1], dtype=float)
         ok = np.asarray(out[2], dtype=bool) if len(out) > 2 else np.all(np.isfinite(tips), axis=1)
         return tips, J, ok
 
-    return _FasterJacobian(analytic, fd)
+    return jac
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from ctrplan.kinematics import make_backend
 from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.planning.goal import GoalSampler, TipGoal
-from ctrplan.planning.validate import Validation, ValidatedPath, repair_path, validate_path
+from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate_path
 from ctrplan.planning.validity import BatchMotionValidator, ConfigurationChecker, ValidityChecker
 from ctrplan.scene import PLANNERS, Scene
 
@@ -75,10 +75,19 @@ def make_planner(name: str, si) -> Any:
     return cls(si)
 
 
+_OMPL_SEEDED = [False]
+
+
 def seed_ompl(seed: int | None) -> None:
-    """Seed OMPL's random number generators (call before creating planners)."""
-    if seed is not None:
+    """Seed OMPL's random number generators.
+
+    OMPL takes a seed only before its first random number generator exists, i.e. once per process:
+    later calls are ignored here (OMPL itself would print an error). Runs are therefore repeatable
+    for the first plan of a process (the CLI); numpy-side sampling is always seeded.
+    """
+    if seed is not None and not _OMPL_SEEDED[0]:
         ou.RNG.setSeed(int(seed) + 1)  # OMPL refuses 0
+        _OMPL_SEEDED[0] = True
 
 
 @dataclass
@@ -190,6 +199,8 @@ def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, p
                      goals=len(problem.sampler.goals))
 
     checker.hook = hook
+    if isinstance(problem.goal, TipGoal):
+        problem.goal.deadline = t0 + time_limit_s
 
     def remaining() -> float:
         return time_limit_s - (time.perf_counter() - t0)
@@ -211,6 +222,12 @@ def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, p
         return SearchOutcome(None, "INVALID_GOAL", False, time.perf_counter() - t0, vars(gstats).copy(),
                              msg), checker
 
+    if planner == "bitstar" and isinstance(problem.goal, TipGoal):
+        # BIT* drains every goal sample when it (re)starts a batch and restarts on new goals: give
+        # it a fixed set
+        while len(sampler.goals) < 8 and remaining() > 0.5 * time_limit_s and sampler.stats.batches < 12:
+            sampler.sample_batch()
+        problem.goal.max_batches = sampler.stats.batches
     pl = make_planner(planner, problem.si)
     if s.range_mm is not None and hasattr(pl, "setRange"):
         pl.setRange(float(s.range_mm))
@@ -304,15 +321,15 @@ def check_start(scene: Scene, checker: ConfigurationChecker, exact: Backend) -> 
     from ctrplan.collision import RobotCollisionChecker
 
     bb = exact.forward(scene.start, points=checker.points, check=False)
+    rc = RobotCollisionChecker(checker.world, scene.base_pose, checker.points, scene.settings.margin_mm)
     if not bb.converged[0]:
-        raise InputError("start: the exact model does not converge at the start configuration")
-    rc = RobotCollisionChecker(checker.world, scene.base_pose, checker.points, checker.margin_mm)
+        raise InputError(f"{scene.where('start')}: the exact model does not converge at the start "
+                         f"configuration")
     contacts = rc.contacts(bb.positions_mm[0], bb.radius_mm[0])
     if contacts:
         names = ", ".join(sorted({n for _, n in contacts}))
-        where = f"{scene.path}: " if scene.path else ""
-        raise InputError(f"{where}start: the start configuration is in collision with {names} "
-                         f"(margin {checker.margin_mm:g} mm)")
+        raise InputError(f"{scene.where('start')}: the start configuration is in collision with "
+                         f"{names} (margin {scene.settings.margin_mm:g} mm)")
 
 
 EXACT_BACKENDS = ("cosserat", "hybrid")

@@ -76,7 +76,7 @@ def plot_plan(scene: Scene, backbones_scene: np.ndarray, path: str | Path, *, ti
     colour = {n: tab(i % 20) for i, n in enumerate(names)}
 
     fig = plt.figure(figsize=(15, 8.0), dpi=100)
-    grid = fig.add_gridspec(2, 3)
+    grid = fig.add_gridspec(2, 3, hspace=0.35)
     ax3 = fig.add_subplot(grid[:, 0], projection="3d")
     for n, t in tris:
         pc = Poly3DCollection(t, facecolor=colour[n], edgecolor="none", alpha=0.12)

@@ -1,3 +1,4 @@
+# ruff: noqa: E501  (the embedded JavaScript keeps its own line lengths)
 """Offline interactive 3-D viewer of a planned path: one self-contained HTML file.
 
 No CDN, no external script: the data is embedded as JSON and drawn by a small canvas-2D renderer
