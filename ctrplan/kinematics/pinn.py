@@ -119,7 +119,15 @@ class PinnBackend(Backend):
         for p in self.net.parameters():
             p.requires_grad_(False)
         self._compiled = self._export(self.net)
+        gj = np.array([t.torsional_stiffness_nmm2 for t in robot.tubes])
+        self._twist_weight = gj / gj[0]          # residual as moment over tube-1 stiffness
+        self._moment_weight = 1.0 / robot.tubes[0].bending_stiffness_nmm2
         threadpool_limits(limits=1, user_api="blas")
+        # compile (or load from numba's cache) both kernels now, not inside a caller's timed loop
+        q0 = np.zeros((CHUNK + 1, 6))
+        q0[:, :3] = -1.0
+        self._evaluate(q0, np.zeros((CHUNK + 1, 1)))
+        self._evaluate(q0[:1], np.zeros((1, 1)))
 
     @staticmethod
     def _export(net: PinnNet) -> tuple:
@@ -171,10 +179,8 @@ class PinnBackend(Backend):
         n = frac.size
         at_ends = states[:, n:n + 3]
         s_mm = frac[None, :] * ends[:, :1]
-        gj = np.array([t.torsional_stiffness_nmm2 for t in self.robot.tubes])
-        ei1 = self.robot.tubes[0].bending_stiffness_nmm2
-        twist = np.abs(at_ends[:, [0, 1, 2], [2, 3, 4]] * gj / gj[0]).max(1)
-        moment = np.abs(at_ends[:, 0, 0:2] / ei1).max(1)
+        twist = np.abs(at_ends[:, [0, 1, 2], [2, 3, 4]] * self._twist_weight).max(1)
+        moment = np.abs(at_ends[:, 0, 0:2] * self._moment_weight).max(1)
         return Backbone(
             q=q, s_mm=s_mm, state=states[:, :n], tube_ends_mm=ends,
             tips_mm=at_ends[:, :, 8:11].copy(),
