@@ -19,6 +19,7 @@ backlash           3     lag of alpha_i (rad) in the direction of its latest mot
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -48,7 +49,7 @@ class Param:
     upper: float = np.inf
 
 
-class Effect:
+class Effect(ABC):
     """A candidate cause. Subclasses define `params`, `x0` and `apply`."""
 
     name: str = "effect"
@@ -56,14 +57,17 @@ class Effect:
     #: "mechanics" (changes the Robot), "joints" (changes the joints the tubes reach) or "frame".
     kind: str = "mechanics"
 
+    @abstractmethod
     def params(self, robot: Robot, calib: Calibration) -> list[Param]:
-        raise NotImplementedError
+        """The fitted parameters, in the order of ``x``."""
 
+    @abstractmethod
     def x0(self, robot: Robot, calib: Calibration) -> np.ndarray:
-        raise NotImplementedError
+        """Parameter values (len(params),) that reproduce the base model."""
 
+    @abstractmethod
     def apply(self, robot: Robot, calib: Calibration, x: np.ndarray) -> tuple[Robot, Calibration]:
-        raise NotImplementedError
+        """The robot and calibration extended with parameters ``x``."""
 
     def initial_guess(self, robot: Robot, calib: Calibration, predicted_robot_frame: np.ndarray,
                       measured: np.ndarray) -> np.ndarray | None:
