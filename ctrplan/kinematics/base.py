@@ -52,9 +52,6 @@ class Backend(ABC):
     """
 
     name: str = "backend"
-    #: True when extra configurations in one call cost little (network inference): callers should
-    #: batch eagerly. False when cost grows per configuration (shooting): check cheap-to-fail ones first.
-    cheap_per_state: bool = False
 
     def __init__(self, robot: Robot):
         self.robot = robot

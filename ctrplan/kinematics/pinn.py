@@ -110,7 +110,6 @@ class PinnBackend(Backend):
     """
 
     name = "pinn"
-    cheap_per_state = True
 
     def __init__(self, robot: Robot, net: PinnNet, card: dict | None = None):
         super().__init__(robot)

@@ -176,10 +176,10 @@ class ConfigurationChecker:
 
     def check_motion(self, q1: np.ndarray, q2: np.ndarray, resolution: float) -> bool:
         """Whether the straight coordinate line q1 -> q2 is valid at ``resolution`` (mm in the
-        planning metric); q1 is assumed valid. All states of the edge go to the backend in one
-        batched call and are collision-checked end state first, then in bisection order, stopping
-        at the first invalid one. For backends whose per-state cost dominates (shooting), the end
-        state is solved alone first (cached), the interior in a second call."""
+        planning metric); q1 is assumed valid. The end state is checked alone first (cached) --
+        most failing edges fail there, and every backend here pays per configuration -- then all
+        interior states go to the backend in one batched call and are collision-checked in
+        bisection order, stopping at the first invalid one."""
         self.counters.motions += 1
         e2 = self.lookup(q2)
         if e2 is not None and not e2.valid:
@@ -188,27 +188,15 @@ class ConfigurationChecker:
         n = max(1, int(np.ceil(d / resolution)))
         e1 = self.lookup(q1)
         guess = e1.initial_state[None, :] if (e1 is not None and e1.initial_state is not None) else None
-        if not self.backend.cheap_per_state or e2 is not None:
-            # costly states, cheap calls (shooting): the end state alone first -- most failing
-            # edges fail there -- then all interior states in one call
-            if e2 is None:
-                self.check(q2)
-                if not self.lookup(q2).valid:
-                    return False
-            if n > 1:
-                qs = self.space.interpolate(q1, q2, np.arange(1, n) / n)
-                bb = self.forward(qs, guess=guess)
-                order = [i - 1 for i in bisection_order(n)]
-                if not self.backbones_valid(bb, order, stop_at_first=True).all():
-                    return False
-        else:
-            # cheap states, costly calls (a network): the whole edge in one call, end state first
-            qs = self.space.interpolate(q1, q2, np.arange(1, n + 1) / n)
+        if e2 is None:
+            self.check(q2)
+            if not self.lookup(q2).valid:
+                return False
+        if n > 1:
+            qs = self.space.interpolate(q1, q2, np.arange(1, n) / n)
             bb = self.forward(qs, guess=guess)
-            order = [n - 1] + [i - 1 for i in bisection_order(n)]
-            valid = self.backbones_valid(bb, order, stop_at_first=True)
-            self._store(qs[-1], self._entry(bb, n - 1, bool(valid[n - 1])))
-            if not valid.all():
+            order = [i - 1 for i in bisection_order(n)]
+            if not self.backbones_valid(bb, order, stop_at_first=True).all():
                 return False
         self.counters.valid_motions += 1
         return True
