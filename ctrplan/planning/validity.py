@@ -231,7 +231,8 @@ class ValidityChecker(ob.StateValidityChecker):
 
 
 class BatchMotionValidator(ob.MotionValidator):
-    """OMPL motion validator: a whole edge in one batched kinematics call at ``resolution`` mm."""
+    """OMPL motion validator: end state first, then the edge interior in one batched kinematics call
+    at ``resolution`` mm (see `ConfigurationChecker.check_motion`)."""
 
     def __init__(self, si, checker: ConfigurationChecker, resolution: float | None = None):
         super().__init__(si)
