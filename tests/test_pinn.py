@@ -208,3 +208,22 @@ def test_fk_cli_accepts_learned_backends(backend, tmp_path):
     rows = out.read_text().strip().splitlines()
     assert rows[0].endswith("converged") and len(rows) > 2
     assert all(r.endswith(",1") for r in rows[1:])
+
+
+@pytest.mark.parametrize("setting", ["nope=1", "dense_batch"])
+def test_train_rejects_bad_recipe_overrides(setting, capsys):
+    from ctrplan.cli import main
+
+    assert main(["train", "--steps", "1", "--set", setting]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("ctrplan: error: --set:")
+
+
+def test_saved_model_files_have_normal_permissions(robot, tmp_path):
+    import os
+
+    save_model(PinnNet(robot), robot, tmp_path / "perm", {"recipe": {"name": "none"}})
+    plain = tmp_path / "plain"
+    plain.write_text("")
+    for ext in (".safetensors", ".json"):
+        assert os.stat(tmp_path / f"perm{ext}").st_mode == os.stat(plain).st_mode

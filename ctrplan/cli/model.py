@@ -44,6 +44,9 @@ def train(
     init: Annotated[str | None, typer.Option(
         "--init", help="Start from a model's weights (e.g. `--recipe polish --init NAME`).")] = None,
     out_dir: Annotated[Path, typer.Option("--out-dir", help="Where models are written.")] = MODELS_DIR,
+    settings: Annotated[list[str] | None, typer.Option(
+        "--set", metavar="FIELD=VALUE",
+        help="Override a recipe field, e.g. --set dense_batch=16384 (value as JSON; repeatable).")] = None,
 ) -> None:
     """Train a PINN on the Cosserat-rod equations (paper III) and write it with its model card.
 
@@ -58,7 +61,7 @@ def train(
     if threads:
         torch.set_num_threads(threads)
     model_robot = Robot.load(robot)
-    rec = get_recipe(recipe, steps=steps)
+    rec = get_recipe(recipe, steps=steps, **_parse_settings(settings or []))
     out = output_dir(out_dir) / (name or f"{model_robot.name}_{rec.name}")
     start = PinnBackend.load(init, model_robot).net if init else None
     console = Console(stderr=True)
@@ -78,6 +81,20 @@ def train(
     console.print(f"wrote {out.with_suffix('.safetensors')} and {out.with_suffix('.json')}: "
                   f"{result.steps} steps in {result.wall_time_s / 60:.1f} min; backbone error on 100 "
                   f"unseen configurations: mean {m['mean']:.3f} %, max {m['max']:.3f} %")
+
+
+def _parse_settings(items: list[str]) -> dict:
+    """``["dense_batch=16384", "lr=1e-3"]`` -> ``{"dense_batch": 16384, "lr": 0.001}``."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise InputError(f"--set: expected FIELD=VALUE, got {item!r}")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
 
 
 @app.command("eval-model")

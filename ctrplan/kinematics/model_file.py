@@ -9,16 +9,15 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 from safetensors import SafetensorError
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file, save
 
+from ctrplan.dataio import atomic_write
 from ctrplan.errors import InputError
 from ctrplan.kinematics.pinn import FEATURES, PinnNet
 from ctrplan.robot import Robot
@@ -48,23 +47,13 @@ def file_sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def _atomic_write(path: Path, write) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
 def save_model(net: PinnNet, robot: Robot, path: str | Path, card: dict[str, Any]) -> Path:
     """Write ``<path>.safetensors`` and ``<path>.json`` (card completed with robot, network, hash)."""
     weights = Path(path).with_suffix(".safetensors")
+    weights.parent.mkdir(parents=True, exist_ok=True)
     tensors = {k: v.detach().cpu().contiguous().float() for k, v in net.state_dict().items()}
-    _atomic_write(weights, lambda tmp: save_file(tensors, tmp))
+    with atomic_write(weights, "wb") as fh:
+        fh.write(save(tensors))
     full = {
         "format": CARD_FORMAT,
         "robot": robot.to_dict(),
@@ -75,8 +64,8 @@ def save_model(net: PinnNet, robot: Robot, path: str | Path, card: dict[str, Any
         "weights_file": weights.name,
         "weights_sha256": file_sha256(weights),
     }
-    text = json.dumps(full, indent=2, default=_jsonable)
-    _atomic_write(weights.with_suffix(".json"), lambda tmp: Path(tmp).write_text(text))
+    with atomic_write(weights.with_suffix(".json")) as fh:
+        fh.write(json.dumps(full, indent=2, default=_jsonable))
     return weights
 
 

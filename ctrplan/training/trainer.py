@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import math
-import platform
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -24,6 +23,7 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
+from ctrplan.bench import cpu_model
 from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import save_model
 from ctrplan.kinematics.pinn import PinnNet
@@ -75,23 +75,21 @@ RECIPES = {
 
 
 def get_recipe(name: str, **overrides) -> Recipe:
+    """Recipe ``name`` with fields replaced by ``overrides`` (None values are ignored)."""
     if name not in RECIPES:
         raise InputError(f"--recipe: unknown recipe {name!r} (available: {', '.join(RECIPES)})")
+    unknown = set(overrides) - set(Recipe.__dataclass_fields__)
+    if unknown:
+        raise InputError(f"--set: unknown recipe field(s) {', '.join(sorted(unknown))} "
+                         f"(fields: {', '.join(Recipe.__dataclass_fields__)})")
     return replace(RECIPES[name], **{k: v for k, v in overrides.items() if v is not None})
 
 
 def hardware(device: torch.device) -> str:
+    """What trained the model: GPU name, or CPU model and thread count; with the torch version."""
     if device.type == "cuda":
         return f"{torch.cuda.get_device_name(device)} (CUDA), torch {torch.__version__}"
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {torch.get_num_threads()} threads, torch {torch.__version__}"
+    return f"{cpu_model()}, {torch.get_num_threads()} threads, torch {torch.__version__}"
 
 
 class Sampler:
