@@ -36,16 +36,22 @@ class YamlDoc:
         return InputError(f"{self.where(keys)}: {message}")
 
 
-def _walk(node: yaml.Node, prefix: KeyPath, lines: dict[KeyPath, int]) -> None:
+def _walk(node: yaml.Node, prefix: KeyPath, lines: dict[KeyPath, int], path: Path) -> None:
     lines.setdefault(prefix, node.start_mark.line + 1)
     if isinstance(node, yaml.MappingNode):
+        seen: set[KeyPath] = set()
         for key_node, value_node in node.value:
             key = prefix + (str(key_node.value),)
-            lines[key] = key_node.start_mark.line + 1
-            _walk(value_node, key, lines)
+            line = key_node.start_mark.line + 1
+            if key in seen:  # YAML forbids it; PyYAML would silently keep the last value
+                name = ".".join(str(k) for k in key)
+                raise InputError(f"{path}:{line}: {name}: duplicate key (first on line {lines[key]})")
+            seen.add(key)
+            lines[key] = line
+            _walk(value_node, key, lines, path)
     elif isinstance(node, yaml.SequenceNode):
         for i, item in enumerate(node.value):
-            _walk(item, prefix + (i,), lines)
+            _walk(item, prefix + (i,), lines, path)
 
 
 def load_yaml(path: str | Path) -> YamlDoc:
@@ -68,5 +74,5 @@ def load_yaml(path: str | Path) -> YamlDoc:
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a YAML mapping at the top level")
     lines: dict[KeyPath, int] = {}
-    _walk(node, (), lines)
+    _walk(node, (), lines, path)
     return YamlDoc(data=data, path=path, lines=lines)

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 README = Path(__file__).resolve().parents[1] / "README.md"
 
 
@@ -93,11 +95,150 @@ def render_training(cards: list[dict[str, Any]]) -> str:
     return markdown_table(["recipe", "hardware", "steps", "minutes", "mean error %", "max error %"], rows)
 
 
+def _fmt(x: float | None, spec: str = ".2f") -> str:
+    return "–" if x is None else format(x, spec)
+
+
+def plan_table(rows: list[dict[str, Any]]) -> str:
+    """One scene's rows of `ctrplan bench plan --json` as a markdown table."""
+    header = ["planner", "backend", "solved", "median s", "p90 s", "max s", "time in kin / coll / planner",
+              "checks/s", "path mm", "max error vs exact mm", "repaired", "unsafe"]
+    body = []
+    for r in rows:
+        t, share = r["planning_time_s"], r["time_share"]
+        body.append([r["planner"], r["backend"], f"{r['solved']}/{r['runs']}", _fmt(t["median"]),
+                     _fmt(t["p90"]), _fmt(t["max"]),
+                     " / ".join(f"{100 * share[k]:.0f} %" for k in ("kinematics", "collision", "planner")),
+                     _fmt(r["checks_per_s"]["median"], ",.0f"), _fmt(r["path_length_mm"]["median"], ".0f"),
+                     _fmt(r["max_position_error_mm"]["max"]), str(r["repaired"]), str(r["unsafe"])])
+    return markdown_table(header, body)
+
+
+def plan_conclusion(summary: list[dict[str, Any]]) -> str:
+    """Plain-language comparison of the PINN with the exact backends, computed from the summary."""
+    by = {(r["scene"], r["planner"], r["backend"]): r for r in summary}
+    ratios, checks, lines = [], [], []
+    for (scene, planner, backend), r in by.items():
+        p = by.get((scene, planner, "pinn"))
+        if backend == "pinn" or p is None or not p["solved"] or not r["solved"]:
+            continue
+        ratio = r["planning_time_s"]["median"] / p["planning_time_s"]["median"]
+        ratios.append((backend, ratio))
+        checks.append((backend, r["checks_per_s"]["median"] / p["checks_per_s"]["median"]))
+        lines.append(f"{scene} / {planner}: {backend} {r['solved']}/{r['runs']} solved, median "
+                     f"{r['planning_time_s']['median']:.2f} s vs PINN {p['solved']}/{p['runs']}, "
+                     f"{p['planning_time_s']['median']:.2f} s ({ratio:.2f}x)")
+    text = []
+    for backend in dict.fromkeys(b for b, _ in ratios):
+        rs = np.array([x for b, x in ratios if b == backend])
+        cs = np.array([x for b, x in checks if b == backend])
+        g = float(np.exp(np.log(rs).mean()))
+        verdict = ("slower than" if g > 1.1 else "faster than" if g < 0.9 else "about as fast as")
+        text.append(f"- **{backend}** is {verdict} the PINN: median planning time {g:.2f}x the PINN's "
+                    f"(geometric mean over {len(rs)} scene/planner pairs, range {rs.min():.2f}–"
+                    f"{rs.max():.2f}x); it checks {float(np.exp(np.log(cs).mean())):.2f}x as many "
+                    f"configurations per second.")
+    pinn = [r for r in summary if r["backend"] == "pinn"]
+    exact = [r for r in summary if r["backend"] != "pinn"]
+
+    def spread(rows: list[dict[str, Any]]) -> float:
+        vals = [r["planning_time_s"]["p90"] / r["planning_time_s"]["median"] for r in rows
+                if r["planning_time_s"]["median"]]
+        return float(np.median(vals)) if vals else float("nan")
+
+    text.append(f"- **Predictability**: the run-to-run spread is the sampling planner's: p90/median "
+                f"planning time is {spread(pinn):.2f} with the PINN and {spread(exact):.2f} with the exact "
+                f"backends (median over scene/planner pairs).")
+    unsafe = sum(r["unsafe"] for r in pinn)
+    repaired = sum(r["repaired"] for r in pinn)
+    text.append(f"- **Safety**: every PINN path was re-checked with the exact model; {repaired} needed a "
+                f"repair and {unsafe} stayed unsafe (reported as not solved).")
+    return "\n".join(text) + "\n\n<details><summary>Per scene and planner</summary>\n\n" + \
+        "\n".join(f"- {line}" for line in lines) + "\n\n</details>"
+
+
+def render_plan(doc: dict[str, Any]) -> str:
+    """Tables, plots and conclusion of `ctrplan bench plan --json`."""
+    summary, st = doc["summary"], doc["settings"]
+    out = Path(st["out"]) if "out" in st else None
+    parts = [plan_conclusion(summary)]
+    for scene in dict.fromkeys(r["scene"] for r in summary):
+        rows = [r for r in summary if r["scene"] == scene]
+        parts.append(f"**{scene}** ({rows[0]['runs']} seeded runs per row, {rows[0]['time_limit_s']:g} s "
+                     f"budget)\n\n{plan_table(rows)}")
+    if out is not None:
+        rel = (README.parent / out).resolve().relative_to(README.parent)
+        parts.append(f"![planning times]({rel}/planning_times.png)\n\n![time split]({rel}/time_split.png)")
+    m = doc["machine"]
+    parts.append(f"Machine: {m['cpu']}, {m['cores']} cores, {st['executor']}; {m['platform']}. "
+                 f"Times include goal sampling (IK) and any repair, not the exact re-validation. "
+                 f"\"unsafe\": a path the planner found that failed the exact check even after repair. "
+                 f"Wall time {st['wall_time_s'] / 60:.0f} min.")
+    return "\n\n".join(parts)
+
+
 BLOCKS = {
     "kinematics": Block(marker="bench:kinematics", args=("bench", "kinematics"), render=render_kinematics),
     "pinn": Block(marker="pinn:accuracy", args=("eval-model",), render=render_pinn),
+    "plan": Block(marker="bench:plan", args=("bench", "plan", "scenes/skullbase.yaml", "--out",
+                                              "docs/bench/plan_skullbase"), render=render_plan),
+    "plan-scenes": Block(marker="bench:plan-scenes",
+                         args=("bench", "plan", "scenes/open.yaml", "scenes/pipe.yaml", "--out",
+                               "docs/bench/plan_scenes"), render=render_plan),
 }
 TRAINING_CARDS = README.parent / "docs" / "training"
+
+
+FINETUNE_MARKER = "pinn:finetune"
+FINETUNE_ARGS = ("--shots", "500", "--heldout", "0.8", "--threads", "1")
+
+
+def render_finetune(card: dict[str, Any], command: str, wall_s: float) -> str:
+    """Held-out tip error of the Cosserat models and the PINN before/after few-shot fine-tuning, from
+    the card `ctrplan train --measured ... --json` wrote."""
+    table, on = card["metrics"]["measured_heldout"], card["finetuned_on"]
+    rows = [[m["model"], f"{m['mean_mm']:.3f}", f"{m['median_mm']:.3f}", f"{m['p95_mm']:.3f}",
+             f"{m['mean_pct_length']:.3f} %",
+             " / ".join(f"{t['mean_mm']:.3f}" for t in m["per_tube"][1:])] for m in table["models"]]
+    ext = on["extended_model"]
+    fitted = ", ".join(f"{k} = {v['value']:.4g} (nominal {v['nominal']:.4g})"
+                       for k, v in ext["parameters"].items())
+    return (markdown_table(["model", "mean mm", "median mm", "p95 mm", "mean % of arc length",
+                            "tubes 2 / 3 mean mm"], rows)
+            + f"\n\nTube-1 tip error on {table['rows']:,} held-out rows (contiguous blocks) of "
+              f"{on['rows']:,} generated rows in acquisition order: hidden cause tube 1 pre-curved 10 % "
+              f"more than nominal, 0.1 mm tracker noise per coordinate; {on['shots']} training rows. "
+              f"Extended Cosserat: `diagnose` on the same {on['shots']} rows named `{ext['cause']}` "
+              f"({fitted}; {ext['diagnose_seconds']:.0f} s). Fine-tuned PINN: `{on['init_model']}` "
+              f"continued with recipe `{card['recipe']['name']}`, {card['steps']} steps in "
+              f"{card['wall_time_s']:.0f} s on {card['hardware']}; all of it took {wall_s / 60:.1f} min."
+              f"\n\nGenerated by `{command}` (via `scripts/update_readme.py finetune`).")
+
+
+def run_finetune(extra: list[str]) -> str:
+    """Generate the measured data (2,500 rows, hidden cause: tube 1 curvature +10 %), fine-tune the
+    shipped PINN on 500 of them with `ctrplan train --measured` and render the held-out table."""
+    import tempfile
+    import time
+    from dataclasses import replace
+
+    from ctrplan.calibration.data import write_measured_csv
+    from ctrplan.calibration.synthetic import generate
+    from ctrplan.robot import Robot
+
+    nominal = Robot.nominal()
+    tube1 = replace(nominal.tubes[0], curvature_per_mm=1.10 * nominal.tubes[0].curvature_per_mm)
+    truth = nominal.with_changes(tubes=(tube1, *nominal.tubes[1:]))
+    syn = generate(2500, "none", seed=3, noise_mm=0.1, robot=truth)
+    with tempfile.TemporaryDirectory() as tmp:
+        data = Path(tmp) / "measured.csv"
+        write_measured_csv(data, syn.data.q, syn.data.tips_mm)
+        args = ["train", "--measured", str(data), *FINETUNE_ARGS, *extra, "--out-dir", tmp, "--json"]
+        t0 = time.perf_counter()
+        card = ctrplan_json(args)
+        wall = time.perf_counter() - t0
+    command = shlex.join(["ctrplan", "train", "--measured", "measured.csv", *FINETUNE_ARGS, *extra])
+    return render_finetune(card, command, wall)
 
 
 def replace_block(text: str, marker: str, content: str) -> str:
@@ -109,15 +250,20 @@ def replace_block(text: str, marker: str, content: str) -> str:
     return pattern.sub(lambda _: f"{start}\n{content}\n{end}", text)
 
 
+def ctrplan_json(args: list[str]) -> dict[str, Any]:
+    """Run ``ctrplan ARGS`` (ending in --json) with this interpreter; its JSON document."""
+    entry = "from ctrplan.cli import main; raise SystemExit(main())"  # `ctrplan` of this interpreter
+    result = subprocess.run([sys.executable, "-c", entry, *args], stdout=subprocess.PIPE, check=False,
+                            text=True, cwd=README.parent)
+    if result.returncode != 0:
+        raise SystemExit(f"ctrplan {shlex.join(args)} failed with exit code {result.returncode}")
+    return json.loads(result.stdout)
+
+
 def run_block(name: str, extra: list[str]) -> str:
     """Run block ``name``'s command with ``extra`` arguments; its rendered markdown."""
     args = [*BLOCKS[name].args, *extra, "--json"]
-    entry = "from ctrplan.cli import main; raise SystemExit(main())"  # `ctrplan` of this interpreter
-    result = subprocess.run([sys.executable, "-c", entry, *args], stdout=subprocess.PIPE, check=False,
-                            text=True)
-    if result.returncode != 0:
-        raise SystemExit(f"ctrplan {shlex.join(args)} failed with exit code {result.returncode}")
-    doc = json.loads(result.stdout)
+    doc = ctrplan_json(args)
     command = shlex.join(["ctrplan", *args])
     return f"{BLOCKS[name].render(doc)}\n\nGenerated by `{command}` (via `scripts/update_readme.py`)."
 
@@ -125,7 +271,8 @@ def run_block(name: str, extra: list[str]) -> str:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      epilog="Other arguments are passed on to the block's command.")
-    parser.add_argument("block", choices=sorted([*BLOCKS, "training"]), help="README block to regenerate")
+    parser.add_argument("block", choices=sorted([*BLOCKS, "training", "finetune"]),
+                        help="README block to regenerate")
     parser.add_argument("--readme", type=Path, default=README, help="README file to update")
     ns, extra = parser.parse_known_args(argv)  # the rest goes to the ctrplan command
     text = ns.readme.read_text()
@@ -134,6 +281,8 @@ def main(argv: list[str] | None = None) -> None:
         body = render_training(cards) + ("\n\nFrom the model cards in `docs/training/` (written by "
                                          "`ctrplan train`; errors on 100 unseen configurations).")
         ns.readme.write_text(replace_block(text, "pinn:training", body))
+    elif ns.block == "finetune":
+        ns.readme.write_text(replace_block(text, FINETUNE_MARKER, run_finetune(extra)))
     else:
         ns.readme.write_text(replace_block(text, BLOCKS[ns.block].marker, run_block(ns.block, extra)))
     print(f"updated the {ns.block} block of {ns.readme}", file=sys.stderr)

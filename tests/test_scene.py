@@ -108,6 +108,8 @@ def test_ellipsoid_target():
     (lambda s: s.replace("start: [-80, -65, -10, 0, 0, 0]", "start: [-80, -65, -10, 0, 0, 0"),
      "malformed YAML"),
     (lambda s: s.replace("  - {name: slab", "  - {name: ball"), ":8: obstacles[1].name: duplicate"),
+    (lambda s: s.replace("robot: nominal", "robot: nominal\nrobot: other"),
+     ":3: robot: duplicate key (first on line 2)"),
 ])
 def test_malformed_scenes_name_key_and_line(tmp_path, edit, needle):
     p = write(tmp_path, edit(GOOD))

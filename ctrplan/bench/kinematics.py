@@ -108,7 +108,8 @@ def run(backends: dict[str, Backend], n: int, points: Sequence[int], seed: int =
         rows.append({"backend": case.backend, "mode": case.mode, "points": case.points, "n": n,
                      **timing_stats(t), "failures": int(np.count_nonzero(~converged)),
                      "median_iterations": float(np.median(iterations)),
-                     "max_residual_per_m": float(residual[converged].max()) if converged.any() else None})
+                     "max_residual_per_m": float(residual[converged].max()) if converged.any() else None,
+                     "settings": backend.describe()})
     return rows, times
 
 
@@ -116,7 +117,7 @@ def throughput(backends: dict[str, Backend], points: int, batch: int = 5000, see
                min_seconds: float = 1.0) -> list[dict[str, Any]]:
     """Batched evaluation rate: one ``forward`` call on ``batch`` configurations, repeated for at
     least ``min_seconds``, on every core the process may use. Rows: backend, points, batch,
-    backbones_per_s, calls, failures."""
+    backbones_per_s, calls, failures, settings (`Backend.describe`)."""
     robot = next(iter(backends.values())).robot
     q = robot.sample_joints(batch, np.random.default_rng(seed))
     rows = []
@@ -131,5 +132,6 @@ def throughput(backends: dict[str, Backend], points: int, batch: int = 5000, see
             if elapsed >= min_seconds:
                 break
         rows.append({"backend": name, "points": points, "batch": batch,
-                     "backbones_per_s": calls * batch / elapsed, "calls": calls, "failures": failures})
+                     "backbones_per_s": calls * batch / elapsed, "calls": calls, "failures": failures,
+                     "settings": backend.describe()})
     return rows

@@ -41,3 +41,64 @@ def timing_boxplot(series: Mapping[tuple[str, int], np.ndarray], path: str | Pat
     fig.tight_layout()
     with atomic_write(path, "wb") as fh:
         fig.savefig(fh, format="png", dpi=150)
+
+
+def planning_plots(summary: list[dict], records: list[dict], out: Path) -> list[Path]:
+    """``planning_times.png`` (per scene: planning time of every run per planner and backend, success
+    rate above) and ``time_split.png`` (mean seconds in kinematics / collision / planner)."""
+    scenes = list(dict.fromkeys(s["scene"] for s in summary))
+    backends = list(dict.fromkeys(s["backend"] for s in summary))
+    planners = list(dict.fromkeys(s["planner"] for s in summary))
+    width = 0.8 / len(backends)
+    fig = Figure(figsize=(max(6.0, 2.2 * len(planners)) * len(scenes) ** 0.5 + 1, 4.2 * len(scenes)))
+    for k, scene in enumerate(scenes):
+        ax = fig.add_subplot(len(scenes), 1, k + 1)
+        for i, backend in enumerate(backends):
+            for j, planner in enumerate(planners):
+                rs = [r for r in records if (r["scene_name"], r["backend"], r["planner"])
+                      == (scene, backend, planner)]
+                if not rs:
+                    continue
+                x = j + (i - (len(backends) - 1) / 2) * width
+                times = np.array([r["planning_time_s"] for r in rs])
+                ok = np.array([r["solved"] for r in rs])
+                ax.boxplot([times], positions=[x], widths=0.85 * width, whis=(0, 100), showfliers=False,
+                           patch_artist=True, boxprops={"facecolor": f"C{i}", "alpha": 0.35},
+                           medianprops={"color": "black"})
+                jitter = x + (np.linspace(-0.3, 0.3, len(rs)) * width)
+                ax.scatter(jitter[ok], times[ok], s=9, color=f"C{i}", zorder=3)
+                ax.scatter(jitter[~ok], times[~ok], s=22, marker="x", color="red", zorder=3)
+                ax.annotate(f"{ok.mean():.0%}", (x, times.max()), textcoords="offset points",
+                            xytext=(0, 4), ha="center", fontsize=7)
+        for i, backend in enumerate(backends):
+            ax.plot([], [], "s", color=f"C{i}", alpha=0.6, label=backend)
+        ax.plot([], [], "x", color="red", label="not solved")
+        ax.set_xticks(range(len(planners)), planners)
+        ax.set_yscale("log")
+        ax.set_ylabel("planning time (s)")
+        ax.set_title(f"{scene}: planning time per run (success rate above)")
+        ax.grid(axis="y", which="both", alpha=0.3)
+        ax.legend(fontsize="small", loc="lower right")
+    fig.tight_layout()
+    paths = [out / "planning_times.png", out / "time_split.png"]
+    with atomic_write(paths[0], "wb") as fh:
+        fig.savefig(fh, format="png", dpi=130)
+
+    labels = [f"{s['scene']} | {s['planner']} | {s['backend']}" for s in summary]
+    fig = Figure(figsize=(8.0, 1.2 + 0.28 * len(summary)))
+    ax = fig.add_subplot()
+    left = np.zeros(len(summary))
+    for i, part in enumerate(("kinematics", "collision", "planner")):
+        widths = np.array([s["time_split_s"][part] for s in summary])
+        ax.barh(range(len(summary)), widths, left=left, color=f"C{i}", label=part)
+        left += widths
+    ax.set_yticks(range(len(summary)), labels, fontsize=7)
+    ax.invert_yaxis()
+    ax.set_xlabel("mean seconds per run")
+    ax.set_title("Where planning time goes (mean per run)")
+    ax.legend(fontsize="small", loc="lower right")
+    ax.grid(axis="x", alpha=0.3)
+    fig.tight_layout()
+    with atomic_write(paths[1], "wb") as fh:
+        fig.savefig(fh, format="png", dpi=130)
+    return paths

@@ -304,8 +304,11 @@ def _compare(cand_err: np.ndarray, ref_err: np.ndarray, alpha: float,
 
 
 def diagnose(data: MeasuredData, robot: Robot | None = None, calibration: Calibration | None = None,
-             options: DiagnoseOptions | None = None) -> Diagnosis:
-    """Diagnose measured tips against ``robot`` (+ ``calibration``); see the module docstring."""
+             options: DiagnoseOptions | None = None, direction: np.ndarray | None = None) -> Diagnosis:
+    """Diagnose measured tips against ``robot`` (+ ``calibration``); see the module docstring.
+
+    ``direction`` (N, 6): direction of motion of every row, when ``data`` is a subset of a longer
+    acquisition (default: from the rows of ``data``, `motion_direction`)."""
     t0 = time.perf_counter()
     robot = robot or Robot.nominal()
     calibration = calibration or Calibration()
@@ -313,7 +316,8 @@ def diagnose(data: MeasuredData, robot: Robot | None = None, calibration: Calibr
     for c in opt.candidates:
         make_effect(c)  # validates names
     rows_in_file = len(data)
-    direction = motion_direction(data.q)   # from the full sequence, before any subsampling
+    if direction is None:
+        direction = motion_direction(data.q)   # from the full sequence, before any subsampling
     if len(data) > opt.max_rows:
         keep = contiguous_subsample(len(data), opt.max_rows)
         data, direction = data.subset(keep), direction[keep]

@@ -15,7 +15,9 @@ from rich.table import Table
 
 from ctrplan.bench import kinematics as kinematics_bench
 from ctrplan.bench import machine_info, single_core
-from ctrplan.bench.plots import timing_boxplot
+from ctrplan.bench import planning as planning_bench
+from ctrplan.bench.fanout import check_workers, run_jobs
+from ctrplan.bench.plots import planning_plots, timing_boxplot
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import RobotOpt
 from ctrplan.dataio import atomic_write, output_dir
@@ -64,6 +66,23 @@ def progress_bar() -> Progress:
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                     TimeRemainingColumn(), console=console, auto_refresh=False,
                     disable=not console.is_terminal)
+
+
+def publish(doc: dict, out: Path, as_json: bool) -> bool:
+    """Write ``doc`` to ``out/results.json``; with ``as_json`` also print it (then True: no table)."""
+    with atomic_write(out / "results.json") as fh:
+        json.dump(doc, fh, indent=2)
+    if as_json:
+        typer.echo(json.dumps(doc, indent=2))
+    return as_json
+
+
+def result_table(title: str, columns: list[tuple[str, bool]]) -> Table:
+    """An empty terminal table with ``(header, left_aligned)`` columns."""
+    table = Table(title=title, box=box.SIMPLE_HEAD, collapse_padding=True, pad_edge=False)
+    for header, left in columns:
+        table.add_column(header, justify="left" if left else "right")
+    return table
 
 
 @bench_app.command("kinematics")
@@ -117,15 +136,10 @@ def kinematics(
     timing_boxplot({(case.label, case.points): t for case, t in times.items()},
                    out / "kinematics_times.png",
                    title=f"Single-query forward kinematics, n = {n} per box, one core")
-    with atomic_write(out / "results.json") as fh:
-        json.dump(doc, fh, indent=2)
-    if as_json:
-        typer.echo(json.dumps(doc, indent=2))
+    if publish(doc, out, as_json):
         return
-    table = Table(title=f"bench kinematics: ms per call, n = {n}, one core of {doc['machine']['cpu']}",
-                  box=box.SIMPLE_HEAD, collapse_padding=True, pad_edge=False)
-    for header, _, fmt in TABLE_COLUMNS:
-        table.add_column(header, justify="left" if fmt == "{}" else "right")
+    table = result_table(f"bench kinematics: ms per call, n = {n}, one core of {doc['machine']['cpu']}",
+                         [(header, fmt == "{}") for header, _, fmt in TABLE_COLUMNS])
     for row in results:
         table.add_row(*(fmt.format(row[key]) for _, key, fmt in TABLE_COLUMNS))
     Console().print(table)
@@ -133,3 +147,88 @@ def kinematics(
         typer.echo(f"batched {row['backend']}: {row['backbones_per_s']:.0f} backbones/s "
                    f"({row['batch']} configurations x {row['points']} points per call, all cores)")
     typer.echo(f"wrote {out / 'results.json'} and {out / 'kinematics_times.png'}", err=True)
+
+
+@bench_app.command("plan")
+def plan(
+    scenes: Annotated[list[Path], typer.Argument(help="Scene files (YAML).", show_default=False)],
+    backend: Annotated[str, typer.Option(
+        "--backend", help="Comma-separated kinematics backends.")] = "pinn,cosserat,hybrid",
+    planner: Annotated[str, typer.Option(
+        "--planner", help="Comma-separated planners (rrtconnect, rrt, rrtstar, bitstar, kpiece).")
+    ] = ",".join(planning_bench.DEFAULT_PLANNERS),
+    runs: Annotated[int, typer.Option("--runs", help="Seeded runs per scene x backend x planner.")] = 20,
+    time_limit: Annotated[float | None, typer.Option(
+        "--time-limit", help="Time budget per run in seconds (default: each scene's setting).")] = None,
+    seed: Annotated[int, typer.Option("--seed", help="First seed; runs use seed, seed+1, ...")] = 0,
+    out: Annotated[Path, typer.Option(
+        "--out", help="Directory for results.json, the OMPL logs, benchmark.db and plots.")
+    ] = Path("runs/bench_plan"),
+    as_json: Annotated[bool, typer.Option("--json", help="Print the JSON summary on stdout.")] = False,
+    workers: Annotated[int, typer.Option(
+        "--workers", help="Local worker processes, one per core (1: in this process).")] = 1,
+    ray: Annotated[str | None, typer.Option(
+        "--ray", help="Run on a Ray cluster at this address ('local' starts one here; needs the "
+                      "'ray' extra).")] = None,
+) -> None:
+    """Planning benchmark: every backend x planner on each scene, N seeded runs each.
+
+    Reports success (confirmed by the exact model), the planning-time distribution, the time split
+    between kinematics, collision checking and the planner, validity checks per second, path length
+    and the exact-model validation outcome. Writes an OMPL benchmark log per scene and the Planner
+    Arena database (benchmark.db), plots and results.json.
+    """
+    from ctrplan.bench.ompl_log import write_database, write_logs
+    from ctrplan.scene import PLANNERS
+
+    backends = parse_list(backend, "--backend")
+    planners = parse_list(planner, "--planner")
+    for name in backends:
+        if name not in BACKENDS:
+            raise InputError(f"--backend: unknown backend {name!r} (choose from {', '.join(BACKENDS)})")
+    for name in planners:
+        if name not in PLANNERS:
+            raise InputError(f"--planner: unknown planner {name!r} (choose from {', '.join(PLANNERS)})")
+    if runs < 1:
+        raise InputError(f"--runs: need at least 1 run, got {runs}")
+    if time_limit is not None and not time_limit > 0:
+        raise InputError(f"--time-limit: must be > 0 s, got {time_limit}")
+    check_workers(workers, ray)
+    limits = planning_bench.prepare(scenes, backends, time_limit)
+    specs = planning_bench.make_specs(limits, backends, planners, runs, seed)
+    out = output_dir(out)
+    t0 = time.perf_counter()
+    with progress_bar() as bar:
+        task = bar.add_task("bench plan", total=len(specs))
+
+        def tick(done: int, total: int) -> None:
+            bar.update(task, completed=done)
+            bar.refresh()
+
+        records = run_jobs(planning_bench.run_one, specs, workers=workers, ray_address=ray, tick=tick)
+    summary = planning_bench.summarize(records)
+    machine = machine_info()
+    settings = {"backends": backends, "planners": planners, "runs": runs, "first_seed": seed,
+                "time_limit_s": {Path(f).name: limit for f, limit in limits},
+                "executor": f"ray {ray}" if ray else f"{workers} local worker(s), one core each",
+                "wall_time_s": round(time.perf_counter() - t0, 1), "out": str(out)}
+    logs = write_logs(records, out, machine, settings)
+    write_database(logs, out / "benchmark.db")
+    plots = planning_plots(summary, records, out)
+    doc = {"machine": machine, "settings": settings, "summary": summary, "runs": records}
+    if publish(doc, out, as_json):
+        return
+    table = result_table(f"bench plan: {runs} runs each, one core of {machine['cpu']} per run",
+                         [(h, h in ("scene", "planner", "backend")) for h in (
+                             "scene", "planner", "backend", "solved", "median s", "p90 s", "max s",
+                             "kin %", "coll %", "plan %", "checks/s", "repaired", "unsafe")])
+    for s in summary:
+        t, share = s["planning_time_s"], s["time_share"]
+        table.add_row(s["scene"], s["planner"], s["backend"], f"{s['solved']}/{s['runs']}",
+                      f"{t['median']:.2f}", f"{t['p90']:.2f}", f"{t['max']:.2f}",
+                      f"{100 * share['kinematics']:.0f}", f"{100 * share['collision']:.0f}",
+                      f"{100 * share['planner']:.0f}", f"{s['checks_per_s']['median']:.0f}",
+                      str(s["repaired"]), str(s["unsafe"]))
+    Console().print(table)
+    typer.echo(f"wrote {out / 'results.json'}, {len(logs)} OMPL log(s), {out / 'benchmark.db'} and "
+               f"{', '.join(p.name for p in plots)}", err=True)

@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ctrplan.cli import app
-from ctrplan.cli.bench import output_dir
 from ctrplan.cli.kinematics import RobotOpt
+from ctrplan.dataio import output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
 from ctrplan.kinematics.pinn import PinnBackend
@@ -20,6 +20,9 @@ from ctrplan.robot import Robot
 from ctrplan.training.evaluate import compare
 from ctrplan.training.trainer import RECIPES, get_recipe
 from ctrplan.training.trainer import train as run_training
+
+if TYPE_CHECKING:
+    from ctrplan.training.fewshot import FewShot
 
 ModelOpt = Annotated[str | None, typer.Option(
     "--model", help=f"Model name in models/ or path to a .safetensors file (default {DEFAULT_MODEL}).")]
@@ -31,7 +34,8 @@ def train(
         "--name", help="Model name: writes models/NAME.safetensors and models/NAME.json "
                        "(default: ROBOT_RECIPE).")] = None,
     robot: RobotOpt = None,
-    recipe: Annotated[str, typer.Option("--recipe", help=f"Recipe: {' | '.join(RECIPES)}.")] = "fast",
+    recipe: Annotated[str | None, typer.Option(
+        "--recipe", help=f"Recipe: {' | '.join(RECIPES)} (default: fast; finetune with --measured).")] = None,
     steps: Annotated[int | None, typer.Option(
         "--steps", help="Optimiser steps (recipe default).")] = None,
     time_limit: Annotated[float | None, typer.Option(
@@ -42,28 +46,50 @@ def train(
     resume: Annotated[bool, typer.Option(
         "--resume", help="Continue from the last checkpoint of NAME.")] = False,
     init: Annotated[str | None, typer.Option(
-        "--init", help="Start from a model's weights (e.g. `--recipe polish --init NAME`).")] = None,
+        "--init", help=f"Start from a model's weights (e.g. `--recipe polish --init NAME`; with "
+                       f"--measured the default is {DEFAULT_MODEL}).")] = None,
+    measured: Annotated[Path | None, typer.Option(
+        "--measured", metavar="DATA.csv", show_default=False,
+        help="Fine-tune on measured tips (paper stage b): a measured-data CSV or CRL file, split into "
+             "training and held-out rows as `ctrplan diagnose` splits it.")] = None,
+    shots: Annotated[int | None, typer.Option(
+        "--shots", help="With --measured: training rows used (default: all training rows).")] = None,
+    heldout: Annotated[float, typer.Option(
+        "--heldout", help="With --measured: fraction of the rows held out (contiguous blocks).")] = 0.25,
     out_dir: Annotated[Path, typer.Option("--out-dir", help="Where models are written.")] = MODELS_DIR,
     settings: Annotated[list[str] | None, typer.Option(
         "--set", metavar="FIELD=VALUE",
         help="Override a recipe field, e.g. --set dense_batch=16384 (value as JSON; repeatable).")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the model card as JSON on stdout.")] = False,
 ) -> None:
     """Train a PINN on the Cosserat-rod equations (paper III) and write it with its model card.
 
     Checkpoints go to NAME.ckpt.* beside the model every two minutes; `--resume` picks them up.
     The card records the robot (and its fingerprint), recipe, sample counts, wall time, hardware and
     accuracy on 100 unseen configurations.
+
+    With `--measured DATA.csv --shots N` it continues training a model (default: the shipped one) on
+    N measured training rows plus the physics residuals, and prints the held-out tip error of the
+    nominal and extended Cosserat models (`diagnose` on the same rows) and of the PINN before and
+    after; the card records the data file (name, SHA-256), the split and that table.
     """
     import torch
 
     if device.startswith("cuda") and not torch.cuda.is_available():
         raise InputError(f"--device: {device} requested but no CUDA device is available")
+    if measured is None and shots is not None:
+        raise InputError("--shots: needs --measured DATA.csv")
     if threads:
         torch.set_num_threads(threads)
     model_robot = Robot.load(robot)
-    rec = get_recipe(recipe, steps=steps, **_parse_settings(settings or []))
-    out = output_dir(out_dir) / (name or f"{model_robot.name}_{rec.name}")
-    start = PinnBackend.load(init, model_robot).net if init else None
+    rec = get_recipe(recipe or ("fast" if measured is None else "finetune"), steps=steps,
+                     **_parse_settings(settings or []))
+    fewshot = None
+    if measured is not None:
+        init = init or DEFAULT_MODEL
+        fewshot = _measured_split(measured, model_robot, shots, heldout)
+    start = PinnBackend.load(init, model_robot) if init else None
+    out = output_dir(out_dir, "--out-dir") / (name or f"{model_robot.name}_{rec.name}")
     console = Console(stderr=True)
     bar = Progress(TextColumn("train {task.fields[recipe]}"), BarColumn(), MofNCompleteColumn(),
                    TimeElapsedColumn(), TextColumn("loss {task.fields[loss]}"), console=console)
@@ -73,14 +99,38 @@ def train(
         def progress(step: int, total: int, stats: dict) -> None:
             bar.update(task, completed=step, loss=f"{stats['loss']:.4g}")
 
-        result = run_training(
-            model_robot, rec, out, seed=seed, device=device, resume=resume, init_from=start,
-            time_limit_s=time_limit * 60 if time_limit else None, progress=progress,
-            evaluate=lambda net: compare(PinnBackend(model_robot, net), model_robot).metrics())
+        common = dict(seed=seed, device=device, resume=resume, progress=progress,
+                      time_limit_s=time_limit * 60 if time_limit else None)
+        if fewshot is not None:
+            from ctrplan.training.finetune import finetune, table_text
+
+            result = finetune(fewshot, start, out, rec, init_model=str(init), **common)
+        else:
+            result = run_training(
+                model_robot, rec, out, init_from=start.net if start else None, **common,
+                evaluate=lambda net: compare(PinnBackend(model_robot, net), model_robot).metrics())
     m = result.card["metrics"]["backbone_error_pct"]
     console.print(f"wrote {out.with_suffix('.safetensors')} and {out.with_suffix('.json')}: "
                   f"{result.steps} steps in {result.wall_time_s / 60:.1f} min; backbone error on 100 "
-                  f"unseen configurations: mean {m['mean']:.3f} %, max {m['max']:.3f} %")
+                  f"unseen configurations: mean {m['mean']:.3f} % (vs the robot file's Cosserat model), "
+                  f"max {m['max']:.3f} %")
+    if fewshot is not None:
+        console.print(table_text(result.card["metrics"]["measured_heldout"]))
+    if as_json:
+        typer.echo(out.with_suffix(".json").read_text())  # the card as written, with robot and hash
+
+
+def _measured_split(path: Path, robot: Robot, shots: int | None, heldout: float) -> FewShot:
+    """Read ``path`` and take the fine-tuning shots (all training rows if ``shots`` is None), with
+    the held-out blocks of `ctrplan diagnose` (its default seed)."""
+    from ctrplan.calibration.data import read_measured
+    from ctrplan.training.fewshot import split_shots
+
+    if shots is not None and shots < 1:
+        raise InputError(f"--shots: must be >= 1, got {shots}")
+    if not 0.0 < heldout < 1.0:
+        raise InputError(f"--heldout: must be in (0, 1), got {heldout}")
+    return split_shots(read_measured(path, robot), shots, heldout)
 
 
 def _parse_settings(items: list[str]) -> dict:

@@ -1,5 +1,14 @@
 """Compiled PINN inference (numba + BLAS): the same computation as `PinnNet.forward`, without
-per-operation framework overhead. `PinnBackend` uses it; tests assert it agrees with the torch net."""
+per-operation framework overhead, and whole backbones from it. `PinnBackend` uses it; tests assert it
+agrees with the torch net.
+
+Backbones come either from the network at every requested point (``intervals = 0``) or from the
+network at ``intervals + 1`` nodes only -- every transition point (tube ends, starts of curved parts)
+is a node -- joined by cubic Hermite interpolation whose slopes are the Cosserat right-hand side
+(`_shooting.rhs`) at the predicted node states ("physics-informed interpolation"; at ``s = 0`` the
+position slope is ``e3`` exactly, the boundary condition the network's positions are built with).
+Arc-length cost is then per node, not per output point.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +16,8 @@ import math
 
 import numpy as np
 from numba import njit, prange
+
+from ctrplan.kinematics._shooting import I_P, NSTATE, hermite, lay_nodes, rhs, segments
 
 # Rational approximation of tanh used by Eigen for float32 (accurate to float32 rounding on the
 # clamped range); unlike libm's tanh it vectorises.
@@ -36,9 +47,9 @@ def infer(q, frac, box_lo, box_hi, length1, scales, loaded, equivariant, W0, b0,
     encoding (see `ctrplan.kinematics.pinn`).
     """
     nb, nf = frac.shape
-    n = nb * nf
     nin = W0.shape[0]
-    z = np.empty((n, nin), dtype=np.float32)
+    # the first layer splits into an arc-length column and a per-configuration part: one row each
+    zq = np.empty((nb, nin - 1), dtype=np.float32)
     box = np.empty(6)
     x = np.empty(15)
     for b in range(nb):
@@ -50,20 +61,25 @@ def infer(q, frac, box_lo, box_hi, length1, scales, loaded, equivariant, W0, b0,
         box[5] = q[b, 5]
         for i in range(6):
             box[i] = 2.0 * (box[i] - box_lo[i]) / (box_hi[i] - box_lo[i]) - 1.0
+        if equivariant:
+            for i in range(3):
+                zq[b, i] = box[i]
+            zq[b, 3] = math.cos(q[b, 4] - q[b, 3])
+            zq[b, 4] = math.cos(q[b, 5] - q[b, 3])
+            zq[b, 5] = math.sin(q[b, 4] - q[b, 3])
+            zq[b, 6] = math.sin(q[b, 5] - q[b, 3])
+        else:
+            for i in range(6):
+                zq[b, i] = box[i]
+    cq = zq @ W0[1:] + b0
+    ws = W0[0]
+    h = np.empty((nb * nf, W0.shape[1]), dtype=np.float32)
+    for b in range(nb):
         for f in range(nf):
+            zs = np.float32(2.0 * frac[b, f] - 1.0)
             r = b * nf + f
-            z[r, 0] = 2.0 * frac[b, f] - 1.0
-            if equivariant:
-                for i in range(3):
-                    z[r, 1 + i] = box[i]
-                z[r, 4] = math.cos(q[b, 4] - q[b, 3])
-                z[r, 5] = math.cos(q[b, 5] - q[b, 3])
-                z[r, 6] = math.sin(q[b, 4] - q[b, 3])
-                z[r, 7] = math.sin(q[b, 5] - q[b, 3])
-            else:
-                for i in range(6):
-                    z[r, 1 + i] = box[i]
-    h = z @ W0 + b0
+            for j in range(h.shape[1]):
+                h[r, j] = zs * ws[j] + cq[b, j]
     _tanh_inplace(h)
     for k in range(Wh.shape[0]):
         h = h @ Wh[k] + bh[k]
@@ -99,14 +115,87 @@ def infer(q, frac, box_lo, box_hi, length1, scales, loaded, equivariant, W0, b0,
             o[11], o[12], o[13], o[14] = w, hx, hy, hz
 
 
+@njit(cache=True)
+def node_steps(breaks, total):
+    """Intervals per segment (S,): ``total`` shared in proportion to the segment lengths of ``breaks``
+    (S+1,), at least one each (largest remainder); needs ``total >= S``."""
+    ideal = (breaks[1:] - breaks[:-1]) * (total / (breaks[-1] - breaks[0]))
+    steps = np.maximum(1, np.floor(ideal)).astype(np.int64)
+    while steps.sum() < total:
+        steps[np.argmax(ideal - steps)] += 1
+    while steps.sum() > total:
+        excess = np.where(steps > 1, steps - ideal, -np.inf)
+        steps[np.argmax(excess)] -= 1
+    return steps
+
+
+@njit(cache=True)
+def node_layout(q, intervals, lengths, straight, EI):
+    """Network nodes of one configuration q (6,): ``nodes`` (intervals+1,) mm, ``seg_of`` (intervals,),
+    per-segment ``present``, ``kc``, ``bend`` (see `_shooting.segments`) and ``end_node`` (3,)."""
+    beta = q[:3].copy()
+    breaks, present, kc, bend, _ = segments(beta, lengths, straight, EI)
+    nodes, seg_of, end_node = lay_nodes(breaks, node_steps(breaks, intervals), beta + lengths)
+    return nodes, seg_of, present, kc, bend, end_node
+
+
+@njit(cache=True)
+def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends):
+    """States ``states`` (B, N, 15) at arc fractions ``out_frac`` (N,) of l1 for joints q (B, 6), and
+    the network's states ``at_ends`` (B, 4, 15) at the tube ends l1, l2, l3 and at s = 0.
+
+    ``intervals = 0``: the network at every point; otherwise Hermite interpolation between the
+    network at ``intervals + 1`` nodes (see the module docstring). ``net`` is the weights tuple of
+    `infer`, ``rod`` the arrays ``(lengths, straight, kappa, EI, GJ, force, weight)`` of
+    `cosserat.RodArrays`, ``loaded`` whether the robot carries loads.
+    """
+    lengths, straight, kappa, EI, GJ, force, weight = rod
+    nb, n = q.shape[0], out_frac.shape[0]
+    if intervals == 0:
+        frac = np.empty((nb, n + 4))
+        for b in range(nb):
+            frac[b, :n] = out_frac
+            for i in range(3):
+                frac[b, n + i] = (q[b, i] + lengths[i]) / (q[b, 0] + lengths[0])
+            frac[b, n + 3] = 0.0
+        y = np.empty((nb, n + 4, NSTATE))
+        infer(q, frac, *net, y)
+        states[:] = y[:, :n]
+        at_ends[:] = y[:, n:]
+        return
+    frac = np.empty((nb, intervals + 1))
+    for b in range(nb):
+        nodes = node_layout(q[b], intervals, lengths, straight, EI)[0]
+        frac[b] = nodes / nodes[-1]
+    y = np.empty((nb, intervals + 1, NSTATE))
+    infer(q, frac, *net, y)
+    fl = np.empty((intervals, NSTATE))
+    fr = np.empty((intervals, NSTATE))
+    for b in range(nb):  # the layout again: cheaper than keeping ragged per-segment tables
+        nodes, seg_of, present, kc, bend, end_node = node_layout(q[b], intervals, lengths, straight, EI)
+        ends = q[b, :3] + lengths
+        yb = y[b]
+        for j in range(intervals):
+            k = seg_of[j]
+            rhs(nodes[j], yb[j], present[k], kc[k], kappa, bend[k], EI, GJ, ends, force, weight, loaded,
+                True, fl[j])
+            rhs(nodes[j + 1], yb[j + 1], present[k], kc[k], kappa, bend[k], EI, GJ, ends, force, weight,
+                loaded, True, fr[j])
+        fl[0, I_P] = 0.0
+        fl[0, I_P + 1] = 0.0
+        fl[0, I_P + 2] = 1.0
+        hermite(nodes, seg_of, yb, fl, fr, out_frac * nodes[-1], states[b])
+        for i in range(3):
+            at_ends[b, i] = yb[end_node[i]]
+        at_ends[b, 3] = yb[0]
+
+
 @njit(cache=True, parallel=True)
-def infer_chunked(q, frac, box_lo, box_hi, length1, scales, loaded, equivariant, W0, b0, Wh, bh, Wo, bo,
-                  out, chunk):
-    """`infer` over cache-sized chunks of ``chunk`` configurations, chunks in parallel (run it with
-    single-threaded BLAS: the parallelism is across chunks)."""
+def backbones_chunked(q, out_frac, intervals, net, rod, loaded, states, at_ends, chunk):
+    """`backbones` over cache-sized chunks of ``chunk`` configurations, chunks in parallel (run it
+    with single-threaded BLAS: the parallelism is across chunks)."""
     nb = q.shape[0]
     for c in prange((nb + chunk - 1) // chunk):
         a = c * chunk
         b = min(nb, a + chunk)
-        infer(q[a:b], frac[a:b], box_lo, box_hi, length1, scales, loaded, equivariant, W0, b0, Wh, bh,
-              Wo, bo, out[a:b])
+        backbones(q[a:b], out_frac, intervals, net, rod, loaded, states[a:b], at_ends[a:b])

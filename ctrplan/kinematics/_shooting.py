@@ -29,12 +29,11 @@ MAX_BREAKS = 8
 
 
 @njit(cache=True)
-def build_grid(beta, lengths, straight, EI, h_multi, h_single):
-    """Segment the backbone and lay out RK4 nodes.
+def segments(beta, lengths, straight, EI):
+    """Split ``[0, l1]`` at every transition point (tube ends, starts of curved parts).
 
-    Returns ``nodes`` (M+1,) mm, ``seg_of`` (M,) segment index of each interval, ``present`` and
-    ``kc`` (S, 3) per segment (tube present; curvature if curved else 0, 1/mm), ``bend`` (S,) total
-    bending stiffness, ``end_node`` (3,) node index of each tube end ``l_i``.
+    Returns ``breaks`` (S+1,) mm, ``present`` and ``kc`` (S, 3) per segment (tube present; curvature
+    if curved else 0, 1/mm), ``bend`` (S,) total bending stiffness, ``ncurved`` (S,) curved tubes.
     """
     ends = beta + lengths
     l1 = ends[0]
@@ -62,20 +61,24 @@ def build_grid(beta, lengths, straight, EI, h_multi, h_single):
     present = np.zeros((nseg, 3))
     kc = np.zeros((nseg, 3))
     bend = np.zeros(nseg)
-    steps = np.zeros(nseg, dtype=np.int64)
+    ncurved = np.zeros(nseg, dtype=np.int64)
     for k in range(nseg):
-        a, b = breaks[k], breaks[k + 1]
-        mid = 0.5 * (a + b)
-        ncurved = 0
+        mid = 0.5 * (breaks[k] + breaks[k + 1])
         for i in range(3):
             if ends[i] > mid:
                 present[k, i] = 1.0
                 bend[k] += EI[i]
                 if beta[i] + straight[i] < mid:
-                    ncurved += 1
+                    ncurved[k] += 1
                     kc[k, i] = 1.0
-        h = h_multi if ncurved >= 2 else h_single
-        steps[k] = max(1, int(math.ceil((b - a) / h - 1e-9)))
+    return breaks[:nb], present, kc, bend, ncurved
+
+
+@njit(cache=True)
+def lay_nodes(breaks, steps, ends):
+    """Nodes ``(M+1,)`` mm with ``steps[k]`` equal intervals on segment k; ``seg_of`` (M,) segment of
+    each interval; ``end_node`` (3,) node index nearest to each tube end ``ends`` (3,) mm."""
+    nseg = steps.shape[0]
     m = int(steps.sum())
     nodes = np.empty(m + 1)
     seg_of = np.empty(m, dtype=np.int64)
@@ -94,6 +97,23 @@ def build_grid(beta, lengths, straight, EI, h_multi, h_single):
             if abs(nodes[jj] - ends[i]) < abs(nodes[best] - ends[i]):
                 best = jj
         end_node[i] = best
+    return nodes, seg_of, end_node
+
+
+@njit(cache=True)
+def build_grid(beta, lengths, straight, EI, h_multi, h_single):
+    """Segment the backbone (`segments`) and lay out RK4 nodes.
+
+    Returns ``nodes`` (M+1,) mm, ``seg_of`` (M,) segment index of each interval, ``present`` and
+    ``kc`` (S, 3) per segment, ``bend`` (S,), ``end_node`` (3,) node index of each tube end ``l_i``.
+    """
+    breaks, present, kc, bend, ncurved = segments(beta, lengths, straight, EI)
+    nseg = bend.shape[0]
+    steps = np.zeros(nseg, dtype=np.int64)
+    for k in range(nseg):
+        h = h_multi if ncurved[k] >= 2 else h_single
+        steps[k] = max(1, int(math.ceil((breaks[k + 1] - breaks[k]) / h - 1e-9)))
+    nodes, seg_of, end_node = lay_nodes(breaks, steps, beta + lengths)
     return nodes, seg_of, present, kc, bend, end_node
 
 

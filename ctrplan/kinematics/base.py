@@ -64,6 +64,10 @@ class Backend(ABC):
         With ``check``, joints are validated against the robot (`Robot.check_joints`).
         """
 
+    def describe(self) -> dict:
+        """Settings that shape this backend's backbones (JSON-ready), reported next to its timings."""
+        return {}
+
     def tips(self, q: np.ndarray, *, check: bool = True) -> np.ndarray:
         """Tube tip positions (B, 3, 3), mm."""
         return self.forward(q, points=2, check=check).tips_mm

@@ -6,7 +6,7 @@ kernel's arrays once, and exposes the `Backend` interface with cold and warm sta
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -33,6 +33,33 @@ class SolverSettings:
     exploit_free_space: bool = True
 
 
+@dataclass(frozen=True)
+class RodArrays:
+    """A `Robot` as the arrays of the numba kernels (`_shooting`), per tube (3,): lengths and
+    straight lengths (mm), curvatures (1/mm), EI and GJ (N*mm^2); the tip force (3,) N and the weight
+    per length of each tube (3, 3) N/mm."""
+
+    lengths: np.ndarray
+    straight: np.ndarray
+    kappa: np.ndarray
+    EI: np.ndarray
+    GJ: np.ndarray
+    force: np.ndarray
+    weight: np.ndarray
+
+    @classmethod
+    def of(cls, robot: Robot) -> RodArrays:
+        tubes = robot.tubes
+        mass_per_mm = np.array([t.density_kg_m3 * t.area_mm2 for t in tubes]) * G_TO_N_PER_MM
+        return cls(lengths=np.array([t.length_mm for t in tubes]),
+                   straight=np.array([t.straight_length_mm for t in tubes]),
+                   kappa=np.array([t.curvature_per_mm for t in tubes]),
+                   EI=np.array([t.bending_stiffness_nmm2 for t in tubes]),
+                   GJ=np.array([t.torsional_stiffness_nmm2 for t in tubes]),
+                   force=np.asarray(robot.loads.tip_force_n, dtype=float),
+                   weight=mass_per_mm[:, None] * np.asarray(robot.loads.gravity_m_s2, dtype=float)[None, :])
+
+
 class CosseratBackend(Backend):
     """Shooting solver for the Cosserat-rod model with gravity and a tip force from ``robot.loads``.
 
@@ -46,27 +73,21 @@ class CosseratBackend(Backend):
     def __init__(self, robot: Robot | None = None, settings: SolverSettings | None = None):
         super().__init__(robot or Robot.nominal())
         self.settings = settings or SolverSettings()
-        tubes = self.robot.tubes
-        self._lengths = np.array([t.length_mm for t in tubes])
-        self._straight = np.array([t.straight_length_mm for t in tubes])
-        self._kappa = np.array([t.curvature_per_mm for t in tubes])
-        self._EI = np.array([t.bending_stiffness_nmm2 for t in tubes])
-        self._GJ = np.array([t.torsional_stiffness_nmm2 for t in tubes])
-        loads = self.robot.loads
-        self.loaded = not (loads.is_free and self.settings.exploit_free_space)
-        mass_per_mm = np.array([t.density_kg_m3 * t.area_mm2 for t in tubes]) * G_TO_N_PER_MM
-        self._weight = mass_per_mm[:, None] * np.asarray(loads.gravity_m_s2, dtype=float)[None, :]
-        self._force = np.asarray(loads.tip_force_n, dtype=float)
+        self.rod = RodArrays.of(self.robot)
+        self.loaded = not (self.robot.loads.is_free and self.settings.exploit_free_space)
 
     @property
     def n_unknowns(self) -> int:
         return 5 if self.loaded else 2
 
+    def describe(self) -> dict:
+        return asdict(self.settings)
+
     def unknowns_from_state(self, state0: np.ndarray) -> np.ndarray:
         """Shooting unknowns (B, 2|5) from initial 15-states (B, 15)."""
         state0 = np.atleast_2d(state0)
         if self.loaded:
-            return np.concatenate([state0[:, 0:2] / self._EI[0], state0[:, 2:5]], axis=1)
+            return np.concatenate([state0[:, 0:2] / self.rod.EI[0], state0[:, 2:5]], axis=1)
         return state0[:, 3:5].copy()
 
     def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
@@ -88,8 +109,9 @@ class CosseratBackend(Backend):
         xs = np.empty_like(x0)
         initial = np.empty((b, kernel.NSTATE))
         st = self.settings
-        args = (frac, self._lengths, self._straight, self._kappa, self._EI, self._GJ, self._force,
-                self._weight, self.loaded, st.step_multi_mm, st.step_single_mm,
+        rod = self.rod
+        args = (frac, rod.lengths, rod.straight, rod.kappa, rod.EI, rod.GJ, rod.force, rod.weight,
+                self.loaded, st.step_multi_mm, st.step_single_mm,
                 st.tolerance_per_m * 1e-3, st.max_iterations)
         if b == 1:
             x, c, it, r = kernel.solve_one(qm[0], x0[0], warm, *args, states[0], tips[0],
@@ -97,7 +119,7 @@ class CosseratBackend(Backend):
             xs[0], conv[0], iters[0], resid[0] = x, c, it, r
         else:
             kernel.solve_many(qm, x0, warm, *args, states, tips, initial, xs, conv, iters, resid)
-        ends = qm[:, :3] + self._lengths
+        ends = qm[:, :3] + rod.lengths
         s_mm = frac[None, :] * ends[:, :1]
         return Backbone(q=q, s_mm=s_mm, state=states, tube_ends_mm=ends, tips_mm=tips,
                         radius_mm=outer_radius_along(self.robot, s_mm, ends), converged=conv,

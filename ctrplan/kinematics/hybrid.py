@@ -27,6 +27,9 @@ class HybridBackend(Backend):
         self.pinn = PinnBackend.load(model, robot)
         self.exact = CosseratBackend(robot, settings)
 
+    def describe(self) -> dict:
+        return self.exact.describe()
+
     def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
                 check: bool = True) -> Backbone:
         q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))

@@ -75,19 +75,21 @@ def make_planner(name: str, si) -> Any:
     return cls(si)
 
 
-_OMPL_SEEDED = [False]
-
-
 def seed_ompl(seed: int | None) -> None:
-    """Seed OMPL's random number generators.
+    """Seed OMPL's random number generators for the planners and samplers created from now on.
 
-    OMPL takes a seed only before its first random number generator exists, i.e. once per process:
-    later calls are ignored here (OMPL itself would print an error). Runs are therefore repeatable
-    for the first plan of a process (the CLI); numpy-side sampling is always seeded.
+    OMPL hands every new ``RNG`` a seed drawn from one process-wide seed generator. Re-seeding that
+    generator after the first draw works (the same seed gives the same runs again, in any process)
+    but makes OMPL print an error meant for code that re-seeds mid-run; it is silenced here.
     """
-    if seed is not None and not _OMPL_SEEDED[0]:
+    if seed is None:
+        return
+    level = ou.getLogLevel()
+    ou.setLogLevel(ou.LOG_NONE)
+    try:
         ou.RNG.setSeed(int(seed) + 1)  # OMPL refuses 0
-        _OMPL_SEEDED[0] = True
+    finally:
+        ou.setLogLevel(level)
 
 
 @dataclass

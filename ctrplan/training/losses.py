@@ -54,15 +54,20 @@ def boundary_residual(net: PinnNet, q: torch.Tensor, tt: TubeTensors, norm: str 
     return group_norms(e, norm)
 
 
-def observation_residual(net: PinnNet, q: torch.Tensor, tips: torch.Tensor, tt: TubeTensors,
-                         norm: str = "mse") -> torch.Tensor:
-    """Paper eq. 17: tube-tip positions (B, 3, 3) mm at s = l1, l2, l3. Returns a scalar (in mm^2 for
-    ``mse``)."""
+def tube_tips(net: PinnNet, q: torch.Tensor, tt: TubeTensors) -> torch.Tensor:
+    """Predicted tips of tubes 1..3 (B, 3, 3) mm, i.e. p at s = l1, l2, l3, for joints q (B, 6)."""
     b = q.shape[0]
     ends = q[:, :3] + tt.lengths
     sig = (ends / ends[:, :1]).T.reshape(-1)
-    p = net(sig, q.repeat(3, 1))[:, 8:11].view(3, b, 3).transpose(0, 1)
-    sq = ((p - tips) ** 2).sum(-1)
+    return net(sig, q.repeat(3, 1))[:, 8:11].view(3, b, 3).transpose(0, 1)
+
+
+def observation_residual(net: PinnNet, q: torch.Tensor, tips: torch.Tensor, tt: TubeTensors,
+                         norm: str = "mse") -> torch.Tensor:
+    """Paper eq. 17: tube-tip positions (B, 3, 3) mm at s = l1, l2, l3; NaN marks a tip that was not
+    measured (left out). Returns a scalar (in mm^2 for ``mse``)."""
+    seen = torch.isfinite(tips).all(-1)
+    sq = ((tube_tips(net, q, tt) - tips.nan_to_num()) ** 2).sum(-1)[seen]
     return (sq + 1e-30).sqrt().mean() if norm == "l2" else sq.mean()
 
 

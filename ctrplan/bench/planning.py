@@ -1,0 +1,180 @@
+"""Planning benchmark: every backend x planner on a scene, N seeded runs each.
+
+One run is `ctrplan.planning.plan` (search, exact re-validation, repair) on one (scene, backend,
+planner, seed); `run_one` turns it into a flat record (times in s, lengths in mm) and `summarize`
+aggregates the records per (scene, backend, planner). Every backend x planner pair gets the same seeds,
+so their runs are paired. Runs are independent and deterministic for a seed (OMPL is re-seeded per run):
+`ctrplan.bench.fanout` spreads them over processes or a Ray cluster with the same content.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from itertools import product
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: Planners of `ctrplan bench plan` by default: the feasible ones and one asymptotically optimal one.
+DEFAULT_PLANNERS = ("rrtconnect", "rrt", "rrtstar")
+#: Record fields that depend only on the seed, not on timing: equal for equal seeds on any executor.
+CONTENT_FIELDS = ("scene", "backend", "planner", "seed", "solved", "status", "found", "repaired",
+                  "path_states", "path_length_mm", "tip_travel_mm")
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One planning run: scene file, backend and planner names, seed, time budget (s)."""
+
+    scene: str
+    backend: str
+    planner: str
+    seed: int
+    time_limit_s: float
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def make_specs(scenes: list[tuple[str, float]], backends: list[str], planners: list[str], runs: int,
+               first_seed: int = 0) -> list[RunSpec]:
+    """All runs: for each (scene file, time budget s), backend, planner, the seeds
+    ``first_seed .. first_seed + runs - 1``; ordered so that early results cover every pair."""
+    return [RunSpec(scene, backend, planner, first_seed + k, limit)
+            for k, (scene, limit), backend, planner in product(range(runs), scenes, backends, planners)]
+
+
+_CACHE: dict[tuple, Any] = {}
+
+
+def _context(scene_file: str, backend: str):
+    """Scene, planning backend and exact backend, built once per process (a PINN warms up its compiled
+    kernels, the scene builds its BVH): later runs in a worker reuse them."""
+    from ctrplan.kinematics import CosseratBackend, make_backend
+    from ctrplan.scene import load_scene
+
+    key = (scene_file, backend)
+    if key not in _CACHE:
+        scene = load_scene(scene_file)
+        exact = _CACHE.setdefault(("exact", scene_file), CosseratBackend(scene.robot))
+        planning = exact if backend == "cosserat" else make_backend(backend, scene.robot)
+        _CACHE[key] = (scene, planning, exact)
+    return _CACHE[key]
+
+
+def run_one(spec: RunSpec) -> dict[str, Any]:
+    """Plan ``spec`` and return its record: outcome, exact validation, time split, work counters."""
+    from ompl import util as ou
+
+    from ctrplan.planning import plan
+
+    scene, backend, exact = _context(spec.scene, spec.backend)
+    ou.setLogLevel(ou.LOG_ERROR)
+    result = plan(scene, backend, planner=spec.planner, time_limit_s=spec.time_limit_s, seed=spec.seed,
+                  exact=exact)
+    counters = result.details.get("counters", {})
+    total = float(result.planning_time_s)
+    kin, col = float(counters.get("kinematics_s", 0.0)), float(counters.get("collision_s", 0.0))
+    report = result.validated
+    dense = result.dense
+    tip_travel = (float(np.linalg.norm(np.diff(dense.exact.tip_mm, axis=0), axis=1).sum())
+                  if dense is not None and len(dense.dense_q) > 1 else None)
+    path_length = None
+    if len(result.path) > 1:
+        from ctrplan.planning.space import BoxSpace
+
+        space = BoxSpace.for_scene(scene)
+        path_length = float(space.distance(result.path[1:], result.path[:-1]).sum())
+    calls = int(result.kinematics_calls)
+    return {
+        **spec.to_json(),
+        "scene_name": scene.name,
+        "solved": bool(result.solved),
+        "status": result.status,
+        "found": report is not None,
+        "repaired": bool(report is not None and report.repaired),
+        "exact_collision_free": None if report is None else bool(report.collision_free),
+        "exact_tip_in_target": None if report is None else bool(report.tip_in_target),
+        "min_clearance_mm": None if report is None else _round(report.min_clearance_mm),
+        "max_position_error_mm": None if report is None else _round(report.max_position_error_mm),
+        "planning_time_s": _round(total),
+        "kinematics_s": _round(kin),
+        "collision_s": _round(col),
+        "planner_s": _round(max(total - kin - col, 0.0)),
+        "validation_s": _round(result.details.get("validation_time_s", 0.0)),
+        "kinematics_calls": calls,
+        "collision_checks": int(counters.get("collision_checks", 0)),
+        "checks_per_s": _round(calls / total if total > 0 else 0.0, 1),
+        "path_states": int(len(result.path)),
+        "path_length_mm": None if path_length is None else round(path_length, 3),
+        "tip_travel_mm": None if tip_travel is None else round(tip_travel, 3),
+        "message": result.message,
+    }
+
+
+def _round(x: float | None, digits: int = 5) -> float | None:
+    return None if x is None or not math.isfinite(float(x)) else round(float(x), digits)
+
+
+def _stats(values: list[float]) -> dict[str, float | None]:
+    """min/median/p90/max/mean and coefficient of variation of ``values`` (None when empty)."""
+    v = np.asarray([x for x in values if x is not None], dtype=float)
+    if v.size == 0:
+        return dict.fromkeys(("min", "median", "p90", "max", "mean", "cv"))
+    mean = float(v.mean())
+    return {"min": _round(v.min(), 4), "median": _round(np.median(v), 4),
+            "p90": _round(np.percentile(v, 90), 4), "max": _round(v.max(), 4), "mean": _round(mean, 4),
+            "cv": _round(float(v.std()) / mean if mean > 0 else 0.0, 3)}
+
+
+def summarize(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per (scene, backend, planner): success, exact-validation outcome, planning-time distribution
+    (all runs; an unsolved run counts with the time it used), mean time split, work rates, paths."""
+    groups: dict[tuple[str, str, str], list[dict]] = {}
+    for r in records:
+        groups.setdefault((r["scene_name"], r["backend"], r["planner"]), []).append(r)
+    out = []
+    for (scene, backend, planner), rs in groups.items():
+        solved = [r for r in rs if r["solved"]]
+        mean = {k: float(np.mean([r[k] for r in rs])) for k in ("kinematics_s", "collision_s", "planner_s")}
+        total = sum(mean.values()) or 1.0
+        out.append({
+            "scene": scene, "backend": backend, "planner": planner, "runs": len(rs),
+            "time_limit_s": rs[0]["time_limit_s"],
+            "solved": len(solved), "success_rate": round(len(solved) / len(rs), 4),
+            "found": sum(r["found"] for r in rs),
+            "repaired": sum(r["repaired"] for r in rs),
+            "unsafe": sum(r["found"] and not r["solved"] for r in rs),
+            "planning_time_s": _stats([r["planning_time_s"] for r in rs]),
+            "solved_time_s": _stats([r["planning_time_s"] for r in solved]),
+            "time_split_s": {k.removesuffix("_s"): _round(v, 4) for k, v in mean.items()},
+            "time_share": {k.removesuffix("_s"): round(v / total, 3) for k, v in mean.items()},
+            "validation_s": _stats([r["validation_s"] for r in rs]),
+            "checks_per_s": _stats([r["checks_per_s"] for r in rs]),
+            "kinematics_calls": _stats([r["kinematics_calls"] for r in rs]),
+            "path_length_mm": _stats([r["path_length_mm"] for r in solved]),
+            "tip_travel_mm": _stats([r["tip_travel_mm"] for r in solved]),
+            "max_position_error_mm": _stats([r["max_position_error_mm"] for r in rs]),
+            "min_clearance_mm": _stats([r["min_clearance_mm"] for r in solved]),
+        })
+    return out
+
+
+def prepare(scene_files: list[Path], backends: list[str], time_limit_s: float | None
+            ) -> list[tuple[str, float]]:
+    """(scene file, time budget s) per scene: ``time_limit_s`` or the scene's own setting.
+
+    Loads every scene and builds every backend for its robot once here, so that a bad scene file or
+    a missing or mismatched model is reported before any run starts (not from inside a worker)."""
+    from ctrplan.kinematics import make_backend
+    from ctrplan.scene import load_scene
+
+    out = []
+    for f in scene_files:
+        scene = load_scene(f)
+        for name in dict.fromkeys(backends):
+            make_backend(name, scene.robot)
+        out.append((str(Path(f).resolve()), float(time_limit_s or scene.settings.time_limit_s)))
+    return out

@@ -1,0 +1,72 @@
+"""Measured tips for few-shot fine-tuning (paper stage b): which rows train, which are held out,
+and the observations the PINN is trained on.
+
+The rows are split like `ctrplan diagnose` splits them (`split_blocks`: contiguous blocks, a
+fraction held out); the ``shots`` training rows are taken from the training blocks as contiguous
+runs spread over them (`contiguous_subsample`; rows are sequences). Rows outside the snap-free
+domain -- which the reader accepts and flags -- are used neither for training nor in the held-out
+error: the PINN and its collocation points cover the snap-free domain only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ctrplan.calibration.data import MeasuredData, split_blocks
+from ctrplan.calibration.diagnosis import contiguous_subsample
+from ctrplan.calibration.model import motion_direction
+from ctrplan.errors import InputError
+from ctrplan.robot import Robot
+
+
+@dataclass(frozen=True)
+class FewShot:
+    """Measured data split for fine-tuning; row indices are 0-based into ``data``, sorted."""
+
+    data: MeasuredData
+    direction: np.ndarray       # (N, 6) direction of motion of every row, from the full sequence
+    shots: np.ndarray           # training rows used
+    heldout: np.ndarray         # held-out rows inside the snap-free domain
+    train_rows: int             # training rows inside the domain (shots were drawn from these)
+    heldout_fraction: float
+    seed: int
+
+    @property
+    def excluded(self) -> np.ndarray:
+        """Rows outside the snap-free domain (not used)."""
+        return np.flatnonzero(self.data.outside_domain)
+
+
+def split_shots(data: MeasuredData, shots: int | None = None, heldout_fraction: float = 0.25,
+                seed: int = 0) -> FewShot:
+    """Hold out contiguous blocks as `diagnose` does (same defaults); take ``shots`` of the training
+    rows (all if None)."""
+    if shots is not None and shots < 1:
+        raise InputError(f"--shots: must be >= 1, got {shots}")
+    train, heldout = split_blocks(len(data), heldout_fraction, seed=seed)
+    inside = ~data.outside_domain
+    train, heldout = train[inside[train]], heldout[inside[heldout]]
+    shots = len(train) if shots is None else shots
+    if shots > len(train) or not shots:
+        raise InputError(f"--shots: {shots} requested but {data.source} has {len(train)} training rows "
+                         f"inside the snap-free domain ({len(heldout)} held out with --heldout "
+                         f"{heldout_fraction:g})")
+    return FewShot(data=data, direction=motion_direction(data.q),
+                   shots=train[contiguous_subsample(len(train), shots)], heldout=heldout,
+                   train_rows=len(train), heldout_fraction=heldout_fraction, seed=seed)
+
+
+def model_joints(robot: Robot, fs: FewShot, rows: np.ndarray) -> np.ndarray:
+    """Joints (R, 6) the model sees for ``rows``: backlash of the robot's calibration, then its joint
+    offsets (mm, rad)."""
+    q = robot.calibration.effective_joints(fs.data.q[rows], fs.direction[rows])
+    return robot.apply_offset(q)
+
+
+def observations(robot: Robot, fs: FewShot) -> tuple[np.ndarray, np.ndarray]:
+    """Training observations of the shots for `trainer.train`: joints (S, 6) with offsets applied and
+    measured tips (S, 3, 3) mm in the robot frame, NaN for tubes that were not measured."""
+    rows = fs.shots
+    return model_joints(robot, fs, rows), robot.calibration.to_robot_frame(fs.data.tips_mm[rows])
