@@ -24,6 +24,8 @@ from typing import Any
 
 import numpy as np
 
+#: Planners that run until the time budget is spent (their time says nothing).
+OPTIMIZING = ("rrtstar", "bitstar")
 README = Path(__file__).resolve().parents[1] / "README.md"
 
 
@@ -80,8 +82,11 @@ def render_pinn(doc: dict[str, Any]) -> str:
     stages = "; ".join(
         f"{s['recipe']} {s['steps']} steps, {s['wall_time_s'] / 60:.1f} min on {s['hardware']}"
         for s in tr.get("stages", [])) or f"{tr.get('recipe')}, {tr.get('wall_time_s')} s"
+    nodes = doc.get("inference", {}).get("nodes")
+    how = (f"; inference: network at {nodes} nodes per backbone, physics-interpolated" if nodes
+           else "; inference: network at every point")
     return (markdown_table(["metric (" + str(doc["configurations"]) + " unseen configurations)", "mean",
-                            "max"], rows) + f"\n\nModel `{doc['model']}`; training: {stages}.")
+                            "max"], rows) + f"\n\nModel `{doc['model']}`; training: {stages}{how}.")
 
 
 def render_training(cards: list[dict[str, Any]]) -> str:
@@ -115,44 +120,61 @@ def plan_table(rows: list[dict[str, Any]]) -> str:
 
 
 def plan_conclusion(summary: list[dict[str, Any]]) -> str:
-    """Plain-language comparison of the PINN with the exact backends, computed from the summary."""
+    """Plain-language comparison of the PINN with the exact backends, computed from the summary.
+
+    Median planning times are compared where both backends solved at least half of the runs (else the
+    medians are just the time budget); elsewhere the success rates are compared."""
     by = {(r["scene"], r["planner"], r["backend"]): r for r in summary}
     ratios, checks, lines = [], [], []
     for (scene, planner, backend), r in by.items():
         p = by.get((scene, planner, "pinn"))
-        if backend == "pinn" or p is None or not p["solved"] or not r["solved"]:
+        if backend == "pinn" or p is None:
             continue
-        ratio = r["planning_time_s"]["median"] / p["planning_time_s"]["median"]
-        ratios.append((backend, ratio))
         checks.append((backend, r["checks_per_s"]["median"] / p["checks_per_s"]["median"]))
-        lines.append(f"{scene} / {planner}: {backend} {r['solved']}/{r['runs']} solved, median "
-                     f"{r['planning_time_s']['median']:.2f} s vs PINN {p['solved']}/{p['runs']}, "
-                     f"{p['planning_time_s']['median']:.2f} s ({ratio:.2f}x)")
+        both = min(r["success_rate"], p["success_rate"]) >= 0.5
+        line = (f"{scene} / {planner}: {backend} {r['solved']}/{r['runs']} solved, median "
+                f"{r['planning_time_s']['median']:.2f} s; PINN {p['solved']}/{p['runs']}, "
+                f"{p['planning_time_s']['median']:.2f} s")
+        if planner in OPTIMIZING:  # runs until the budget is spent: compare what it bought
+            line += (f"; path after the budget {_fmt(r['path_length_mm']['median'], '.0f')} mm vs "
+                     f"{_fmt(p['path_length_mm']['median'], '.0f')} mm (PINN)")
+        elif both:
+            ratio = r["planning_time_s"]["median"] / p["planning_time_s"]["median"]
+            ratios.append((backend, ratio))
+            line += f" ({ratio:.2f}x)"
+        else:
+            line += " (mostly out of time: medians not compared)"
+        lines.append(line)
     text = []
-    for backend in dict.fromkeys(b for b, _ in ratios):
+    for backend in dict.fromkeys(b for b, _ in checks):
         rs = np.array([x for b, x in ratios if b == backend])
         cs = np.array([x for b, x in checks if b == backend])
-        g = float(np.exp(np.log(rs).mean()))
-        verdict = ("slower than" if g > 1.1 else "faster than" if g < 0.9 else "about as fast as")
-        text.append(f"- **{backend}** is {verdict} the PINN: median planning time {g:.2f}x the PINN's "
-                    f"(geometric mean over {len(rs)} scene/planner pairs, range {rs.min():.2f}–"
-                    f"{rs.max():.2f}x); it checks {float(np.exp(np.log(cs).mean())):.2f}x as many "
-                    f"configurations per second.")
+        rate = f"it checks {float(np.exp(np.log(cs).mean())):.2f}x as many configurations per second"
+        if rs.size:
+            g = float(np.exp(np.log(rs).mean()))
+            verdict = ("slower than" if g > 1.1 else "faster than" if g < 0.9 else "about as fast as")
+            text.append(f"- **{backend}** is {verdict} the PINN: median planning time {g:.2f}x the PINN's "
+                        f"(geometric mean over {len(rs)} scene/planner pair(s) where both mostly succeed; "
+                        f"range {rs.min():.2f}–{rs.max():.2f}x; RRT* and BIT* use their whole budget and "
+                        f"are compared by path length below); {rate}.")
+        else:
+            text.append(f"- **{backend}**: no feasible planner solved at least half of the runs with both "
+                        f"backends; {rate}.")
     pinn = [r for r in summary if r["backend"] == "pinn"]
     exact = [r for r in summary if r["backend"] != "pinn"]
 
     def spread(rows: list[dict[str, Any]]) -> float:
         vals = [r["planning_time_s"]["p90"] / r["planning_time_s"]["median"] for r in rows
-                if r["planning_time_s"]["median"]]
+                if r["success_rate"] >= 0.5 and r["planner"] not in OPTIMIZING]
         return float(np.median(vals)) if vals else float("nan")
 
     text.append(f"- **Predictability**: the run-to-run spread is the sampling planner's: p90/median "
                 f"planning time is {spread(pinn):.2f} with the PINN and {spread(exact):.2f} with the exact "
-                f"backends (median over scene/planner pairs).")
-    unsafe = sum(r["unsafe"] for r in pinn)
-    repaired = sum(r["repaired"] for r in pinn)
-    text.append(f"- **Safety**: every PINN path was re-checked with the exact model; {repaired} needed a "
-                f"repair and {unsafe} stayed unsafe (reported as not solved).")
+                f"backends (median over the groups that mostly succeed).")
+    solved, repaired = sum(r["solved"] for r in pinn), sum(r["repaired"] for r in pinn)
+    text.append(f"- **Safety**: every PINN path was re-checked with the exact model: of {solved} solved "
+                f"runs, {repaired} were repaired first (stretches re-planned with the exact model); "
+                f"{sum(r['unsafe'] for r in pinn)} found paths stayed unsafe and count as not solved.")
     return "\n".join(text) + "\n\n<details><summary>Per scene and planner</summary>\n\n" + \
         "\n".join(f"- {line}" for line in lines) + "\n\n</details>"
 
@@ -260,12 +282,14 @@ def ctrplan_json(args: list[str]) -> dict[str, Any]:
     return json.loads(result.stdout)
 
 
-def run_block(name: str, extra: list[str]) -> str:
-    """Run block ``name``'s command with ``extra`` arguments; its rendered markdown."""
+def run_block(name: str, extra: list[str], results: Path | None = None) -> str:
+    """Run block ``name``'s command with ``extra`` arguments; its rendered markdown. With ``results``
+    (the JSON that command wrote, e.g. ``--out DIR/results.json``) render that instead of re-running."""
     args = [*BLOCKS[name].args, *extra, "--json"]
-    doc = ctrplan_json(args)
+    doc = json.loads(results.read_text()) if results else ctrplan_json(args)
     command = shlex.join(["ctrplan", *args])
-    return f"{BLOCKS[name].render(doc)}\n\nGenerated by `{command}` (via `scripts/update_readme.py`)."
+    how = f"rendered from its `{results}`" if results else "via `scripts/update_readme.py`"
+    return f"{BLOCKS[name].render(doc)}\n\nGenerated by `{command}` ({how})."
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -274,17 +298,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("block", choices=sorted([*BLOCKS, "training", "finetune"]),
                         help="README block to regenerate")
     parser.add_argument("--readme", type=Path, default=README, help="README file to update")
+    parser.add_argument("--results", type=Path, default=None,
+                        help="Render this results.json of an earlier run of the block's command (pass "
+                             "the same extra arguments) instead of running it again")
     ns, extra = parser.parse_known_args(argv)  # the rest goes to the ctrplan command
-    text = ns.readme.read_text()
     if ns.block == "training":
         cards = [json.loads(p.read_text()) for p in sorted(TRAINING_CARDS.glob("*.json"))]
+        marker = "pinn:training"
         body = render_training(cards) + ("\n\nFrom the model cards in `docs/training/` (written by "
                                          "`ctrplan train`; errors on 100 unseen configurations).")
-        ns.readme.write_text(replace_block(text, "pinn:training", body))
     elif ns.block == "finetune":
-        ns.readme.write_text(replace_block(text, FINETUNE_MARKER, run_finetune(extra)))
+        marker, body = FINETUNE_MARKER, run_finetune(extra)
     else:
-        ns.readme.write_text(replace_block(text, BLOCKS[ns.block].marker, run_block(ns.block, extra)))
+        marker, body = BLOCKS[ns.block].marker, run_block(ns.block, extra, ns.results)
+    # read the README only now: the command may have run for minutes while it was edited
+    ns.readme.write_text(replace_block(ns.readme.read_text(), marker, body))
     print(f"updated the {ns.block} block of {ns.readme}", file=sys.stderr)
 
 

@@ -12,7 +12,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import RobotOpt
-from ctrplan.dataio import output_dir
+from ctrplan.dataio import atomic_write, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
 from ctrplan.kinematics.pinn import PinnBackend
@@ -108,6 +108,7 @@ def train(
         else:
             result = run_training(
                 model_robot, rec, out, init_from=start.net if start else None, **common,
+                extra_card={"stages": training_stages(start.card)} if start else None,
                 evaluate=lambda net: compare(PinnBackend(model_robot, net), model_robot).metrics())
     m = result.card["metrics"]["backbone_error_pct"]
     console.print(f"wrote {out.with_suffix('.safetensors')} and {out.with_suffix('.json')}: "
@@ -147,6 +148,13 @@ def _parse_settings(items: list[str]) -> dict:
     return out
 
 
+def training_stages(card: dict) -> list[dict]:
+    """The training stages recorded in a model card (a card without ``stages`` is one stage)."""
+    if card.get("stages"):
+        return card["stages"]
+    return [{k: card.get(k) for k in ("recipe", "steps", "wall_time_s", "hardware", "seed")}]
+
+
 @app.command("eval-model")
 def eval_model(
     model: ModelOpt = None,
@@ -175,9 +183,10 @@ def eval_model(
     training["stages"] = [{"recipe": s["recipe"]["name"], "wall_time_s": s["wall_time_s"],
                            "hardware": s["hardware"], "steps": s["steps"]} for s in card.get("stages", [])]
     training["recipe"] = (training["recipe"] or {}).get("name")
-    metrics = {"model": str(model or DEFAULT_MODEL), **cmp.metrics(), "training": training,
-               "figures": [str(f) for f in figures]}
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    metrics = {"model": str(model or DEFAULT_MODEL), **cmp.metrics(), "inference": pinn.describe(),
+               "training": training, "figures": [str(f) for f in figures]}
+    with atomic_write(out / "metrics.json") as fh:
+        json.dump(metrics, fh, indent=2)
     if as_json:
         typer.echo(json.dumps(metrics, indent=2))
         return

@@ -74,7 +74,7 @@ RECIPES = {
                    resample=True, weights={"ode": 0.05, "bc": 0.05, "obs": 0.0, "dense": 1.0}),
     # second stage after `fast` (use with init_from): full-batch L-BFGS with tip observations
     "polish": Recipe(name="polish", optimizer="lbfgs", steps=1000, lr=1.0, collocation=2048, boundary=512,
-                     observations=2000, dense_configs=10_000, dense_points=65, dense_batch=8192,
+                     observations=2000, dense_configs=3_000, dense_points=65, dense_batch=8192,
                      weights={"ode": 0.05, "bc": 0.05, "obs": 0.05, "dense": 1.0}),
     # paper stage (b), with init_from and measured observations. Measured on one CPU core (500 shots,
     # tube-1 curvature +10 %, held-out tube-1 tip error 1.88 mm before): this recipe 0.38 mm in 70 s;
@@ -184,7 +184,8 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
     end (metrics go into the model card). Stops at ``recipe.steps`` or ``time_limit_s``.
     ``observations`` = (q (B, 6) with offsets applied, tips (B, 3, 3) mm in the robot frame, NaN where
     not measured) replaces the Cosserat tip observations (measured data, paper stage b); ``extra_card``
-    holds extra model-card fields.
+    holds extra model-card fields. The card's ``stages`` lists the training stages that made the model:
+    ``extra_card["stages"]`` (those of the ``init_from`` model) followed by this one.
     """
     dev = torch.device(device)
     torch.manual_seed(seed)
@@ -306,8 +307,12 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
                                      "recipe": asdict(recipe), "seed": seed, "history": history})
     net = net.cpu().eval()
     metrics = evaluate(net) if evaluate is not None else {}
+    extra = dict(extra_card or {})
+    stage = {"recipe": asdict(recipe), "steps": step, "wall_time_s": round(wall, 1),
+             "hardware": hardware(dev), "seed": seed}
     card = {
-        **(extra_card or {}),
+        **extra,
+        "stages": [*extra.get("stages", []), stage],
         "recipe": asdict(recipe),
         "seed": seed,
         "steps": step,
