@@ -57,8 +57,10 @@ def _context(scene_file: str, backend: str):
 
     key = (scene_file, backend)
     if key not in _CACHE:
-        scene = load_scene(scene_file)
-        exact = _CACHE.setdefault(("exact", scene_file), CosseratBackend(scene.robot))
+        if ("exact", scene_file) not in _CACHE:
+            scene = load_scene(scene_file)
+            _CACHE["exact", scene_file] = (scene, CosseratBackend(scene.robot))
+        scene, exact = _CACHE["exact", scene_file]
         planning = exact if backend == "cosserat" else make_backend(backend, scene.robot)
         _CACHE[key] = (scene, planning, exact)
     return _CACHE[key]
