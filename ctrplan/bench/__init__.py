@@ -8,8 +8,7 @@ from __future__ import annotations
 
 import os
 import platform
-import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -48,34 +47,41 @@ def machine_info() -> dict[str, Any]:
     }
 
 
+def limit_threads() -> Callable[[], None]:
+    """numba, torch and BLAS to one thread in this process; returns a function that restores them."""
+    import numba
+    import torch
+
+    numba_threads, torch_threads = numba.get_num_threads(), torch.get_num_threads()
+    numba.set_num_threads(1)
+    torch.set_num_threads(1)
+    blas = threadpool_limits(limits=1)  # BLAS threads would only fight over the one core
+
+    def restore() -> None:
+        blas.restore_original_limits()
+        numba.set_num_threads(numba_threads)
+        torch.set_num_threads(torch_threads)
+
+    return restore
+
+
 @contextmanager
 def single_core() -> Iterator[int | None]:
     """Pin this process to one CPU core and numba/torch/BLAS to one thread; restore all on exit.
 
     Yields the core number, or None where CPU affinity is not supported (macOS, Windows).
     """
-    import numba
-
     affinity = os.sched_getaffinity(0) if hasattr(os, "sched_setaffinity") else None
     core = max(affinity) if affinity else None
-    numba_threads = numba.get_num_threads()
-    torch = sys.modules.get("torch")  # only if a backend uses it
-    torch_threads = torch.get_num_threads() if torch else None
     if core is not None:
         os.sched_setaffinity(0, {core})
-    numba.set_num_threads(1)
-    if torch:
-        torch.set_num_threads(1)
-    blas = threadpool_limits(limits=1)  # BLAS threads would only fight over the one core
+    restore_threads = limit_threads()
     try:
         yield core
     finally:
-        blas.restore_original_limits()
+        restore_threads()
         if affinity:
             os.sched_setaffinity(0, affinity)
-        numba.set_num_threads(numba_threads)
-        if torch:
-            torch.set_num_threads(torch_threads)
 
 
 def timing_stats(times_ms: np.ndarray) -> dict[str, float]:

@@ -13,6 +13,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any, TypeVar
 
+from ctrplan.bench import limit_threads, single_core
 from ctrplan.errors import InputError
 
 Spec = TypeVar("Spec")
@@ -23,23 +24,12 @@ def _quiet_tick(_done: int, _total: int) -> None:
     return None
 
 
-def single_threaded() -> None:
-    """numba, torch and BLAS to one thread in this process (a worker owns one core)."""
-    import numba
-    import torch
-    from threadpoolctl import threadpool_limits
-
-    numba.set_num_threads(1)
-    torch.set_num_threads(1)
-    threadpool_limits(limits=1)
-
-
 def _pin_worker(cores: Any) -> None:
     """Process-pool initializer: take one core off the queue, pin to it, go single-threaded."""
     core = cores.get()
     if core is not None and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {core})
-    single_threaded()
+    limit_threads()
 
 
 def available_cores() -> list[int]:
@@ -79,7 +69,7 @@ def run_local(fn: Callable[[Spec], dict], specs: Sequence[Spec], workers: int,
 
 
 def _ray_call(fn: Callable[[Spec], dict], spec: Spec) -> dict:
-    single_threaded()
+    limit_threads()
     return fn(spec)
 
 
@@ -133,8 +123,6 @@ def run_jobs(fn: Callable[[Spec], dict], specs: Sequence[Spec], *, workers: int 
         return run_ray(fn, specs, ray_address, workers if workers > 1 else None, tick)
     if workers > 1:
         return run_local(fn, specs, workers, tick)
-    from ctrplan.bench import single_core
-
     results = []
     with single_core():
         for i, spec in enumerate(specs, 1):

@@ -47,6 +47,10 @@ class RodArrays:
     force: np.ndarray
     weight: np.ndarray
 
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        """The fields in kernel-argument order (lengths, straight, kappa, EI, GJ, force, weight)."""
+        return (self.lengths, self.straight, self.kappa, self.EI, self.GJ, self.force, self.weight)
+
     @classmethod
     def of(cls, robot: Robot) -> RodArrays:
         tubes = robot.tubes
@@ -109,9 +113,7 @@ class CosseratBackend(Backend):
         xs = np.empty_like(x0)
         initial = np.empty((b, kernel.NSTATE))
         st = self.settings
-        rod = self.rod
-        args = (frac, rod.lengths, rod.straight, rod.kappa, rod.EI, rod.GJ, rod.force, rod.weight,
-                self.loaded, st.step_multi_mm, st.step_single_mm,
+        args = (frac, *self.rod.arrays(), self.loaded, st.step_multi_mm, st.step_single_mm,
                 st.tolerance_per_m * 1e-3, st.max_iterations)
         if b == 1:
             x, c, it, r = kernel.solve_one(qm[0], x0[0], warm, *args, states[0], tips[0],
@@ -119,7 +121,7 @@ class CosseratBackend(Backend):
             xs[0], conv[0], iters[0], resid[0] = x, c, it, r
         else:
             kernel.solve_many(qm, x0, warm, *args, states, tips, initial, xs, conv, iters, resid)
-        ends = qm[:, :3] + rod.lengths
+        ends = qm[:, :3] + self.rod.lengths
         s_mm = frac[None, :] * ends[:, :1]
         return Backbone(q=q, s_mm=s_mm, state=states, tube_ends_mm=ends, tips_mm=tips,
                         radius_mm=outer_radius_along(self.robot, s_mm, ends), converged=conv,

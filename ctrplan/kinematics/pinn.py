@@ -133,8 +133,7 @@ class PinnBackend(Backend):
         for p in self.net.parameters():
             p.requires_grad_(False)
         self._compiled = self._export(self.net)
-        rod = RodArrays.of(robot)
-        self._rod = (rod.lengths, rod.straight, rod.kappa, rod.EI, rod.GJ, rod.force, rod.weight)
+        self._rod = RodArrays.of(robot).arrays()
         # distal residual, as moment over tube-1 stiffness in 1/m, is max |weights * at_ends| with
         # at_ends the (4, 15) states at l1, l2, l3 and s = 0: u_iz(l_i) GJ_i / GJ_1, m_b(l1) / EI_1
         gj = np.array([t.torsional_stiffness_nmm2 for t in robot.tubes])
