@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ctrplan.calibration.model import CALIBRATION_KEY, Calibration
+from ctrplan.measurement import CALIBRATION_KEY, Calibration
 from ctrplan.errors import DomainError, InputError
 from ctrplan.yamlio import YamlDoc, load_yaml
 

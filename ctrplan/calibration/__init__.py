@@ -1,12 +1,12 @@
 """Measured data: show what the model gets wrong, name the physical cause, extend the model, measure
 the gain (``ctrplan diagnose``).
 
-Modules: `data` (readers, split), `model` (`Calibration`: registration and backlash), `calibration`
+Modules: `data` (readers, split), `calibration`
 (the extended robot file), `effects` (candidate causes), `fit` (batched least squares), `diagnosis`
 (selection and report), `where` and `plots` (where the error grows), `synthetic` (data with a hidden
 cause), `study` (confusion table).
 
-Attributes are imported lazily so that `ctrplan.robot` may import `ctrplan.calibration.model`.
+The fitted `Calibration` (registration, backlash) lives with the robot model in `ctrplan.measurement`.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from typing import Any
 
 _EXPORTS = {
     "CAUSES": "effects",
-    "Calibration": "model",
+    "Calibration": "ctrplan.measurement",
     "DiagnoseOptions": "diagnosis",
     "Diagnosis": "diagnosis",
     "MeasuredData": "data",
@@ -24,7 +24,7 @@ _EXPORTS = {
     "extended_robot_dict": "calibration",
     "load_extended_robot": "calibration",
     "make_effect": "effects",
-    "motion_direction": "model",
+    "motion_direction": "ctrplan.measurement",
     "read_measured": "data",
     "split_blocks": "data",
     "write_crl_csv": "data",
@@ -39,7 +39,7 @@ def __getattr__(name: str) -> Any:
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'ctrplan.calibration' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"ctrplan.calibration.{module}"), name)
+    value = getattr(importlib.import_module(module if "." in module else f"ctrplan.calibration.{module}"), name)
     globals()[name] = value
     return value
 

@@ -1,5 +1,5 @@
 """The extended robot file: `Robot.to_dict()` plus a top-level ``calibration`` mapping (written only
-when the `Calibration` is not the identity); see `ctrplan.calibration.model`."""
+when the `Calibration` is not the identity); see `ctrplan.measurement`."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ctrplan.calibration.model import CALIBRATION_KEY, Calibration
+from ctrplan.measurement import CALIBRATION_KEY, Calibration
 from ctrplan.dataio import atomic_write
 from ctrplan.robot import Robot
 

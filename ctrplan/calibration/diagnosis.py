@@ -38,7 +38,7 @@ from ctrplan.calibration.fit import (
     partner_scores,
     residual_vector,
 )
-from ctrplan.calibration.model import Calibration, motion_direction
+from ctrplan.measurement import Calibration, motion_direction
 from ctrplan.robot import Robot
 
 

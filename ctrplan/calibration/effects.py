@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ctrplan.calibration.model import Calibration
+from ctrplan.measurement import Calibration
 from ctrplan.errors import InputError
 from ctrplan.robot import Loads, Robot
 

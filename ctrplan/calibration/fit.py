@@ -17,7 +17,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ctrplan.calibration.effects import Effect, Param
-from ctrplan.calibration.model import Calibration
+from ctrplan.measurement import Calibration
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.robot import Robot
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ctrplan.calibration.data import MeasuredData
-from ctrplan.calibration.model import Calibration, motion_direction
+from ctrplan.measurement import Calibration, motion_direction
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.robot import Loads, Robot
 

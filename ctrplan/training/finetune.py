@@ -15,7 +15,7 @@ import torch
 
 from ctrplan.calibration.diagnosis import DiagnoseOptions, Diagnosis, diagnose, error_stats
 from ctrplan.calibration.fit import Evaluator
-from ctrplan.calibration.model import Calibration
+from ctrplan.measurement import Calibration
 from ctrplan.kinematics.model_file import file_sha256
 from ctrplan.kinematics.pinn import PinnBackend, PinnNet
 from ctrplan.robot import Robot

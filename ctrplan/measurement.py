@@ -10,8 +10,8 @@ mechanics:
   ``alpha_i - backlash_i * d_i``, with ``d_i`` in {-1, 0, +1} the direction of the latest motion of
   alpha_i (from consecutive rows, `motion_direction`).
 
-This module imports nothing else from ctrplan but `yamlio`/`errors`, so `ctrplan.robot` can hold a
-`Calibration` without an import cycle. In a robot file it is the top-level mapping::
+It is part of the robot model (`ctrplan.robot.Robot.calibration`); `ctrplan.calibration` fits it to
+measured data. In a robot file it is the top-level mapping::
 
     calibration:
       registration: {rotation_vector_rad: [rx, ry, rz], translation_mm: [tx, ty, tz]}
