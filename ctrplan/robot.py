@@ -14,7 +14,7 @@ import hashlib
 import json
 import math
 import warnings
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from importlib import resources
 from pathlib import Path
@@ -22,11 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from ctrplan.measurement import CALIBRATION_KEY, Calibration
 from ctrplan.errors import DomainError, InputError
+from ctrplan.measurement import CALIBRATION_KEY, Calibration
 from ctrplan.yamlio import YamlDoc, load_yaml
 
-JOINT_NAMES = ("beta1", "beta2", "beta3", "alpha1", "alpha2", "alpha3")
 BUILTIN_ROBOTS = ("nominal",)
 
 
@@ -83,83 +82,149 @@ class Loads:
         return not any(self.gravity_m_s2) and not any(self.tip_force_n)
 
 
+def joint_names(n_tubes: int) -> tuple[str, ...]:
+    """``(beta1 … betaN, alpha1 … alphaN)``: joint and CSV column names for N tubes."""
+    return tuple(f"beta{i}" for i in range(1, n_tubes + 1)) + tuple(f"alpha{i}" for i in range(1, n_tubes + 1))
+
+
+def box_names(n_tubes: int) -> tuple[str, ...]:
+    """Box coordinates ``(betaN, betaN - betaN-1, …, beta2 - beta1, alpha1 … alphaN)``."""
+    return ((f"beta{n_tubes}",) + tuple(f"beta{i + 1} - beta{i}" for i in range(n_tubes - 1, 0, -1))
+            + tuple(f"alpha{i}" for i in range(1, n_tubes + 1)))
+
+
+def box_keys(n_tubes: int) -> tuple[str, ...]:
+    """Robot-file keys of the box coordinates (mm, rad): ``beta3_mm``, ``beta3_minus_beta2_mm``, …,
+    then one ``alphaI_rad`` per tube (a shared ``alpha_rad`` sets them all)."""
+    return ((f"beta{n_tubes}_mm",) + tuple(f"beta{i + 1}_minus_beta{i}_mm" for i in range(n_tubes - 1, 0, -1))
+            + tuple(f"alpha{i}_rad" for i in range(1, n_tubes + 1)))
+
+
+def _box_matrix(n_tubes: int) -> np.ndarray:
+    """The linear map box = M q for N tubes (2N, 2N)."""
+    n = n_tubes
+    M = np.zeros((2 * n, 2 * n))
+    M[0, n - 1] = 1.0
+    for r, i in enumerate(range(n - 1, 0, -1), start=1):  # beta_{i+1} - beta_i
+        M[r, i] = 1.0
+        M[r, i - 1] = -1.0
+    M[n:, n:] = np.eye(n)
+    return M
+
+
+#: Joint names of a three-tube robot (the CSV header of three-tube files).
+JOINT_NAMES = joint_names(3)
+
+#: The paper's snap-free box for the three-tube Table I robot (Remark in III-B), mm and rad.
+PAPER_BOX = ((-10.0, 0.0), (0.0, 55.0), (0.0, 15.0)) + ((-math.pi, math.pi),) * 3
+
+
 @dataclass(frozen=True)
 class JointDomain:
-    """Snap-free domain: a box in ``(beta3, beta3-beta2, beta2-beta1, alpha1, alpha2, alpha3)``.
+    """The actuation domain: a box in ``(betaN, betaN - betaN-1, …, beta2 - beta1, alpha1 … alphaN)``.
 
-    Bounds in mm and rad. ``box_lower``/``box_upper`` are the box corners, shape (6,).
+    ``bounds`` are (lower, upper) per box coordinate (mm, rad), 2N of them; a zero-width interval is a
+    fixed joint. ``box_lower``/``box_upper`` are the corners (2N,). The default is the paper's box for
+    its three-tube robot.
     """
 
-    beta3_mm: tuple[float, float] = (-10.0, 0.0)
-    beta3_minus_beta2_mm: tuple[float, float] = (0.0, 55.0)
-    beta2_minus_beta1_mm: tuple[float, float] = (0.0, 15.0)
-    alpha_rad: tuple[float, float] = (-math.pi, math.pi)
+    bounds: tuple[tuple[float, float], ...] = PAPER_BOX
 
     @property
+    def n_tubes(self) -> int:
+        return len(self.bounds) // 2
+
+    @cached_property
     def box_lower(self) -> np.ndarray:
-        return np.array([self.beta3_mm[0], self.beta3_minus_beta2_mm[0], self.beta2_minus_beta1_mm[0]]
-                        + [self.alpha_rad[0]] * 3)
+        return np.array([b[0] for b in self.bounds])
 
-    @property
+    @cached_property
     def box_upper(self) -> np.ndarray:
-        return np.array([self.beta3_mm[1], self.beta3_minus_beta2_mm[1], self.beta2_minus_beta1_mm[1]]
-                        + [self.alpha_rad[1]] * 3)
+        return np.array([b[1] for b in self.bounds])
 
-    @staticmethod
-    def to_box(q: np.ndarray) -> np.ndarray:
-        """Joints (..., 6) -> box coordinates (..., 6)."""
-        q = np.asarray(q, dtype=float)
-        b1, b2, b3 = q[..., 0], q[..., 1], q[..., 2]
-        return np.stack([b3, b3 - b2, b2 - b1, q[..., 3], q[..., 4], q[..., 5]], axis=-1)
+    @cached_property
+    def fixed(self) -> np.ndarray:
+        """Which box coordinates are fixed (zero-width interval), (2N,) bool."""
+        return self.box_upper - self.box_lower <= 0.0
 
-    @staticmethod
-    def from_box(x: np.ndarray) -> np.ndarray:
-        """Box coordinates (..., 6) -> joints (..., 6)."""
-        x = np.asarray(x, dtype=float)
-        b3 = x[..., 0]
-        b2 = b3 - x[..., 1]
-        b1 = b2 - x[..., 2]
-        return np.stack([b1, b2, b3, x[..., 3], x[..., 4], x[..., 5]], axis=-1)
+    @cached_property
+    def box_from_joints(self) -> np.ndarray:
+        """M (2N, 2N) with box = M q."""
+        return _box_matrix(self.n_tubes)
+
+    @cached_property
+    def joints_from_box(self) -> np.ndarray:
+        """M^-1 (2N, 2N) with q = M^-1 box."""
+        return np.linalg.inv(self.box_from_joints)
+
+    def to_box(self, q: np.ndarray) -> np.ndarray:
+        """Joints (..., 2N) -> box coordinates (..., 2N)."""
+        return np.asarray(q, dtype=float) @ self.box_from_joints.T
+
+    def from_box(self, x: np.ndarray) -> np.ndarray:
+        """Box coordinates (..., 2N) -> joints (..., 2N)."""
+        return np.asarray(x, dtype=float) @ self.joints_from_box.T
 
     def sample(self, n: int, rng: np.random.Generator | int | None = None) -> np.ndarray:
-        """``n`` joint vectors (n, 6) drawn uniformly in the box coordinates."""
+        """``n`` joint vectors (n, 2N) drawn uniformly in the box coordinates."""
         rng = np.random.default_rng(rng)
-        x = rng.uniform(self.box_lower, self.box_upper, size=(n, 6))
+        x = rng.uniform(self.box_lower, self.box_upper, size=(n, len(self.bounds)))
         return self.from_box(x)
 
     def violations(self, q: np.ndarray, tol: float = 1e-9) -> list[tuple[int, str]]:
-        """``(row, message)`` for the first violated inequality of every offending row of q (..., 6)."""
+        """``(row, message)`` for the first violated inequality of every offending row of q (..., 2N)."""
         box = self.to_box(np.atleast_2d(q))
         lo, hi = self.box_lower - tol, self.box_upper + tol
         bad = (box < lo) | (box > hi)
+        names = box_names(self.n_tubes)
         out = []
         for r in np.flatnonzero(bad.any(axis=1)):
             c = int(np.argmax(bad[r]))
-            name = _BOX_NAMES[c]
-            out.append((int(r), f"{self.box_lower[c]:g} <= {name} <= {self.box_upper[c]:g} violated "
-                                f"({name} = {box[r, c]:.6g})"))
+            out.append((int(r), f"{self.box_lower[c]:g} <= {names[c]} <= {self.box_upper[c]:g} violated "
+                                f"({names[c]} = {box[r, c]:.6g})"))
         return out
 
-
-_BOX_NAMES = ("beta3", "beta3 - beta2", "beta2 - beta1", "alpha1", "alpha2", "alpha3")
+    def to_dict(self) -> dict[str, list[float]]:
+        """File form: one key per box coordinate; the alphas share ``alpha_rad`` when equal."""
+        keys = box_keys(self.n_tubes)
+        n = self.n_tubes
+        out = {k: list(b) for k, b in zip(keys[:n], self.bounds[:n], strict=True)}
+        alphas = self.bounds[n:]
+        if all(a == alphas[0] for a in alphas):
+            out["alpha_rad"] = list(alphas[0])
+        else:
+            out.update({k: list(b) for k, b in zip(keys[n:], alphas, strict=True)})
+        return out
 
 
 @dataclass(frozen=True)
 class Robot:
-    """Immutable description of a three-tube CTR: tubes (1 = innermost), loads, joint domain.
+    """Immutable description of a CTR of N = 1…4 tubes: tubes (1 = innermost), loads, joint domain.
 
-    ``joint_offset`` (6,) is added to every commanded q before the mechanics (calibration extension:
-    zero offsets of beta in mm and alpha in rad). ``calibration`` holds the measurement-side
-    extensions (registration to a tracker frame, backlash of the alphas); backends never apply it --
-    backbones stay in the robot frame -- but measured-data tools and `fk` on ordered rows do.
+    Joints ``q = [beta_1 … beta_N, alpha_1 … alpha_N]`` (mm, rad). ``joint_offset`` (2N,) is added to
+    every commanded q before the mechanics (calibration extension: zero offsets of beta in mm and
+    alpha in rad). ``calibration`` holds the measurement-side extensions (registration to a tracker
+    frame, backlash of the alphas); backends never apply it -- backbones stay in the robot frame --
+    but measured-data tools and `fk` on ordered rows do.
     """
 
-    tubes: tuple[Tube, Tube, Tube]
+    tubes: tuple[Tube, ...]
     domain: JointDomain = field(default_factory=JointDomain)
     loads: Loads = field(default_factory=Loads)
-    joint_offset: tuple[float, ...] = (0.0,) * 6
+    joint_offset: tuple[float, ...] = ()
     calibration: Calibration = field(default_factory=Calibration)
     name: str = "custom"
+
+    def __post_init__(self) -> None:
+        n = len(self.tubes)
+        if not self.joint_offset:
+            object.__setattr__(self, "joint_offset", (0.0,) * (2 * n))
+        if not 1 <= n <= MAX_TUBES:
+            raise InputError(f"robot: expected 1 to {MAX_TUBES} tubes, got {n}")
+        if self.domain.n_tubes != n:
+            raise InputError(f"robot: the joint domain is for {self.domain.n_tubes} tubes, the robot has {n}")
+        if len(self.joint_offset) != 2 * n:
+            raise InputError(f"robot: joint_offset needs {2 * n} values, got {len(self.joint_offset)}")
 
     # ---- construction -------------------------------------------------------------------------
     @classmethod
@@ -169,7 +234,7 @@ class Robot:
 
     @classmethod
     def load(cls, spec: str | Path | None = None) -> Robot:
-        """Load a built-in robot by name (``nominal``) or a robot YAML file; None -> nominal."""
+        """Load a built-in robot by name (`BUILTIN_ROBOTS`) or a robot YAML file; None -> nominal."""
         if spec is None or str(spec) in BUILTIN_ROBOTS:
             name = "nominal" if spec is None else str(spec)
             with resources.as_file(resources.files("ctrplan.data") / f"{name}.yaml") as p:
@@ -180,6 +245,24 @@ class Robot:
         return replace(self, **changes)
 
     # ---- derived ------------------------------------------------------------------------------
+    @property
+    def n_tubes(self) -> int:
+        return len(self.tubes)
+
+    @property
+    def n_joints(self) -> int:
+        """2N: N translations, then N rotations."""
+        return 2 * len(self.tubes)
+
+    @property
+    def n_states(self) -> int:
+        """Length of the Cosserat state, 2N + 9 (`ctrplan.kinematics.backbone.state_names`)."""
+        return 2 * len(self.tubes) + 9
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return joint_names(len(self.tubes))
+
     @cached_property
     def lengths_mm(self) -> np.ndarray:
         return np.array([t.length_mm for t in self.tubes])
@@ -189,33 +272,21 @@ class Robot:
         return np.array([t.outer_radius_mm for t in self.tubes])
 
     def tube_ends_mm(self, q: np.ndarray) -> np.ndarray:
-        """Distal ends ``l_i = beta_i + L_i`` (..., 3) for joints (..., 6) (offsets applied)."""
+        """Distal ends ``l_i = beta_i + L_i`` (..., N) for joints (..., 2N) (offsets applied)."""
         q = self.apply_offset(q)
-        return q[..., :3] + self.lengths_mm
+        return q[..., :self.n_tubes] + self.lengths_mm
 
     def apply_offset(self, q: np.ndarray) -> np.ndarray:
         return np.asarray(q, dtype=float) + np.asarray(self.joint_offset)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain, JSON/YAML-ready description in file units (the format `Robot.load` reads)."""
-        tubes = [
-            {
-                "inner_diameter_mm": t.inner_diameter_mm,
-                "outer_diameter_mm": t.outer_diameter_mm,
-                "straight_length_mm": t.straight_length_mm,
-                "curved_length_mm": t.curved_length_mm,
-                "curvature_1_per_m": t.curvature_per_mm * 1e3,
-                "youngs_modulus_gpa": t.youngs_modulus_mpa * 1e-3,
-                "shear_modulus_gpa": t.shear_modulus_mpa * 1e-3,
-                "density_kg_m3": t.density_kg_m3,
-            }
-            for t in self.tubes
-        ]
-        d = asdict(self.domain)
+        tubes = [{key: getattr(t, attr) / scale for key, (attr, scale) in _TUBE_KEYS.items()}
+                 for t in self.tubes]
         out = {
             "name": self.name,
             "tubes": tubes,
-            "domain": {k: list(v) for k, v in d.items()},
+            "domain": self.domain.to_dict(),
             "loads": {"gravity_m_s2": list(self.loads.gravity_m_s2),
                       "tip_force_n": list(self.loads.tip_force_n)},
             "joint_offset": list(self.joint_offset),
@@ -238,30 +309,36 @@ class Robot:
     # ---- joints ---------------------------------------------------------------------------------
     def check_joints(self, q: np.ndarray, *, allow_outside_domain: bool = False,
                      where: str = "q", row_offset: int = 0) -> np.ndarray:
-        """Validate joints (6,) or (B, 6); return them as a float array of the same shape.
+        """Validate joints (2N,) or (B, 2N); return them as a float array of the same shape.
 
         Non-finite values and physically impossible configurations (tube order, a tube base in
         front of the plate, an outer tube reaching past an inner one) raise `InputError`. Leaving the
-        snap-free domain raises `DomainError`, or only warns with ``allow_outside_domain``.
+        domain raises `DomainError`, or only warns with ``allow_outside_domain``.
         ``where``/``row_offset`` name the source in messages (e.g. a file and its first data row).
         """
+        n, nj = self.n_tubes, self.n_joints
+        names = self.joint_names
         arr = np.asarray(q, dtype=float)
-        if arr.shape[-1:] != (6,) or arr.ndim not in (1, 2):
-            raise InputError(f"{where}: expected joints of shape (6,) or (N, 6), got {arr.shape}")
-        rows = arr.reshape(-1, 6)
+        if arr.shape[-1:] != (nj,) or arr.ndim not in (1, 2):
+            raise InputError(f"{where}: expected joints of shape ({nj},) or (N, {nj}) "
+                             f"({','.join(names)}), got {arr.shape}")
+        rows = arr.reshape(-1, nj)
         bad = ~np.isfinite(rows)
         if bad.any():
             r, c = np.argwhere(bad)[0]
-            raise InputError(f"{where}: row {r + row_offset}: {JOINT_NAMES[c]} is not a finite number")
+            raise InputError(f"{where}: row {r + row_offset}: {names[c]} is not a finite number")
         qe = self.apply_offset(rows)
-        ends = qe[:, :3] + self.lengths_mm
-        problems = [
-            (qe[:, 0] > qe[:, 1] + 1e-9, "tube order violated: need beta1 <= beta2"),
-            (qe[:, 1] > qe[:, 2] + 1e-9, "tube order violated: need beta2 <= beta3"),
-            (qe[:, 2] > 1e-9, "tube 3 base in front of the plate: need beta3 <= 0"),
-            (ends[:, 0] < ends[:, 1] - 1e-9, "tube 2 reaches past tube 1: need beta1 + L1 >= beta2 + L2"),
-            (ends[:, 1] < ends[:, 2] - 1e-9, "tube 3 reaches past tube 2: need beta2 + L2 >= beta3 + L3"),
-            (ends[:, 2] <= 0, "tube 3 does not reach the plate: need beta3 + L3 > 0"),
+        ends = qe[:, :n] + self.lengths_mm
+        problems = []
+        for i in range(n - 1):
+            problems += [
+                (qe[:, i] > qe[:, i + 1] + 1e-9, f"tube order violated: need beta{i + 1} <= beta{i + 2}"),
+                (ends[:, i] < ends[:, i + 1] - 1e-9,
+                 f"tube {i + 2} reaches past tube {i + 1}: need beta{i + 1} + L{i + 1} >= beta{i + 2} + L{i + 2}"),
+            ]
+        problems += [
+            (qe[:, n - 1] > 1e-9, f"tube {n} base in front of the plate: need beta{n} <= 0"),
+            (ends[:, n - 1] <= 0, f"tube {n} does not reach the plate: need beta{n} + L{n} > 0"),
         ]
         for mask, message in problems:
             if mask.any():
@@ -272,14 +349,14 @@ class Robot:
         if outside:
             r, v = outside[0]
             more = f" (and {len(outside) - 1} more rows)" if len(outside) > 1 else ""
-            msg = f"{where}: row {r + row_offset}: outside the snap-free domain: {v}{more}"
+            msg = f"{where}: row {r + row_offset}: outside the joint domain: {v}{more}"
             if not allow_outside_domain:
                 raise DomainError(msg)
             warnings.warn(msg, stacklevel=2)
         return arr
 
     def sample_joints(self, n: int, rng: np.random.Generator | int | None = None) -> np.ndarray:
-        """``n`` configurations (n, 6) uniform in the snap-free box (mm, rad)."""
+        """``n`` configurations (n, 2N) uniform in the domain box (mm, rad)."""
         return self.domain.sample(n, rng)
 
 
@@ -294,6 +371,7 @@ def _rounded(obj: Any) -> Any:
 
 
 # ---- YAML ---------------------------------------------------------------------------------------
+#: file key -> (Tube attribute, factor from file unit to attribute unit)
 _TUBE_KEYS = {
     "inner_diameter_mm": ("inner_diameter_mm", 1.0),
     "outer_diameter_mm": ("outer_diameter_mm", 1.0),
@@ -306,6 +384,25 @@ _TUBE_KEYS = {
 }
 _REQUIRED_TUBE_KEYS = ("inner_diameter_mm", "outer_diameter_mm", "straight_length_mm",
                        "curved_length_mm", "curvature_1_per_m")
+
+#: Physically plausible range of every tube field, in file units: (low, high, what the limit is).
+#: Outside it a robot file is refused; the message names the limit.
+TUBE_LIMITS = {
+    "inner_diameter_mm": (0.0, 20.0, "diameters of CTR tubes are below 20 mm"),
+    "outer_diameter_mm": (0.01, 20.0, "diameters of CTR tubes are 0.01 mm to 20 mm"),
+    "straight_length_mm": (0.0, 2000.0, "tube lengths are below 2 m"),
+    "curved_length_mm": (0.0, 2000.0, "tube lengths are below 2 m"),
+    "curvature_1_per_m": (0.0, 1000.0, "pre-curvature is below 1000 1/m (1 mm radius)"),
+    "youngs_modulus_gpa": (1.0, 1000.0, "Young's modulus of tube materials is 1 GPa to 1000 GPa"),
+    "shear_modulus_gpa": (0.3, 500.0, "shear modulus of tube materials is 0.3 GPa to 500 GPa"),
+    "density_kg_m3": (100.0, 25000.0, "density of tube materials is 100 to 25,000 kg/m^3"),
+}
+#: Largest bending strain a pre-curved tube can hold, kappa * outer radius (superelastic nitinol
+#: recovers about 8 %; 10 % is the ceiling of any tube material).
+MAX_PRECURVE_STRAIN = 0.10
+MAX_GRAVITY_M_S2 = 1000.0
+MAX_TIP_FORCE_N = 100.0
+MAX_TUBES = 4
 
 
 def _number(doc: YamlDoc, keys: tuple, value: Any) -> float:
@@ -326,39 +423,82 @@ def _unknown(doc: YamlDoc, keys: tuple, mapping: dict, allowed) -> None:
             raise doc.error(keys + (k,), f"unknown key (allowed: {', '.join(sorted(allowed))})")
 
 
+def _tube_from_yaml(doc: YamlDoc, i: int, raw: Any) -> Tube:
+    keys = ("tubes", i)
+    if not isinstance(raw, dict):
+        raise doc.error(keys, "expected a mapping of tube parameters")
+    _unknown(doc, keys, raw, _TUBE_KEYS)
+    for k in _REQUIRED_TUBE_KEYS:
+        if k not in raw:
+            raise doc.error(keys, f"missing required key {k!r}")
+    values = {k: _number(doc, keys + (k,), raw[k]) for k in _TUBE_KEYS if k in raw}
+    for k, v in values.items():
+        lo, hi, why = TUBE_LIMITS[k]
+        if not lo <= v <= hi:
+            raise doc.error(keys + (k,), f"{v:g} is outside the physical range [{lo:g}, {hi:g}] ({why})")
+    tube = Tube(**{attr: values[k] * scale for k, (attr, scale) in _TUBE_KEYS.items() if k in values})
+    if tube.length_mm <= 0:
+        raise doc.error(keys + ("curved_length_mm",), "straight and curved length are both 0: the tube "
+                                                       "has no length")
+    if tube.inner_diameter_mm >= tube.outer_diameter_mm:
+        raise doc.error(keys + ("inner_diameter_mm",),
+                        f"inner diameter {tube.inner_diameter_mm} mm must be < outer diameter "
+                        f"{tube.outer_diameter_mm} mm")
+    strain = tube.curvature_per_mm * tube.outer_radius_mm
+    if tube.curved_length_mm > 0 and strain > MAX_PRECURVE_STRAIN:
+        raise doc.error(keys + ("curvature_1_per_m",),
+                        f"pre-curvature {values['curvature_1_per_m']:g} 1/m bends a tube of outer diameter "
+                        f"{tube.outer_diameter_mm:g} mm to {100 * strain:.0f} % strain; no tube survives "
+                        f"more than {100 * MAX_PRECURVE_STRAIN:.0f} % (kappa * OD / 2)")
+    poisson = tube.youngs_modulus_mpa / (2 * tube.shear_modulus_mpa) - 1
+    if not -1.0 < poisson <= 0.5:
+        raise doc.error(keys + ("shear_modulus_gpa",),
+                        f"E / (2 G) - 1 = {poisson:.3g} is not a Poisson ratio of a real material (-1, 0.5]")
+    return tube
+
+
+def _domain_from_yaml(doc: YamlDoc, n: int) -> JointDomain:
+    if "domain" not in doc.data:
+        if n == 3:
+            return JointDomain()
+        raise doc.error(("tubes",), f"a robot of {n} tubes needs a 'domain' mapping with the keys "
+                                    f"{', '.join(box_keys(n)[:n])}, alpha_rad")
+    raw = doc.data["domain"]
+    if not isinstance(raw, dict):
+        raise doc.error(("domain",), "expected a mapping")
+    keys = box_keys(n)
+    _unknown(doc, ("domain",), raw, set(keys) | {"alpha_rad"})
+    bounds: list[tuple[float, float] | None] = [None] * (2 * n)
+    if n == 3:
+        bounds = list(PAPER_BOX)
+    if "alpha_rad" in raw:
+        bounds[n:] = [_vector(doc, ("domain", "alpha_rad"), raw["alpha_rad"], 2)] * n
+    for c, k in enumerate(keys):
+        if k in raw:
+            bounds[c] = _vector(doc, ("domain", k), raw[k], 2)
+    for c, b in enumerate(bounds):
+        key = keys[c] if keys[c] in raw or c < n else "alpha_rad"
+        if b is None:
+            raise doc.error(("domain",), f"missing {keys[c] if c < n else keys[c] + ' or alpha_rad'}")
+        if b[0] > b[1]:
+            raise doc.error(("domain", key), f"lower bound {b[0]:g} exceeds upper bound {b[1]:g}")
+        if c >= n and (b[0] < -2 * math.pi or b[1] > 2 * math.pi):
+            raise doc.error(("domain", key), "rotations must lie within [-2 pi, 2 pi] rad")
+        if 0 < c < n and b[0] < 0:
+            raise doc.error(("domain", key), "tube order needs a difference of translations >= 0")
+    return JointDomain(tuple(bounds))
+
+
 def robot_from_yaml(doc: YamlDoc) -> Robot:
     """Build a validated `Robot` from a parsed robot file; errors name the key and line."""
     d = doc.data
     _unknown(doc, (), d, {"name", "tubes", "domain", "loads", "joint_offset", CALIBRATION_KEY})
     tubes_raw = d.get("tubes")
-    if not isinstance(tubes_raw, list) or len(tubes_raw) != 3:
-        raise doc.error(("tubes",), "expected a list of exactly 3 tubes (innermost first)")
-    tubes = []
-    for i, raw in enumerate(tubes_raw):
-        keys = ("tubes", i)
-        if not isinstance(raw, dict):
-            raise doc.error(keys, "expected a mapping of tube parameters")
-        _unknown(doc, keys, raw, _TUBE_KEYS)
-        for k in _REQUIRED_TUBE_KEYS:
-            if k not in raw:
-                raise doc.error(keys, f"missing required key {k!r}")
-        kw = {attr: _number(doc, keys + (k,), raw[k]) * scale
-              for k, (attr, scale) in _TUBE_KEYS.items() if k in raw}
-        tube = Tube(**kw)
-        positive = ["outer_diameter_mm", "curved_length_mm", "youngs_modulus_gpa", "shear_modulus_gpa",
-                    "density_kg_m3"]
-        for k in positive:
-            if k in raw and raw[k] <= 0:
-                raise doc.error(keys + (k,), f"must be > 0, got {raw[k]!r}")
-        for k in ("inner_diameter_mm", "straight_length_mm", "curvature_1_per_m"):
-            if raw[k] < 0:
-                raise doc.error(keys + (k,), f"must be >= 0, got {raw[k]!r}")
-        if tube.inner_diameter_mm >= tube.outer_diameter_mm:
-            raise doc.error(keys + ("inner_diameter_mm",),
-                            f"inner diameter {tube.inner_diameter_mm} mm must be < outer diameter "
-                            f"{tube.outer_diameter_mm} mm")
-        tubes.append(tube)
-    for i in range(2):
+    if not isinstance(tubes_raw, list) or not 1 <= len(tubes_raw) <= MAX_TUBES:
+        raise doc.error(("tubes",), f"expected a list of 1 to {MAX_TUBES} tubes (innermost first)")
+    tubes = [_tube_from_yaml(doc, i, raw) for i, raw in enumerate(tubes_raw)]
+    n = len(tubes)
+    for i in range(n - 1):
         if tubes[i].outer_diameter_mm > tubes[i + 1].inner_diameter_mm:
             raise doc.error(("tubes", i + 1, "inner_diameter_mm"),
                             f"tube {i + 2} (inner diameter {tubes[i + 1].inner_diameter_mm} mm) cannot "
@@ -366,21 +506,7 @@ def robot_from_yaml(doc: YamlDoc) -> Robot:
         if tubes[i].length_mm < tubes[i + 1].length_mm:
             raise doc.error(("tubes", i, "straight_length_mm"),
                             f"tube {i + 1} must be at least as long as tube {i + 2}")
-
-    domain = JointDomain()
-    if "domain" in d:
-        raw = d["domain"]
-        if not isinstance(raw, dict):
-            raise doc.error(("domain",), "expected a mapping")
-        fields_ = JointDomain.__dataclass_fields__
-        _unknown(doc, ("domain",), raw, fields_)
-        kw = {}
-        for k, v in raw.items():
-            lo, hi = _vector(doc, ("domain", k), v, 2)
-            if lo > hi:
-                raise doc.error(("domain", k), f"lower bound {lo} exceeds upper bound {hi}")
-            kw[k] = (lo, hi)
-        domain = JointDomain(**kw)
+    domain = _domain_from_yaml(doc, n)
 
     loads = Loads()
     if "loads" in d:
@@ -389,12 +515,18 @@ def robot_from_yaml(doc: YamlDoc) -> Robot:
             raise doc.error(("loads",), "expected a mapping")
         _unknown(doc, ("loads",), raw, {"gravity_m_s2", "tip_force_n"})
         loads = Loads(**{k: _vector(doc, ("loads", k), v, 3) for k, v in raw.items()})
+        for k, limit in (("gravity_m_s2", MAX_GRAVITY_M_S2), ("tip_force_n", MAX_TIP_FORCE_N)):
+            if np.linalg.norm(getattr(loads, k)) > limit:
+                raise doc.error(("loads", k), f"magnitude above the physical range of a CTR ({limit:g})")
 
-    offset = (0.0,) * 6
+    offset = (0.0,) * (2 * n)
     if "joint_offset" in d:
-        offset = _vector(doc, ("joint_offset",), d["joint_offset"], 6)
+        offset = _vector(doc, ("joint_offset",), d["joint_offset"], 2 * n)
+        if any(abs(v) > 1000.0 for v in offset[:n]) or any(abs(v) > 2 * math.pi for v in offset[n:]):
+            raise doc.error(("joint_offset",), "offsets must be within 1000 mm and 2 pi rad")
 
     calibration = Calibration.from_doc(doc) if CALIBRATION_KEY in d else Calibration()
     name = d.get("name", doc.path.stem)
-    return Robot(tubes=tuple(tubes), domain=domain, loads=loads, joint_offset=offset,
-                 calibration=calibration, name=str(name))
+    robot = Robot(tubes=tuple(tubes), domain=domain, loads=loads, joint_offset=offset,
+                  calibration=calibration, name=str(name))
+    return robot

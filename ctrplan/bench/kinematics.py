@@ -22,8 +22,6 @@ from ctrplan.bench import timing_stats
 from ctrplan.kinematics import Backend
 from ctrplan.robot import Robot
 
-#: Backends that take ``guess=`` initial states and are timed cold and warm.
-WARM_STARTABLE = ("cosserat",)
 #: Distance of the warm-start neighbour, per joint: 0.5 mm (beta), 0.5 deg (alpha).
 NEIGHBOUR_STEP = np.array([0.5, 0.5, 0.5] + [math.radians(0.5)] * 3)
 #: Untimed calls per case before timing (compilation, caches).
@@ -43,12 +41,13 @@ class Case:
         return self.backend if self.mode == "-" else f"{self.backend} ({self.mode})"
 
 
-def modes(backend: str) -> tuple[str, ...]:
-    return ("cold", "warm") if backend in WARM_STARTABLE else ("-",)
+def modes(backend: Backend) -> tuple[str, ...]:
+    """``cold`` and ``warm`` for a warm-startable backend (timed from a neighbour's state), else ``-``."""
+    return ("cold", "warm") if backend.warm_startable else ("-",)
 
 
-def cases(backends: Sequence[str], points: Sequence[int]) -> list[Case]:
-    return [Case(b, m, p) for b in backends for m in modes(b) for p in points]
+def cases(backends: dict[str, Backend], points: Sequence[int]) -> list[Case]:
+    return [Case(name, m, p) for name, b in backends.items() for m in modes(b) for p in points]
 
 
 def neighbours(robot: Robot, q: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -94,11 +93,11 @@ def run(backends: dict[str, Backend], n: int, points: Sequence[int], seed: int =
     q_warmup = robot.sample_joints(WARMUP_CALLS, rng)
     guesses: dict[str, np.ndarray] = {}
     for name in backends:
-        if name in WARM_STARTABLE:
+        if backends[name].warm_startable:
             nearby = neighbours(robot, np.concatenate([q, q_warmup]), rng)
             guesses[name] = backends[name].forward(nearby, points=2, check=False).initial_state
     rows, times = [], {}
-    for case in cases(list(backends), points):
+    for case in cases(backends, points):
         backend = backends[case.backend]
         guess = guesses[case.backend] if case.mode == "warm" else None
         _time_calls(backend, q_warmup, case.points, None if guess is None else guess[n:])

@@ -113,7 +113,7 @@ def kinematics(
     model = Robot.load(robot)
     backends = {name: make_backend(name, model) for name in dict.fromkeys(names)}
     out = output_dir(out)
-    cases = kinematics_bench.cases(list(backends), point_counts)
+    cases = kinematics_bench.cases(backends, point_counts)
     with progress_bar() as bar, single_core() as core:
         task = bar.add_task("bench kinematics", total=n * len(cases))
         last = 0.0

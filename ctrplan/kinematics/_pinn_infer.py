@@ -17,7 +17,9 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ctrplan.kinematics._shooting import I_P, NSTATE, hermite, lay_nodes, rhs, segments
+from ctrplan.kinematics._shooting import hermite, lay_nodes, rhs, segments
+
+NSTATE, I_P = 15, 8
 
 # Rational approximation of tanh used by Eigen for float32 (accurate to float32 rounding on the
 # clamped range); unlike libm's tanh it vectorises.

@@ -1,9 +1,12 @@
-"""Numba kernels of the Cosserat-rod shooting solver (paper eq. 9-13). Internal units: mm, N, 1/mm.
+"""Numba kernels of the Cosserat-rod shooting solver (paper eq. 9-13) for N = 1…4 tubes.
+Internal units: mm, N, 1/mm.
 
-State layout (15, paper eq. 9): ``[m_bx, m_by, u1z, u2z, u3z, th1, th2, th3, px, py, pz, qw, qx, qy, qz]``
-with ``m_b`` the body-frame bending moment of the tube bundle (N*mm), ``u_iz`` torsional curvature
-(1/mm), ``th_i`` twist of tube i relative to tube 1 (rad), ``p`` position (mm), ``q`` orientation of
-tube 1 as a scalar-first unit quaternion.
+State layout (2N + 9, paper eq. 9; 15 for three tubes):
+``[m_bx, m_by, u_1z … u_Nz, th_1 … th_N, px, py, pz, qw, qx, qy, qz]`` with ``m_b`` the body-frame
+bending moment of the tube bundle (N*mm), ``u_iz`` torsional curvature (1/mm), ``th_i`` twist of tube i
+relative to tube 1 (rad), ``p`` position (mm), ``q`` orientation of tube 1 as a scalar-first unit
+quaternion. `layout(n)` gives the offsets. ``kappa`` is passed as a tuple (see
+`ctrplan.kinematics.cosserat.RodArrays.arrays`): the tube count is then a compile-time constant.
 
 The arc length ``[0, l1]`` is split at every transition point (tube ends, starts of curved parts);
 each segment is stepped with fixed RK4 steps no longer than ``h_multi`` where two or more tubes are
@@ -11,9 +14,14 @@ curved (torsion is generated there) and ``h_single`` elsewhere. Values between g
 cubic Hermite interpolation with one-sided derivatives, so the grid never depends on the requested
 output points and the boundary residual of the returned solution is the one Newton drove to zero.
 
-Unknowns of the shooting (scaled to 1/mm): in free space only ``(u2z(0), u3z(0))`` -- the total moment
-vanishes everywhere, so ``m_b = 0`` and ``u1z(0) = -(GJ2 u2z + GJ3 u3z)/GJ1``. With loads:
-``(m_bx(0)/EI1, m_by(0)/EI1, u1z(0), u2z(0), u3z(0))``.
+Unknowns of the shooting (scaled to 1/mm): in free space only ``(u_2z(0) … u_Nz(0))`` -- the total
+moment vanishes everywhere, so ``m_b = 0`` and ``u_1z(0) = -(sum_i>1 GJ_i u_iz)/GJ_1``. With loads:
+``(m_bx(0)/EI_1, m_by(0)/EI_1, u_1z(0) … u_Nz(0))``.
+
+Elastic stability (`stability_det`): the equilibrium is stable when no focal point of the Jacobi
+(variational) equation lies in ``(0, l1]`` -- the determinant of ``d r(s) / d x`` stays positive along
+the arc length, with ``r(s)`` the distal boundary quantities evaluated at ``s`` (Ha, Park & Dupont,
+IEEE T-RO 2015). Its value at ``s = l1`` is the shooting Jacobian's determinant.
 """
 
 from __future__ import annotations
@@ -23,25 +31,32 @@ import math
 import numpy as np
 from numba import njit, prange
 
-NSTATE = 15
-I_MB, I_UZ, I_TH, I_P, I_Q = 0, 2, 5, 8, 11
-MAX_BREAKS = 8
+I_MB, I_UZ = 0, 2
+MAX_TUBES = 4
+MAX_BREAKS = 2 * MAX_TUBES + 2
+
+
+@njit(cache=True)
+def layout(n):
+    """Offsets of the state blocks for n tubes: ``(n_state, I_TH, I_P, I_Q)``."""
+    return 2 * n + 9, 2 + n, 2 + 2 * n, 5 + 2 * n
 
 
 @njit(cache=True)
 def segments(beta, lengths, straight, EI):
     """Split ``[0, l1]`` at every transition point (tube ends, starts of curved parts).
 
-    Returns ``breaks`` (S+1,) mm, ``present`` and ``kc`` (S, 3) per segment (tube present; curvature
-    if curved else 0, 1/mm), ``bend`` (S,) total bending stiffness, ``ncurved`` (S,) curved tubes.
+    Returns ``breaks`` (S+1,) mm, ``present`` and ``kc`` (S, N) per segment (tube present; curved),
+    ``bend`` (S,) total bending stiffness, ``ncurved`` (S,) curved tubes.
     """
+    nt = lengths.shape[0]
     ends = beta + lengths
     l1 = ends[0]
     cand = np.empty(MAX_BREAKS)
     n = 0
     cand[n] = 0.0
     n += 1
-    for i in range(3):
+    for i in range(nt):
         cand[n] = ends[i]
         n += 1
         c = beta[i] + straight[i]
@@ -58,13 +73,13 @@ def segments(beta, lengths, straight, EI):
             breaks[nb] = v
             nb += 1
     nseg = nb - 1
-    present = np.zeros((nseg, 3))
-    kc = np.zeros((nseg, 3))
+    present = np.zeros((nseg, nt))
+    kc = np.zeros((nseg, nt))
     bend = np.zeros(nseg)
     ncurved = np.zeros(nseg, dtype=np.int64)
     for k in range(nseg):
         mid = 0.5 * (breaks[k] + breaks[k + 1])
-        for i in range(3):
+        for i in range(nt):
             if ends[i] > mid:
                 present[k, i] = 1.0
                 bend[k] += EI[i]
@@ -77,7 +92,7 @@ def segments(beta, lengths, straight, EI):
 @njit(cache=True)
 def lay_nodes(breaks, steps, ends):
     """Nodes ``(M+1,)`` mm with ``steps[k]`` equal intervals on segment k; ``seg_of`` (M,) segment of
-    each interval; ``end_node`` (3,) node index nearest to each tube end ``ends`` (3,) mm."""
+    each interval; ``end_node`` (N,) node index nearest to each tube end ``ends`` (N,) mm."""
     nseg = steps.shape[0]
     m = int(steps.sum())
     nodes = np.empty(m + 1)
@@ -90,8 +105,8 @@ def lay_nodes(breaks, steps, ends):
             seg_of[j] = k
             j += 1
     nodes[m] = breaks[nseg]
-    end_node = np.zeros(3, dtype=np.int64)
-    for i in range(3):
+    end_node = np.zeros(ends.shape[0], dtype=np.int64)
+    for i in range(ends.shape[0]):
         best = 0
         for jj in range(m + 1):
             if abs(nodes[jj] - ends[i]) < abs(nodes[best] - ends[i]):
@@ -105,7 +120,7 @@ def build_grid(beta, lengths, straight, EI, h_multi, h_single):
     """Segment the backbone (`segments`) and lay out RK4 nodes.
 
     Returns ``nodes`` (M+1,) mm, ``seg_of`` (M,) segment index of each interval, ``present`` and
-    ``kc`` (S, 3) per segment, ``bend`` (S,), ``end_node`` (3,) node index of each tube end ``l_i``.
+    ``kc`` (S, N) per segment, ``bend`` (S,), ``end_node`` (N,) node index of each tube end ``l_i``.
     """
     breaks, present, kc, bend, ncurved = segments(beta, lengths, straight, EI)
     nseg = bend.shape[0]
@@ -119,53 +134,67 @@ def build_grid(beta, lengths, straight, EI, h_multi, h_single):
 
 @njit(cache=True)
 def rhs(s, y, pres, kc, kappa, bend, EI, GJ, ends, force, weight, loaded, with_pose, dy):
-    """dy/ds of the 15-state on one segment. ``kc`` flags curved tubes; ``weight`` (3, 3) N/mm."""
-    c2 = math.cos(y[I_TH + 1])
-    s2 = math.sin(y[I_TH + 1])
-    c3 = math.cos(y[I_TH + 2])
-    s3 = math.sin(y[I_TH + 2])
-    k1 = EI[0] * kappa[0] * kc[0]
-    k2 = EI[1] * kappa[1] * kc[1]
-    k3 = EI[2] * kappa[2] * kc[2]
-    ux = (y[I_MB] + k1 + k2 * c2 + k3 * c3) / bend
-    uy = (y[I_MB + 1] + k2 * s2 + k3 * s3) / bend
+    """dy/ds of the (2N + 9)-state on one segment. ``kc`` flags curved tubes; ``weight`` (N, 3) N/mm."""
+    nt = len(kappa)
+    i_th = 2 + nt
+    i_p = i_th + nt
+    i_q = i_p + 3
+    # tube 1: th_1 = 0, so its pre-curvature moment is along x and its torsion source is -u_y
+    # (cos, sin) of th_i are kept in dy's u_z and theta slots until those are written
+    c1 = EI[0] * kappa[0] * kc[0]
+    mx_pre = c1
+    my_pre = 0.0
+    for i in range(1, nt):
+        ci = EI[i] * kappa[i] * kc[i]
+        if ci != 0.0:
+            th = y[i_th + i]
+            co = math.cos(th)
+            si = math.sin(th)
+            dy[I_UZ + i] = co
+            dy[i_th + i] = si
+            mx_pre += ci * co
+            my_pre += ci * si
+    ux = (y[I_MB] + mx_pre) / bend
+    uy = (y[I_MB + 1] + my_pre) / bend
     uz = y[I_UZ]
     # torsion of each tube: u_iz' = (EI_i/GJ_i) kappa_i (sin th_i u1x - cos th_i u1y)
-    dy[I_UZ] = pres[0] * k1 / GJ[0] * (-uy)
-    dy[I_UZ + 1] = pres[1] * k2 / GJ[1] * (s2 * ux - c2 * uy)
-    dy[I_UZ + 2] = pres[2] * k3 / GJ[2] * (s3 * ux - c3 * uy)
-    dy[I_TH] = 0.0
-    dy[I_TH + 1] = pres[1] * (y[I_UZ + 1] - uz)
-    dy[I_TH + 2] = pres[2] * (y[I_UZ + 2] - uz)
+    dy[I_UZ] = -c1 / GJ[0] * uy
+    dy[i_th] = 0.0
+    for i in range(1, nt):
+        ci = EI[i] * kappa[i] * kc[i]
+        if ci != 0.0:
+            dy[I_UZ + i] = ci / GJ[i] * (dy[i_th + i] * ux - dy[I_UZ + i] * uy)
+        else:
+            dy[I_UZ + i] = 0.0
+        dy[i_th + i] = pres[i] * (y[I_UZ + i] - uz)
     if not with_pose:
         dy[I_MB] = 0.0
         dy[I_MB + 1] = 0.0
-        for i in range(I_P, NSTATE):
+        for i in range(i_p, i_q + 4):
             dy[i] = 0.0
         return
-    qw, qx, qy, qz = y[I_Q], y[I_Q + 1], y[I_Q + 2], y[I_Q + 3]
+    qw, qx, qy, qz = y[i_q], y[i_q + 1], y[i_q + 2], y[i_q + 3]
     # third column of R (tangent) and the rest of R for R^T n
-    r02 = 2.0 * (qx * qz + qw * qy)
-    r12 = 2.0 * (qy * qz - qw * qx)
-    r22 = 1.0 - 2.0 * (qx * qx + qy * qy)
-    dy[I_P] = r02
-    dy[I_P + 1] = r12
-    dy[I_P + 2] = r22
-    dy[I_Q] = 0.5 * (-qx * ux - qy * uy - qz * uz)
-    dy[I_Q + 1] = 0.5 * (qw * ux + qy * uz - qz * uy)
-    dy[I_Q + 2] = 0.5 * (qw * uy + qz * ux - qx * uz)
-    dy[I_Q + 3] = 0.5 * (qw * uz + qx * uy - qy * ux)
+    dy[i_p] = 2.0 * (qx * qz + qw * qy)
+    dy[i_p + 1] = 2.0 * (qy * qz - qw * qx)
+    dy[i_p + 2] = 1.0 - 2.0 * (qx * qx + qy * qy)
+    dy[i_q] = 0.5 * (-qx * ux - qy * uy - qz * uz)
+    dy[i_q + 1] = 0.5 * (qw * ux + qy * uz - qz * uy)
+    dy[i_q + 2] = 0.5 * (qw * uy + qz * ux - qx * uz)
+    dy[i_q + 3] = 0.5 * (qw * uz + qx * uy - qy * ux)
     if not loaded:
         dy[I_MB] = 0.0
         dy[I_MB + 1] = 0.0
         return
     nx, ny, nz = force[0], force[1], force[2]
-    for i in range(3):
+    mz = 0.0
+    for i in range(nt):
         d = ends[i] - s
         if d > 0.0:
             nx += weight[i, 0] * d
             ny += weight[i, 1] * d
             nz += weight[i, 2] * d
+        mz += pres[i] * GJ[i] * y[I_UZ + i]
     r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
     r10 = 2.0 * (qx * qy + qw * qz)
     r20 = 2.0 * (qx * qz - qw * qy)
@@ -175,7 +204,6 @@ def rhs(s, y, pres, kc, kappa, bend, EI, GJ, ends, force, weight, loaded, with_p
     nbx = r00 * nx + r10 * ny + r20 * nz
     nby = r01 * nx + r11 * ny + r21 * nz
     mx, my = y[I_MB], y[I_MB + 1]
-    mz = pres[0] * GJ[0] * y[I_UZ] + pres[1] * GJ[1] * y[I_UZ + 1] + pres[2] * GJ[2] * y[I_UZ + 2]
     # m_b' = -u x m_b - e3 x R^T n
     dy[I_MB] = -(uy * mz - uz * my) + nby
     dy[I_MB + 1] = -(uz * mx - ux * mz) - nbx
@@ -184,75 +212,82 @@ def rhs(s, y, pres, kc, kappa, bend, EI, GJ, ends, force, weight, loaded, with_p
 @njit(cache=True)
 def initial_state(x, beta, alpha, EI, GJ, loaded, y):
     """State at s = 0 from the shooting unknowns ``x`` (paper eq. 10-12)."""
-    for i in range(NSTATE):
+    nt = beta.shape[0]
+    ns, i_th, i_p, i_q = layout(nt)
+    for i in range(ns):
         y[i] = 0.0
     if loaded:
         y[I_MB] = x[0] * EI[0]
         y[I_MB + 1] = x[1] * EI[0]
-        u1, u2, u3 = x[2], x[3], x[4]
+        for i in range(nt):
+            y[I_UZ + i] = x[2 + i]
     else:
-        u2, u3 = x[0], x[1]
-        u1 = -(GJ[1] * u2 + GJ[2] * u3) / GJ[0]
-    y[I_UZ] = u1
-    y[I_UZ + 1] = u2
-    y[I_UZ + 2] = u3
-    phi1 = alpha[0] - beta[0] * u1
-    y[I_TH + 1] = alpha[1] - beta[1] * u2 - phi1
-    y[I_TH + 2] = alpha[2] - beta[2] * u3 - phi1
-    y[I_Q] = math.cos(0.5 * phi1)
-    y[I_Q + 3] = math.sin(0.5 * phi1)
+        tot = 0.0
+        for i in range(1, nt):
+            y[I_UZ + i] = x[i - 1]
+            tot += GJ[i] * x[i - 1]
+        y[I_UZ] = -tot / GJ[0]
+    phi1 = alpha[0] - beta[0] * y[I_UZ]
+    for i in range(1, nt):
+        y[i_th + i] = alpha[i] - beta[i] * y[I_UZ + i] - phi1
+    y[i_q] = math.cos(0.5 * phi1)
+    y[i_q + 3] = math.sin(0.5 * phi1)
 
 
 @njit(cache=True)
 def integrate(x, beta, alpha, kappa, EI, GJ, ends, force, weight, loaded, with_pose,
               nodes, seg_of, present, kc, bend, end_node, store, Y, Fl, Fr, y_end):
-    """RK4 over the grid. ``y_end`` (3, 15) receives the states at the tube ends ``l_i``.
+    """RK4 over the grid. ``y_end`` (N, 2N + 9) receives the states at the tube ends ``l_i``.
 
-    With ``store``, ``Y`` (M+1, 15) receives the node states and ``Fl``/``Fr`` (M, 15) the one-sided
-    derivatives at the left/right node of every interval (for Hermite output).
+    With ``store``, ``Y`` (M+1, 2N + 9) receives the node states and ``Fl``/``Fr`` (M, 2N + 9) the
+    one-sided derivatives at the left/right node of every interval (for Hermite output).
     """
-    y = np.empty(NSTATE)
+    nt = len(kappa)
+    ns = 2 * nt + 9
+    y = np.empty(ns)
     initial_state(x, beta, alpha, EI, GJ, loaded, y)
-    k1 = np.empty(NSTATE)
-    k2 = np.empty(NSTATE)
-    k3 = np.empty(NSTATE)
-    k4 = np.empty(NSTATE)
-    tmp = np.empty(NSTATE)
+    k1 = np.empty(ns)
+    k2 = np.empty(ns)
+    k3 = np.empty(ns)
+    k4 = np.empty(ns)
+    tmp = np.empty(ns)
     if store:
         Y[0, :] = y
-    for i in range(3):
+    for i in range(nt):
         if end_node[i] == 0:
             y_end[i, :] = y
     m = nodes.shape[0] - 1
     for j in range(m):
         k = seg_of[j]
+        s0 = nodes[j]
+        h = nodes[j + 1] - s0
         pres = present[k]
         kcs = kc[k]
         bd = bend[k]
-        s0 = nodes[j]
-        h = nodes[j + 1] - s0
         rhs(s0, y, pres, kcs, kappa, bd, EI, GJ, ends, force, weight, loaded, with_pose, k1)
-        for i in range(NSTATE):
+        for i in range(ns):
             tmp[i] = y[i] + 0.5 * h * k1[i]
         rhs(s0 + 0.5 * h, tmp, pres, kcs, kappa, bd, EI, GJ, ends, force, weight, loaded, with_pose, k2)
-        for i in range(NSTATE):
+        for i in range(ns):
             tmp[i] = y[i] + 0.5 * h * k2[i]
         rhs(s0 + 0.5 * h, tmp, pres, kcs, kappa, bd, EI, GJ, ends, force, weight, loaded, with_pose, k3)
-        for i in range(NSTATE):
+        for i in range(ns):
             tmp[i] = y[i] + h * k3[i]
         rhs(s0 + h, tmp, pres, kcs, kappa, bd, EI, GJ, ends, force, weight, loaded, with_pose, k4)
-        for i in range(NSTATE):
+        for i in range(ns):
             y[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
         if with_pose:
-            nq = math.sqrt(y[I_Q] ** 2 + y[I_Q + 1] ** 2 + y[I_Q + 2] ** 2 + y[I_Q + 3] ** 2)
-            for i in range(I_Q, I_Q + 4):
+            i_q = ns - 4
+            nq = math.sqrt(y[i_q] ** 2 + y[i_q + 1] ** 2 + y[i_q + 2] ** 2 + y[i_q + 3] ** 2)
+            for i in range(i_q, ns):
                 y[i] /= nq
         if store:
             Y[j + 1, :] = y
             Fl[j, :] = k1
-            rhs(s0 + h, y, pres, kcs, kappa, bd, EI, GJ, ends, force, weight, loaded, with_pose, tmp)
+            rhs(s0 + h, y, present[k], kc[k], kappa, bend[k], EI, GJ, ends, force, weight, loaded,
+                with_pose, tmp)
             Fr[j, :] = tmp
-        for i in range(3):
+        for i in range(nt):
             if end_node[i] == j + 1:
                 y_end[i, :] = y
 
@@ -268,25 +303,26 @@ def _norm_inf(r):
 
 
 @njit(cache=True)
-def residual_of(y_end, EI, GJ, loaded, r):
-    """Distal boundary residual as moments over tube-1 stiffness (1/mm): ``GJ_i u_iz(l_i) / GJ_1``
-    and, with loads, ``m_b,xy(l1) / EI_1``. In free space ``u_1z(l_1)`` then vanishes with the others."""
+def boundary_quantities(y_at, EI, GJ, loaded, r):
+    """Distal boundary quantities as moments over tube-1 stiffness (1/mm), from the states ``y_at``
+    (N, 2N + 9) at which tube i's condition is read (row i): ``GJ_i u_iz / GJ_1`` and, with loads,
+    ``m_b,xy / EI_1`` (row 0). In free space ``u_1z`` follows from the others and is left out."""
+    nt = GJ.shape[0]
     if loaded:
-        r[0] = y_end[0, I_MB] / EI[0]
-        r[1] = y_end[0, I_MB + 1] / EI[0]
-        r[2] = y_end[0, I_UZ]
-        r[3] = y_end[1, I_UZ + 1] * GJ[1] / GJ[0]
-        r[4] = y_end[2, I_UZ + 2] * GJ[2] / GJ[0]
+        r[0] = y_at[0, I_MB] / EI[0]
+        r[1] = y_at[0, I_MB + 1] / EI[0]
+        for i in range(nt):
+            r[2 + i] = y_at[i, I_UZ + i] * GJ[i] / GJ[0]
     else:
-        r[0] = y_end[1, I_UZ + 1] * GJ[1] / GJ[0]
-        r[1] = y_end[2, I_UZ + 2] * GJ[2] / GJ[0]
+        for i in range(1, nt):
+            r[i - 1] = y_at[i, I_UZ + i] * GJ[i] / GJ[0]
 
 
 @njit(cache=True)
 def full_residual(y_end, EI, GJ):
-    """Max over all five distal conditions of the normalised residual of `residual_of`, in 1/m."""
-    r = np.empty(5)
-    residual_of(y_end, EI, GJ, True, r)
+    """Max over all N + 2 distal conditions of the normalised residual, in 1/m."""
+    r = np.empty(GJ.shape[0] + 2)
+    boundary_quantities(y_end, EI, GJ, True, r)
     return _norm_inf(r) * 1e3
 
 
@@ -296,7 +332,7 @@ def _evaluate(x, beta, alpha, kappa, EI, GJ, ends, force, weight, loaded,
     """Residual ``r`` of the unknowns ``x``; returns its max norm (inf if not finite)."""
     integrate(x, beta, alpha, kappa, EI, GJ, ends, force, weight, loaded, loaded,
               nodes, seg_of, present, kc, bend, end_node, False, dummy, dummy, dummy, y_end)
-    residual_of(y_end, EI, GJ, loaded, r)
+    boundary_quantities(y_end, EI, GJ, loaded, r)
     return _norm_inf(r)
 
 
@@ -310,14 +346,17 @@ def shoot(x0, beta, alpha, kappa, EI, GJ, ends, force, weight, loaded,
     """
     nx = x0.shape[0]
     x = x0.copy()
-    dummy = np.empty((1, NSTATE))
-    y_end = np.empty((3, NSTATE))
+    nt = len(kappa)
+    dummy = np.empty((1, 2 * nt + 9))
+    y_end = np.empty((nt, 2 * nt + 9))
     r = np.empty(nx)
     rt = np.empty(nx)
     J = np.empty((nx, nx))
     args = (beta, alpha, kappa, EI, GJ, ends, force, weight, loaded,
             nodes, seg_of, present, kc, bend, end_node, y_end, dummy)
     rn = _evaluate(x, *args, r)
+    if nx == 0:
+        return x, rn <= tol, 0, rn
     it = 0
     fresh = False  # is J a finite-difference Jacobian at the current x?
     have_j = False
@@ -369,9 +408,62 @@ def shoot(x0, beta, alpha, kappa, EI, GJ, ends, force, weight, loaded,
 
 
 @njit(cache=True)
+def stability_det(x, beta, alpha, kappa, EI, GJ, ends, force, weight, loaded,
+                  nodes, seg_of, present, kc, bend, end_node):
+    """Smallest value along ``(0, l1]`` of ``det(d r(s)/d x) / det(d r(0)/d x)``, with ``r(s)`` the
+    distal boundary quantities (`boundary_quantities`) read at ``s`` (tube i's at ``min(s, l_i)``).
+
+    Positive: no focal point, the equilibrium is stable; zero or negative: it is not. The Jacobi
+    fields come from central differences of the fixed-step integration. 1.0 when there is nothing
+    to shoot for (one tube in free space).
+    """
+    nx = x.shape[0]
+    if nx == 0:
+        return 1.0
+    nt = len(kappa)
+    ns = 2 * nt + 9
+    m = nodes.shape[0] - 1
+    Ys = np.empty((2 * nx, m + 1, ns))
+    Fl = np.empty((m, ns))
+    y_end = np.empty((nt, ns))
+    d = np.empty(nx)
+    for c in range(nx):
+        d[c] = 1e-6 * max(abs(x[c]), 1e-3)
+        for sign in range(2):
+            xp = x.copy()
+            xp[c] += d[c] if sign == 0 else -d[c]
+            integrate(xp, beta, alpha, kappa, EI, GJ, ends, force, weight, loaded, loaded,
+                      nodes, seg_of, present, kc, bend, end_node, True, Ys[2 * c + sign], Fl, Fl, y_end)
+    y_at = np.empty((nt, ns))
+    rp = np.empty(nx)
+    rm = np.empty(nx)
+    M = np.empty((nx, nx))
+    det0 = 0.0
+    worst = np.inf
+    for j in range(m + 1):
+        for c in range(nx):
+            for sign in range(2):
+                for i in range(nt):  # tube i's condition is read at min(s, l_i)
+                    y_at[i, :] = Ys[2 * c + sign, min(j, end_node[i])]
+                boundary_quantities(y_at, EI, GJ, loaded, rp if sign == 0 else rm)
+            for r_ in range(nx):
+                M[r_, c] = (rp[r_] - rm[r_]) / (2.0 * d[c])
+        det = np.linalg.det(M)
+        if j == 0:
+            det0 = det
+        else:
+            v = det / det0
+            if not v >= worst:
+                worst = v if v == v else -np.inf
+    return worst
+
+
+@njit(cache=True)
 def hermite(nodes, seg_of, Y, Fl, Fr, s_out, out):
     """Cubic Hermite interpolation of the node states at arc lengths ``s_out`` (ascending)."""
     m = nodes.shape[0] - 1
+    ns = Y.shape[1]
+    i_q = ns - 4
     j = 0
     for n in range(s_out.shape[0]):
         s = s_out[n]
@@ -386,11 +478,24 @@ def hermite(nodes, seg_of, Y, Fl, Fr, s_out, out):
         h10 = t3 - 2 * t2 + t
         h01 = -2 * t3 + 3 * t2
         h11 = t3 - t2
-        for i in range(NSTATE):
+        for i in range(ns):
             out[n, i] = h00 * Y[j, i] + h10 * h * Fl[j, i] + h01 * Y[j + 1, i] + h11 * h * Fr[j, i]
-        nq = math.sqrt(out[n, I_Q] ** 2 + out[n, I_Q + 1] ** 2 + out[n, I_Q + 2] ** 2 + out[n, I_Q + 3] ** 2)
-        for i in range(I_Q, I_Q + 4):
+        nq = math.sqrt(out[n, i_q] ** 2 + out[n, i_q + 1] ** 2 + out[n, i_q + 2] ** 2 + out[n, i_q + 3] ** 2)
+        for i in range(i_q, ns):
             out[n, i] /= nq
+
+
+@njit(cache=True)
+def _free_to_loaded(xf, GJ):
+    """Loaded-problem unknowns (N + 2,) of a free-space solution ``xf`` (N - 1,)."""
+    nt = GJ.shape[0]
+    x = np.zeros(nt + 2)
+    tot = 0.0
+    for i in range(1, nt):
+        x[2 + i] = xf[i - 1]
+        tot += GJ[i] * xf[i - 1]
+    x[2] = -tot / GJ[0]
+    return x
 
 
 @njit(cache=True)
@@ -401,14 +506,14 @@ def _solve_loaded_cold(beta, alpha, kappa, EI, GJ, ends, force, weight,
     This picks the equilibrium branch connected to the unloaded robot (a loaded CTR can have
     several). Returns ``(x, converged, iterations, |r|)``.
     """
-    xf, conv, it, rn = shoot(np.zeros(2), beta, alpha, kappa, EI, GJ, ends, force, weight, False,
+    nt = len(kappa)
+    xf, conv, it, rn = shoot(np.zeros(nt - 1), beta, alpha, kappa, EI, GJ, ends, force, weight, False,
                              nodes, seg_of, present, kc, bend, end_node, tol, max_iter)
-    x_start = np.zeros(5)
-    x_start[2] = -(GJ[1] * xf[0] + GJ[2] * xf[1]) / GJ[0]
-    x_start[3:] = xf
+    x_start = _free_to_loaded(xf, GJ)
     if not conv:
         return x_start, False, it, rn
     n = 1
+    x = x_start.copy()
     while n <= 32:
         x = x_start.copy()
         for k in range(1, n + 1):
@@ -425,17 +530,35 @@ def _solve_loaded_cold(beta, alpha, kappa, EI, GJ, ends, force, weight,
 
 
 @njit(cache=True)
-def solve_one(q, x0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weight, loaded,
-              h_multi, h_single, tol, max_iter, states, tips, state0):
-    """Solve one configuration. ``x0`` is the warm-start guess, used when ``warm``; otherwise (or if
-    the warm start fails) a cold start from zero torsion. ``s_frac`` (N,) are output arc lengths as
-    fractions of l1.
+def _physical(Y, nodes):
+    """A solution is physical when every state is finite and no backbone point lies farther from
+    the plate than its arc length (an inextensible rod cannot)."""
+    ns = Y.shape[1]
+    i_p = ns - 7
+    for j in range(Y.shape[0]):
+        for i in range(ns):
+            if not math.isfinite(Y[j, i]):
+                return False
+        dist = math.sqrt(Y[j, i_p] ** 2 + Y[j, i_p + 1] ** 2 + Y[j, i_p + 2] ** 2)
+        if dist > nodes[j] * (1.0 + 1e-6) + 1e-6:
+            return False
+    return True
 
-    Fills ``states`` (N, 15), ``tips`` (3, 3) and ``state0`` (15,) at s = 0; returns
-    ``(x, converged, iterations, residual in 1/m)``. On non-convergence the outputs are NaN.
+
+@njit(cache=True)
+def solve_one(q, x0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weight, loaded,
+              h_multi, h_single, tol, max_iter, with_stability, states, tips, state0):
+    """Solve one configuration q (2N,). ``x0`` is the warm-start guess, used when ``warm``; otherwise
+    (or if the warm start fails) a cold start from zero torsion. ``s_frac`` (P,) are output arc
+    lengths as fractions of l1.
+
+    Fills ``states`` (P, 2N + 9), ``tips`` (N, 3) and ``state0`` (2N + 9,) at s = 0; returns
+    ``(x, converged, iterations, residual in 1/m, stability)`` with ``stability`` from
+    `stability_det` (NaN unless ``with_stability``). On non-convergence the outputs are NaN.
     """
-    beta = q[:3].copy()
-    alpha = q[3:].copy()
+    nt = len(kappa)
+    beta = q[:nt].copy()
+    alpha = q[nt:].copy()
     ends = beta + lengths
     nodes, seg_of, present, kc, bend, end_node = build_grid(beta, lengths, straight, EI, h_multi, h_single)
     conv = False
@@ -450,40 +573,48 @@ def solve_one(q, x0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weig
                                                   nodes, seg_of, present, kc, bend, end_node, tol,
                                                   max_iter)
         else:
-            x, conv, itc, rn = shoot(np.zeros(2), beta, alpha, kappa, EI, GJ, ends, force, weight,
+            x, conv, itc, rn = shoot(np.zeros(nt - 1), beta, alpha, kappa, EI, GJ, ends, force, weight,
                                      False, nodes, seg_of, present, kc, bend, end_node, tol, max_iter)
         it += itc
     m = nodes.shape[0] - 1
-    Y = np.empty((m + 1, NSTATE))
-    Fl = np.empty((m, NSTATE))
-    Fr = np.empty((m, NSTATE))
-    y_end = np.empty((3, NSTATE))
+    ns = 2 * nt + 9
+    Y = np.empty((m + 1, ns))
+    Fl = np.empty((m, ns))
+    Fr = np.empty((m, ns))
+    y_end = np.empty((nt, ns))
     integrate(x, beta, alpha, kappa, EI, GJ, ends, force, weight, loaded, True,
               nodes, seg_of, present, kc, bend, end_node, True, Y, Fl, Fr, y_end)
     res = full_residual(y_end, EI, GJ)
-    conv = conv and res <= 2.0 * tol * 1e3
+    conv = conv and res <= 2.0 * tol * 1e3 and _physical(Y, nodes)
     if not conv:
         states[:, :] = np.nan
         tips[:, :] = np.nan
         state0[:] = np.nan
-        return x, False, it, res
+        return x, False, it, res, np.nan
+    stab = np.nan
+    if with_stability:
+        stab = stability_det(x, beta, alpha, kappa, EI, GJ, ends, force, weight, loaded,
+                             nodes, seg_of, present, kc, bend, end_node)
     state0[:] = Y[0]
     hermite(nodes, seg_of, Y, Fl, Fr, s_frac * ends[0], states)
-    for i in range(3):
+    i_p = 2 + 2 * nt
+    for i in range(nt):
         for d in range(3):
-            tips[i, d] = y_end[i, I_P + d]
-    return x, True, it, res
+            tips[i, d] = y_end[i, i_p + d]
+    return x, True, it, res, stab
 
 
 @njit(cache=True, parallel=True)
 def solve_many(Q, X0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weight, loaded,
-               h_multi, h_single, tol, max_iter, states, tips, state0, X, conv, iters, resid):
-    """`solve_one` over a batch (B, 6) in parallel; outputs indexed by the batch row."""
+               h_multi, h_single, tol, max_iter, with_stability, states, tips, state0, X, conv, iters,
+               resid, stab):
+    """`solve_one` over a batch (B, 2N) in parallel; outputs indexed by the batch row."""
     for b in prange(Q.shape[0]):
-        x, c, it, r = solve_one(Q[b], X0[b], warm, s_frac, lengths, straight, kappa, EI, GJ, force, weight,
-                                loaded, h_multi, h_single, tol, max_iter, states[b], tips[b],
-                                state0[b])
+        x, c, it, r, st = solve_one(Q[b], X0[b], warm, s_frac, lengths, straight, kappa, EI, GJ, force,
+                                    weight, loaded, h_multi, h_single, tol, max_iter, with_stability,
+                                    states[b], tips[b], state0[b])
         X[b, :] = x
         conv[b] = c
         iters[b] = it
         resid[b] = r
+        stab[b] = st

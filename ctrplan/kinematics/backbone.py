@@ -6,11 +6,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Names of the 15 state components (paper eq. 9), in storage order.
-STATE_NAMES = ("m_bx", "m_by", "u1z", "u2z", "u3z", "theta1", "theta2", "theta3",
-               "px", "py", "pz", "qw", "qx", "qy", "qz")
-STATE_UNITS = ("N*mm", "N*mm", "1/mm", "1/mm", "1/mm", "rad", "rad", "rad",
-               "mm", "mm", "mm", "-", "-", "-", "-")
+def state_names(n_tubes: int) -> tuple[str, ...]:
+    """Names of the 2N + 9 state components (paper eq. 9), in storage order."""
+    rng = range(1, n_tubes + 1)
+    return (("m_bx", "m_by") + tuple(f"u{i}z" for i in rng) + tuple(f"theta{i}" for i in rng)
+            + ("px", "py", "pz", "qw", "qx", "qy", "qz"))
+
+
+def state_units(n_tubes: int) -> tuple[str, ...]:
+    """Units of the state components of `state_names`."""
+    return ("N*mm", "N*mm") + ("1/mm",) * n_tubes + ("rad",) * n_tubes + ("mm",) * 3 + ("-",) * 4
+
+
+#: Names and units of the 15 states of a three-tube robot.
+STATE_NAMES = state_names(3)
+STATE_UNITS = state_units(3)
 
 
 def quaternion_to_matrix(quat: np.ndarray) -> np.ndarray:
@@ -25,20 +35,23 @@ def quaternion_to_matrix(quat: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Backbone:
-    """Batched backbone of B configurations at N arc lengths each. Robot frame, mm and rad.
+    """Batched backbone of B configurations at P arc lengths each, for a robot of N tubes. Robot
+    frame, mm and rad.
 
     Attributes:
-        q: joints (B, 6) [beta1..3 mm, alpha1..3 rad], as commanded.
-        s_mm: arc lengths (B, N), from the front plate.
-        state: the 15-state (B, N, 15), see `STATE_NAMES`/`STATE_UNITS`.
-        tube_ends_mm: distal ends l_i (B, 3).
-        tips_mm: tip positions of tubes 1..3 (B, 3, 3).
-        radius_mm: outer radius of the outermost tube present at each point (B, N).
+        q: joints (B, 2N) [beta_1..N mm, alpha_1..N rad], as commanded.
+        s_mm: arc lengths (B, P), from the front plate.
+        state: the (2N + 9)-state (B, P, 2N + 9), see `state_names`/`state_units`.
+        tube_ends_mm: distal ends l_i (B, N).
+        tips_mm: tip positions of tubes 1..N (B, N, 3).
+        radius_mm: outer radius of the outermost tube present at each point (B, P).
         converged: whether each configuration was solved (B,); unsolved rows hold NaN.
-        initial_state: the 15-state at s = 0 (B, 15) -- a warm start for the shooting solver.
+        initial_state: the state at s = 0 (B, 2N + 9) -- a warm start for the shooting solver.
         iterations: Newton iterations (B,) (0 for non-iterative backends).
         residual: distal boundary residual (B,), 1/m (moment over tube-1 stiffness).
         backend: name of the backend that produced it.
+        stability: elastic-stability measure (B,): positive for a stable equilibrium, <= 0 for an
+            unstable one (`ctrplan.kinematics._shooting.stability_det`); NaN where not computed.
     """
 
     q: np.ndarray
@@ -52,23 +65,37 @@ class Backbone:
     iterations: np.ndarray
     residual: np.ndarray
     backend: str
+    stability: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.q.shape[0]
 
     @property
+    def n_tubes(self) -> int:
+        return (self.state.shape[-1] - 9) // 2
+
+    @property
     def positions_mm(self) -> np.ndarray:
-        """Backbone points (B, N, 3), mm."""
-        return self.state[..., 8:11]
+        """Backbone points (B, P, 3), mm."""
+        i = 2 * self.n_tubes + 2
+        return self.state[..., i:i + 3]
 
     @property
     def quaternions(self) -> np.ndarray:
-        """Orientation of tube 1 (B, N, 4), scalar-first."""
-        return self.state[..., 11:15]
+        """Orientation of tube 1 (B, P, 4), scalar-first."""
+        return self.state[..., -4:]
+
+    @property
+    def stable(self) -> np.ndarray:
+        """Whether each equilibrium is elastically stable (B,): True where not computed and converged
+        (see ``stability``), False where not converged."""
+        if self.stability is None:
+            return self.converged.copy()
+        return self.converged & ~(self.stability <= 0.0)
 
     @property
     def rotations(self) -> np.ndarray:
-        """Orientation of tube 1 (B, N, 3, 3)."""
+        """Orientation of tube 1 (B, P, 3, 3)."""
         return quaternion_to_matrix(self.quaternions)
 
     @property

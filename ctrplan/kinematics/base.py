@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from functools import lru_cache
+from typing import ClassVar
 
 import numpy as np
 
@@ -37,30 +38,43 @@ def arc_fractions(points: int | np.ndarray) -> np.ndarray:
 
 
 def outer_radius_along(robot: Robot, s_mm: np.ndarray, ends_mm: np.ndarray) -> np.ndarray:
-    """Outer radius (mm) of the outermost tube present at each arc length; s (B, N), ends (B, 3)."""
+    """Outer radius (mm) of the outermost tube present at each arc length; s (B, P), ends (B, N)."""
     radii = robot.outer_radii_mm
     out = np.full(s_mm.shape, radii[0])
-    for i in (1, 2):
+    for i in range(1, robot.n_tubes):
         out = np.where(s_mm <= ends_mm[:, i:i + 1] + 1e-9, radii[i], out)
     return out
 
 
 class Backend(ABC):
-    """Turns joint configurations into backbones. Batched: q is (6,) or (B, 6); output has B rows.
+    """Turns joint configurations into backbones. Batched: q is (n_joints,) or (B, n_joints); output
+    has B rows.
+
+    Capabilities are declared here, so callers never ask which kind of backend they hold:
+
+    * ``exact`` -- solves the Cosserat equations itself (no surrogate error to allow for);
+    * ``warm_startable`` -- ``forward(..., guess=)`` uses initial states (B, 2N + 9), e.g.
+      ``Backbone.initial_state`` of a neighbouring configuration; other backends ignore ``guess``;
+    * ``analytic_tip_jacobian`` -- `tip_jacobian` is the backend's own derivative and cheaper than
+      forward differences through `forward` (which is what callers use otherwise).
 
     Implementations keep the robot (immutable model) apart from any per-call workspace.
     """
 
-    name: str = "backend"
+    name: ClassVar[str] = "backend"
+    exact: ClassVar[bool] = False
+    warm_startable: ClassVar[bool] = False
+    analytic_tip_jacobian: ClassVar[bool] = False
 
     def __init__(self, robot: Robot):
         self.robot = robot
 
     @abstractmethod
     def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
-                check: bool = True) -> Backbone:
+                guess: np.ndarray | None = None, check: bool = True) -> Backbone:
         """Backbones of configurations q (mm, rad) at ``points`` arc lengths (count or fractions of l1).
 
+        ``guess``: initial states (B, 2N + 9) to start from (used only if ``warm_startable``).
         With ``check``, joints are validated against the robot (`Robot.check_joints`).
         """
 
@@ -69,5 +83,36 @@ class Backend(ABC):
         return {}
 
     def tips(self, q: np.ndarray, *, check: bool = True) -> np.ndarray:
-        """Tube tip positions (B, 3, 3), mm."""
+        """Tube tip positions (B, N, 3), mm."""
         return self.forward(q, points=2, check=check).tips_mm
+
+    def tip_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Tip of tube 1 (B, 3) mm, its Jacobian d tip / d q (B, 3, n_joints) in mm per mm|rad, and
+        whether each row is valid (B,). Default: forward differences through one batched `forward`,
+        with steps taken inside the joint domain."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        return forward_difference_tip_jacobian(self.forward, self.robot, q)[:3]
+
+
+def forward_difference_tip_jacobian(forward, robot: Robot, q: np.ndarray, eps: float = 1e-3,
+                                    guess: np.ndarray | None = None):
+    """Forward-difference tip Jacobian of ``forward(q, points=2, guess=)`` at joints q (B, n).
+
+    Steps of ``eps`` (mm or rad) are taken in the domain's box coordinates, towards the interior at
+    a bound, and mapped back to joints. Returns ``(tips (B, 3), J (B, 3, n), ok (B,),
+    initial_states (B, 2N + 9))``; the last are the base configurations' (warm starts).
+    """
+    domain = robot.domain
+    b, n = q.shape
+    y = domain.to_box(q)
+    h = np.where(y + eps <= domain.box_upper, eps, -eps)
+    Y = np.repeat(y[:, None, :], n + 1, axis=1)
+    Y[:, 1:, :] += h[:, None, :] * np.eye(n)[None]
+    Q = domain.from_box(Y.reshape(-1, n))
+    g = None if guess is None else np.repeat(guess, n + 1, axis=0)
+    bb = forward(Q, points=2, guess=g, check=False)
+    tips = bb.tip_mm.reshape(b, n + 1, 3)
+    ok = bb.converged.reshape(b, n + 1).all(axis=1)
+    Jy = (tips[:, 1:, :] - tips[:, :1, :]).transpose(0, 2, 1) / h[:, None, :]  # d tip / d box
+    Jq = Jy @ domain.box_from_joints[None]
+    return tips[:, 0], Jq, ok, bb.initial_state.reshape(b, n + 1, -1)[:, 0]

@@ -22,8 +22,10 @@ G_TO_N_PER_MM = 1e-9  # rho [kg/m^3] * A [mm^2] * g [m/s^2] * 1e-9 = N/mm
 class SolverSettings:
     """Numerical settings. Steps in mm; tolerance on the normalised boundary residual in 1/m.
 
-    ``exploit_free_space``: without loads, shoot for the two unknowns left by m_b = 0 and
-    sum GJ_i u_iz = 0 (fast); if False, always shoot for all five (the general loaded path).
+    ``exploit_free_space``: without loads, shoot for the N - 1 unknowns left by m_b = 0 and
+    sum GJ_i u_iz = 0 (fast); if False, always shoot for all N + 2 (the general loaded path).
+    ``stability``: also compute the elastic-stability measure of every solution
+    (`Backbone.stability`; about one more Jacobian's worth of integration per configuration).
     """
 
     step_multi_mm: float = 2.0
@@ -31,13 +33,14 @@ class SolverSettings:
     tolerance_per_m: float = 1e-10
     max_iterations: int = 40
     exploit_free_space: bool = True
+    stability: bool = False
 
 
 @dataclass(frozen=True)
 class RodArrays:
-    """A `Robot` as the arrays of the numba kernels (`_shooting`), per tube (3,): lengths and
-    straight lengths (mm), curvatures (1/mm), EI and GJ (N*mm^2); the tip force (3,) N and the weight
-    per length of each tube (3, 3) N/mm."""
+    """A `Robot` as the arrays of the numba kernels (`_shooting`) and the PINN's physics, per tube
+    (N,): lengths and straight lengths (mm), curvatures (1/mm), EI and GJ (N*mm^2); the tip force (3,)
+    N and the weight per length of each tube (N, 3) N/mm. The one place tube parameters are packed."""
 
     lengths: np.ndarray
     straight: np.ndarray
@@ -50,6 +53,13 @@ class RodArrays:
     def arrays(self) -> tuple[np.ndarray, ...]:
         """The fields in kernel-argument order (lengths, straight, kappa, EI, GJ, force, weight)."""
         return (self.lengths, self.straight, self.kappa, self.EI, self.GJ, self.force, self.weight)
+
+    def shooting_arrays(self) -> tuple:
+        """`arrays` with ``kappa`` as a tuple, for the shooting kernels: its length, the tube count, is
+        then part of the compiled type, so numba compiles one kernel per tube count with constant loop
+        bounds (as fast as hand-written three-tube code)."""
+        lengths, straight, kappa, *rest = self.arrays()
+        return (lengths, straight, tuple(float(k) for k in kappa), *rest)
 
     @classmethod
     def of(cls, robot: Robot) -> RodArrays:
@@ -65,64 +75,73 @@ class RodArrays:
 
 
 class CosseratBackend(Backend):
-    """Shooting solver for the Cosserat-rod model with gravity and a tip force from ``robot.loads``.
+    """Shooting solver for the Cosserat-rod model of N = 1…4 tubes with gravity and a tip force from
+    ``robot.loads``.
 
-    ``forward(q, guess=...)`` warm-starts from initial states (B, 15) -- e.g. ``backbone.initial_state``
-    of a neighbouring configuration or a PINN prediction; rows that fail from the guess are retried
-    cold. Non-converged rows come back with ``converged = False`` and NaN shapes.
+    ``forward(q, guess=...)`` warm-starts from initial states (B, 2N + 9) -- e.g.
+    ``backbone.initial_state`` of a neighbouring configuration or a PINN prediction; rows that fail
+    from the guess are retried cold. Non-converged rows come back with ``converged = False`` and NaN
+    shapes; so do solutions that are not physical (a point farther from the plate than its arc length).
     """
 
     name = "cosserat"
+    exact = True
+    warm_startable = True
 
     def __init__(self, robot: Robot | None = None, settings: SolverSettings | None = None):
         super().__init__(robot or Robot.nominal())
         self.settings = settings or SolverSettings()
         self.rod = RodArrays.of(self.robot)
         self.loaded = not (self.robot.loads.is_free and self.settings.exploit_free_space)
+        st = self.settings
+        self._kernel_args = (*self.rod.shooting_arrays(), self.loaded, st.step_multi_mm, st.step_single_mm,
+                             st.tolerance_per_m * 1e-3, st.max_iterations, st.stability)
 
     @property
     def n_unknowns(self) -> int:
-        return 5 if self.loaded else 2
+        """Shooting unknowns: N - 1 in free space, N + 2 under loads."""
+        return self.robot.n_tubes + 2 if self.loaded else self.robot.n_tubes - 1
 
     def describe(self) -> dict:
         return asdict(self.settings)
 
     def unknowns_from_state(self, state0: np.ndarray) -> np.ndarray:
-        """Shooting unknowns (B, 2|5) from initial 15-states (B, 15)."""
+        """Shooting unknowns (B, N - 1 | N + 2) from initial states (B, 2N + 9)."""
         state0 = np.atleast_2d(state0)
+        n = self.robot.n_tubes
         if self.loaded:
-            return np.concatenate([state0[:, 0:2] / self.rod.EI[0], state0[:, 2:5]], axis=1)
-        return state0[:, 3:5].copy()
+            return np.concatenate([state0[:, 0:2] / self.rod.EI[0], state0[:, 2:2 + n]], axis=1)
+        return state0[:, 3:2 + n].copy()
 
     def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
-                check: bool = True, guess: np.ndarray | None = None) -> Backbone:
+                guess: np.ndarray | None = None, check: bool = True) -> Backbone:
         q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
         qm = self.robot.apply_offset(q)
         frac = arc_fractions(points)
         b, n = qm.shape[0], frac.size
+        nt, ns = self.robot.n_tubes, self.robot.n_states
         warm = guess is not None
         x0 = self.unknowns_from_state(guess) if warm else np.zeros((b, self.n_unknowns))
         if x0.shape[0] != b:
             x0 = np.broadcast_to(x0, (b, self.n_unknowns))
         x0 = np.ascontiguousarray(x0, dtype=float)
-        states = np.empty((b, n, kernel.NSTATE))
-        tips = np.empty((b, 3, 3))
+        states = np.empty((b, n, ns))
+        tips = np.empty((b, nt, 3))
         conv = np.zeros(b, dtype=np.bool_)
         iters = np.zeros(b, dtype=np.int64)
         resid = np.zeros(b)
+        stab = np.full(b, np.nan)
         xs = np.empty_like(x0)
-        initial = np.empty((b, kernel.NSTATE))
-        st = self.settings
-        args = (frac, *self.rod.arrays(), self.loaded, st.step_multi_mm, st.step_single_mm,
-                st.tolerance_per_m * 1e-3, st.max_iterations)
+        initial = np.empty((b, ns))
+        args = (frac, *self._kernel_args)
         if b == 1:
-            x, c, it, r = kernel.solve_one(qm[0], x0[0], warm, *args, states[0], tips[0],
-                                           initial[0])
-            xs[0], conv[0], iters[0], resid[0] = x, c, it, r
+            x, c, it, r, sb = kernel.solve_one(qm[0], x0[0], warm, *args, states[0], tips[0], initial[0])
+            xs[0], conv[0], iters[0], resid[0], stab[0] = x, c, it, r, sb
         else:
-            kernel.solve_many(qm, x0, warm, *args, states, tips, initial, xs, conv, iters, resid)
-        ends = qm[:, :3] + self.rod.lengths
+            kernel.solve_many(qm, x0, warm, *args, states, tips, initial, xs, conv, iters, resid, stab)
+        ends = qm[:, :nt] + self.rod.lengths
         s_mm = frac[None, :] * ends[:, :1]
         return Backbone(q=q, s_mm=s_mm, state=states, tube_ends_mm=ends, tips_mm=tips,
                         radius_mm=outer_radius_along(self.robot, s_mm, ends), converged=conv,
-                        initial_state=initial, iterations=iters, residual=resid, backend=self.name)
+                        initial_state=initial, iterations=iters, residual=resid, backend=self.name,
+                        stability=stab if self.settings.stability else None)

@@ -16,22 +16,26 @@ from ctrplan.robot import Robot
 
 
 class HybridBackend(Backend):
-    """Exact physics, PINN warm start. Rows the guess cannot bring home are retried cold."""
+    """Exact physics, PINN warm start (or the caller's ``guess``). Rows the guess cannot bring home
+    are retried cold."""
 
     name = "hybrid"
+    exact = True
+    warm_startable = True
 
     def __init__(self, robot: Robot | None = None, model: str | Path | None = None,
                  settings: SolverSettings | None = None):
         robot = robot or Robot.nominal()
         super().__init__(robot)
         self.pinn = PinnBackend.load(model, robot)
-        self.exact = CosseratBackend(robot, settings)
+        self.solver = CosseratBackend(robot, settings)
 
     def describe(self) -> dict:
-        return self.exact.describe()
+        return self.solver.describe()
 
     def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
-                check: bool = True) -> Backbone:
+                guess: np.ndarray | None = None, check: bool = True) -> Backbone:
         q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
-        guess = self.pinn.initial_states(q)
-        return replace(self.exact.forward(q, points, check=False, guess=guess), backend=self.name)
+        if guess is None:
+            guess = self.pinn.initial_states(q)
+        return replace(self.solver.forward(q, points, guess=guess, check=False), backend=self.name)

@@ -187,7 +187,7 @@ class PinnBackend(Backend):
         return out
 
     def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
-                check: bool = True) -> Backbone:
+                guess: np.ndarray | None = None, check: bool = True) -> Backbone:
         q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
         qm = np.ascontiguousarray(self.robot.apply_offset(q), dtype=float)
         frac = arc_fractions(points).copy()  # always writable: one compiled kernel type
@@ -221,8 +221,10 @@ class PinnBackend(Backend):
         qm = self.robot.apply_offset(np.atleast_2d(q))
         return self._evaluate(qm, np.zeros((len(qm), 1)))[:, 0]
 
-    def tip_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Tip of tube 1 (B, 3) mm and its Jacobian d tip / d q (B, 3, 6) by autograd."""
+    def tip_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Tip of tube 1 (B, 3) mm, its Jacobian d tip / d q (B, 3, 2N) by autograd through the
+        network, and validity (B,). (Forward differences through the compiled `forward` are cheaper
+        on a CPU, so ``analytic_tip_jacobian`` stays False.)"""
         qm = torch.from_numpy(self.robot.apply_offset(np.atleast_2d(q)).astype(np.float32))
         one = torch.ones(len(qm))
 
@@ -233,4 +235,5 @@ class PinnBackend(Backend):
             jac = torch.func.vmap(torch.func.jacrev(tip))(qm)
         with torch.inference_mode():
             tips = self.net(one, qm)[:, 8:11]
-        return tips.numpy().astype(float), jac.detach().numpy().astype(float)
+        tips = tips.numpy().astype(float)
+        return tips, jac.detach().numpy().astype(float), np.isfinite(tips).all(axis=1)

@@ -2,10 +2,10 @@
 
 The solver works in the planner's scaled box coordinates (`BoxSpace`), so every iterate stays inside
 the snap-free domain (clipped to the box) and the damping is isotropic in the planning metric. The tip
-Jacobian comes from a function ``q (B, 6) -> (tips (B, 3), J (B, 3, 6), ok (B,))`` in the robot frame
-(mm per mm/rad): a backend with an analytic or autograd Jacobian (the PINN's ``tip_and_jacobian``)
-plugs in directly (see `backend_tip_jacobian`); `fd_tip_jacobian` makes one from any backend with
-forward differences through a single batched backend call.
+Jacobian comes from a function ``q (B, 2N) -> (tips (B, 3), J (B, 3, 2N), ok (B,))`` in the robot frame
+(mm per mm/rad): a backend that declares ``analytic_tip_jacobian`` plugs its `Backend.tip_jacobian`
+in directly (see `backend_tip_jacobian`); `fd_tip_jacobian` makes one from any backend with forward
+differences through a single batched backend call.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ctrplan.kinematics.backbone import Backbone
+from ctrplan.kinematics.base import Backend
 from ctrplan.planning.space import BoxSpace
 
 TipJacobian = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
@@ -33,7 +34,7 @@ class FDTipJacobian:
         self.space = space
         self.eps = float(eps)
         self.warm = bool(warm)
-        self._Minv = np.linalg.inv(space.joint_from_coords)
+        self._Minv = np.linalg.pinv(space.joint_from_coords)  # J_q = J_y M^+ (M has full column rank)
         self.last_initial_state: np.ndarray | None = None
 
     def __call__(self, q: np.ndarray, guess: np.ndarray | None = None):
@@ -41,19 +42,19 @@ class FDTipJacobian:
         b = q.shape[0]
         sp, eps = self.space, self.eps
         y = sp.to_coords(q)
-        h = np.where(y + eps <= sp.upper, eps, -eps)  # (B, 6)
-        Y = np.repeat(y[:, None, :], 7, axis=1)
-        for j in range(6):
-            Y[:, j + 1, j] += h[:, j]
-        Q = sp.to_joints(Y.reshape(-1, 6))
+        d = sp.dimension
+        h = np.where(y + eps <= sp.upper, eps, -eps)  # (B, D)
+        Y = np.repeat(y[:, None, :], d + 1, axis=1)
+        Y[:, 1:, :] += h[:, None, :] * np.eye(d)[None]
+        Q = sp.to_joints(Y.reshape(-1, d))
         if self.warm and guess is not None:
-            bb = self.forward(Q, points=2, guess=np.repeat(guess, 7, axis=0))
+            bb = self.forward(Q, points=2, guess=np.repeat(guess, d + 1, axis=0))
         else:
             bb = self.forward(Q, points=2)
-        tips = bb.tip_mm.reshape(b, 7, 3)
-        ok = bb.converged.reshape(b, 7).all(axis=1)
-        self.last_initial_state = bb.initial_state.reshape(b, 7, -1)[:, 0]
-        Jy = (tips[:, 1:, :] - tips[:, :1, :]).transpose(0, 2, 1) / h[:, None, :]  # (B, 3, 6)
+        tips = bb.tip_mm.reshape(b, d + 1, 3)
+        ok = bb.converged.reshape(b, d + 1).all(axis=1)
+        self.last_initial_state = bb.initial_state.reshape(b, d + 1, -1)[:, 0]
+        Jy = (tips[:, 1:, :] - tips[:, :1, :]).transpose(0, 2, 1) / h[:, None, :]  # (B, 3, D)
         return tips[:, 0], Jy @ self._Minv[None], ok
 
 
@@ -63,42 +64,21 @@ def fd_tip_jacobian(forward: ForwardFn, space: BoxSpace, eps: float = 1e-3,
     return FDTipJacobian(forward, space, eps, warm)
 
 
-def backend_tip_jacobian(backend, space: BoxSpace, forward: ForwardFn | None = None,
-                         analytic: bool | None = None) -> TipJacobian:
-    """A tip Jacobian for ``backend``.
-
-    ``analytic=True`` uses the backend's own ``tip_and_jacobian(q) -> (tips, J)`` (the PINN's
-    autograd Jacobian; robot frame, mm per mm/rad); ``None`` (default) does so only if the backend
-    sets ``fast_tip_jacobian = True`` -- the PINN's autograd Jacobian costs more here than forward
-    differences through its compiled forward pass, plus a one-off warm-up of ~2 s. Otherwise:
-    forward differences through ``forward`` (default: the backend's), one batched call each.
-    """
-    import inspect
-
-    warm = "guess" in inspect.signature(backend.forward).parameters
+def backend_tip_jacobian(backend: Backend, space: BoxSpace, forward: ForwardFn | None = None) -> TipJacobian:
+    """A tip Jacobian for ``backend``: its own `Backend.tip_jacobian` where it declares
+    ``analytic_tip_jacobian``; otherwise forward differences through ``forward`` (default: the
+    backend's), one batched call each, warm-started where the backend is ``warm_startable``."""
+    if backend.analytic_tip_jacobian:
+        return backend.tip_jacobian
     if forward is None:
         def forward(q, points=2, guess=None):
-            if guess is not None:
-                return backend.forward(q, points=points, check=False, guess=guess)
-            return backend.forward(q, points=points, check=False)
-    own = getattr(backend, "tip_and_jacobian", None) or getattr(backend, "tip_jacobian", None)
-    if analytic is None:
-        analytic = bool(getattr(backend, "fast_tip_jacobian", False))
-    if not (analytic and callable(own)):
-        return fd_tip_jacobian(forward, space, warm=warm)
-
-    def jac(q: np.ndarray):
-        out = own(np.atleast_2d(q))
-        tips, J = np.asarray(out[0], dtype=float), np.asarray(out[1], dtype=float)
-        ok = np.asarray(out[2], dtype=bool) if len(out) > 2 else np.all(np.isfinite(tips), axis=1)
-        return tips, J, ok
-
-    return jac
+            return backend.forward(q, points=points, guess=guess, check=False)
+    return fd_tip_jacobian(forward, space, warm=backend.warm_startable)
 
 
 @dataclass(frozen=True)
 class IKResult:
-    """Per seed: joints (B, 6), tip (B, 3) robot frame, error to its target (B,), success (B,)."""
+    """Per seed: joints (B, 2N), tip (B, 3) robot frame, error to its target (B,), success (B,)."""
 
     q: np.ndarray
     tip: np.ndarray
@@ -110,7 +90,7 @@ class IKResult:
 def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets: np.ndarray, *,
              tol_mm: float = 0.05, max_iterations: int = 40, damping: float = 1.0,
              max_step: float = 15.0, rotation_weight: float = 1.0) -> IKResult:
-    """Move every seed (B, 6) so its tip reaches its target (B, 3) (robot frame, mm).
+    """Move every seed (B, 2N) so its tip reaches its target (B, 3) (robot frame, mm).
 
     Levenberg-style: a step is kept only if it lowers that seed's error; otherwise the damping of
     the seed grows. Each iteration is one call of ``jacobian`` for all seeds still running.
@@ -121,13 +101,13 @@ def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets:
     targets = np.broadcast_to(np.asarray(targets, dtype=float), (seeds.shape[0], 3))
     b = seeds.shape[0]
     M = space.joint_from_coords
-    wcol = np.array([1.0, 1.0, 1.0] + [1.0 / float(rotation_weight)] * 3)  # dy = wcol * dz
+    wcol = np.where(space.is_rotation, 1.0 / float(rotation_weight), 1.0)  # dy = wcol * dz
     y = space.clip(space.to_coords(seeds))
     lam = np.full(b, float(damping))
     best_err = np.full(b, np.inf)
     best_y = y.copy()
     best_tip = np.full((b, 3), np.nan)
-    best_J = np.zeros((b, 3, 6))
+    best_J = np.zeros((b, 3, space.dimension))
     active = np.ones(b, dtype=bool)
     warm = bool(getattr(jacobian, "warm", False))
     best_init = None

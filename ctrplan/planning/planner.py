@@ -334,14 +334,6 @@ def check_start(scene: Scene, checker: ConfigurationChecker, exact: Backend) -> 
                          f"{names} (margin {scene.settings.margin_mm:g} mm)")
 
 
-EXACT_BACKENDS = ("cosserat", "hybrid")
-
-
-def is_exact(backend: Backend) -> bool:
-    """Whether a backend solves the Cosserat model itself (no surrogate error to allow for)."""
-    return isinstance(backend, CosseratBackend) or backend.name in EXACT_BACKENDS
-
-
 def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | None = None,
          time_limit_s: float | None = None, seed: int | None = None, progress: Progress = _quiet,
          exact: Backend | None = None, repair: bool | None = None) -> PlanResult:
@@ -363,9 +355,8 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     seed = s.seed if seed is None else seed
     repair = s.repair if repair is None else repair
     be = resolve_backend(backend, scene.robot)
-    exact = exact or (be if isinstance(be, CosseratBackend) and be.robot is scene.robot
-                      else CosseratBackend(scene.robot))
-    margin = s.margin_mm + (0.0 if is_exact(be) else s.surrogate_margin_mm)
+    exact = exact or (be if be.exact and be.robot is scene.robot else CosseratBackend(scene.robot))
+    margin = s.margin_mm + (0.0 if be.exact else s.surrogate_margin_mm)
     checker = ConfigurationChecker(scene, be, margin_mm=margin)
     check_start(scene, checker, exact)
 

@@ -1,8 +1,8 @@
 """The planning state space: box coordinates of the snap-free domain with a length metric.
 
-OMPL states are the box coordinates of `JointDomain` (``beta3``, ``beta3 - beta2``, ``beta2 - beta1``
-in mm, ``alpha1..3``) with the rotations multiplied by ``mm_per_rad``. The snap-free domain is then an
-axis-aligned box, uniform sampling in it is uniform in the domain, and OMPL's Euclidean distance is a
+OMPL states are the box coordinates of `JointDomain` (``betaN``, ``betaN - betaN-1``, …, ``beta2 -
+beta1`` in mm, ``alpha1..N``) with the rotations multiplied by ``mm_per_rad``, fixed joints left out.
+The domain is then an axis-aligned box, uniform sampling in it is uniform in the domain, and OMPL's Euclidean distance is a
 length in mm in which turning a tube by 1 rad costs as much as translating it by ``mm_per_rad`` mm.
 Everything stays in C++ (sampling, nearest neighbours, interpolation): no Python in the hot loops.
 
@@ -12,31 +12,20 @@ Use `BoxSpace` to go between joints ``q`` (mm, rad) and OMPL states.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
-from ctrplan.robot import JointDomain, Robot
-
-DIMENSION_NAMES = ("beta3", "beta3_minus_beta2", "beta2_minus_beta1", "alpha1_mm", "alpha2_mm",
-                   "alpha3_mm")
-
-#: d q / d x for x = box coordinates (unscaled): q = M @ x.
-_M = np.array([
-    [1.0, -1.0, -1.0, 0, 0, 0],
-    [1.0, -1.0, 0, 0, 0, 0],
-    [1.0, 0, 0, 0, 0, 0],
-    [0, 0, 0, 1.0, 0, 0],
-    [0, 0, 0, 0, 1.0, 0],
-    [0, 0, 0, 0, 0, 1.0],
-])
-
+from ctrplan.robot import JointDomain, Robot, box_names
 
 @dataclass(frozen=True)
 class BoxSpace:
-    """Scaled box coordinates ``y = scale * to_box(q)``; ``scale = (1, 1, 1, w, w, w)``, w = mm/rad.
+    """Scaled box coordinates of the free joints: ``y = (scale * to_box(q))[free]``; ``scale`` is 1 for
+    the translations (mm) and ``mm_per_rad`` for the rotations. Fixed box coordinates (zero-width
+    intervals: joints the hardware keeps fixed) are not searched; they keep their value.
 
     ``box_lower``/``box_upper`` (unscaled box coordinates, mm and rad) optionally narrow the domain's
-    box (a scene's joint limits); they default to the snap-free domain.
+    box (a scene's joint limits); they default to the domain.
     """
 
     domain: JointDomain
@@ -53,57 +42,96 @@ class BoxSpace:
         lo, hi = scene.joint_box
         return cls(scene.robot.domain, float(scene.settings.mm_per_rad), tuple(lo), tuple(hi))
 
+    @cached_property
+    def full_scale(self) -> np.ndarray:
+        """Scale of every box coordinate (2N,): 1 for translations, mm/rad for rotations."""
+        n = self.domain.n_tubes
+        return np.array([1.0] * n + [self.mm_per_rad] * n)
+
+    @cached_property
+    def _full_lower(self) -> np.ndarray:
+        lo = self.domain.box_lower if self.box_lower is None else np.asarray(self.box_lower, dtype=float)
+        return lo * self.full_scale
+
+    @cached_property
+    def _full_upper(self) -> np.ndarray:
+        hi = self.domain.box_upper if self.box_upper is None else np.asarray(self.box_upper, dtype=float)
+        return hi * self.full_scale
+
+    @cached_property
+    def free(self) -> np.ndarray:
+        """Which box coordinates are searched (2N,) bool: those of non-zero width."""
+        return self._full_upper > self._full_lower
+
+    @property
+    def dimension(self) -> int:
+        return int(self.free.sum())
+
+    @cached_property
+    def names(self) -> tuple[str, ...]:
+        """Names of the searched coordinates (OMPL dimension names)."""
+        n = self.domain.n_tubes
+        full = [name.replace(" - ", "_minus_") for name in box_names(n)[:n]]
+        full += [f"alpha{i}_mm" for i in range(1, n + 1)]
+        return tuple(name for name, f in zip(full, self.free, strict=True) if f)
+
     @property
     def scale(self) -> np.ndarray:
-        w = self.mm_per_rad
-        return np.array([1.0, 1.0, 1.0, w, w, w])
+        return self.full_scale[self.free]
+
+    @cached_property
+    def is_rotation(self) -> np.ndarray:
+        """Which searched coordinates are tube rotations (D,) bool."""
+        n = self.domain.n_tubes
+        return (np.arange(2 * n) >= n)[self.free]
 
     @property
     def lower(self) -> np.ndarray:
-        lo = self.domain.box_lower if self.box_lower is None else np.asarray(self.box_lower)
-        return lo * self.scale
+        return self._full_lower[self.free]
 
     @property
     def upper(self) -> np.ndarray:
-        hi = self.domain.box_upper if self.box_upper is None else np.asarray(self.box_upper)
-        return hi * self.scale
+        return self._full_upper[self.free]
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        """``n`` joint vectors uniform in the box (n, 6)."""
-        return self.to_joints(rng.uniform(self.lower, self.upper, size=(n, 6)))
+        """``n`` joint vectors uniform in the box (n, 2N)."""
+        return self.to_joints(rng.uniform(self.lower, self.upper, size=(n, self.dimension)))
 
-    @property
+    @cached_property
     def joint_from_coords(self) -> np.ndarray:
-        """Linear map (6, 6) with ``q = J @ y`` (constant: dq/dy)."""
-        return _M / self.scale[None, :]
+        """Linear part (2N, D) of ``q = J @ y + q_fixed`` (constant: dq/dy)."""
+        return self.domain.joints_from_box[:, self.free] / self.scale[None, :]
 
     def to_coords(self, q: np.ndarray) -> np.ndarray:
-        """Joints (..., 6) -> scaled box coordinates (..., 6)."""
-        return JointDomain.to_box(q) * self.scale
+        """Joints (..., 2N) -> scaled box coordinates of the free joints (..., D)."""
+        return (self.domain.to_box(q) * self.full_scale)[..., self.free]
 
     def to_joints(self, y: np.ndarray) -> np.ndarray:
-        """Scaled box coordinates (..., 6) -> joints (..., 6)."""
-        return JointDomain.from_box(np.asarray(y, dtype=float) / self.scale)
+        """Scaled box coordinates of the free joints (..., D) -> joints (..., 2N)."""
+        y = np.asarray(y, dtype=float)
+        full = np.broadcast_to(self._full_lower, y.shape[:-1] + self._full_lower.shape).copy()
+        full[..., self.free] = y
+        return self.domain.from_box(full / self.full_scale)
 
     def clip(self, y: np.ndarray) -> np.ndarray:
         return np.clip(y, self.lower, self.upper)
 
     def contains(self, q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
-        y = self.to_coords(q)
-        return np.all((y >= self.lower - tol) & (y <= self.upper + tol), axis=-1)
+        y = (self.domain.to_box(q) * self.full_scale)
+        return np.all((y >= self._full_lower - tol) & (y <= self._full_upper + tol), axis=-1)
 
     def distance(self, q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
         """The planning metric between joint vectors (mm)."""
         return np.linalg.norm(self.to_coords(q1) - self.to_coords(q2), axis=-1)
 
     def interpolate(self, q1: np.ndarray, q2: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """Joints at fractions t (K,) of the straight coordinate line from q1 to q2: (K, 6)."""
+        """Joints at fractions t (K,) of the straight coordinate line from q1 to q2: (K, 2N)."""
         y1, y2 = self.to_coords(q1), self.to_coords(q2)
         t = np.asarray(t, dtype=float)[:, None]
         return self.to_joints(y1 + t * (y2 - y1))
 
     def densify(self, path_q: np.ndarray, resolution: float) -> np.ndarray:
-        """Path (K, 6) with extra states so consecutive states are <= ``resolution`` apart."""
+        """Path (K, 2N) with extra states so consecutive states are <= ``resolution`` apart."""
         path_q = np.atleast_2d(np.asarray(path_q, dtype=float))
         out = [path_q[:1]]
         for a, b in zip(path_q[:-1], path_q[1:], strict=True):
@@ -113,28 +141,28 @@ class BoxSpace:
 
     # ---- OMPL ----------------------------------------------------------------------------------
     def make_ompl_space(self):
-        """A fresh ``ob.RealVectorStateSpace(6)`` with these bounds (keep it function-scoped)."""
+        """A fresh ``ob.RealVectorStateSpace(D)`` with these bounds (keep it function-scoped)."""
         from ompl import base as ob
 
-        space = ob.RealVectorStateSpace(6)
-        bounds = ob.RealVectorBounds(6)
-        for i in range(6):
+        d = self.dimension
+        space = ob.RealVectorStateSpace(d)
+        bounds = ob.RealVectorBounds(d)
+        for i in range(d):
             bounds.setLow(i, float(self.lower[i]))
             bounds.setHigh(i, float(self.upper[i]))
-            space.setDimensionName(i, DIMENSION_NAMES[i])
+            space.setDimensionName(i, self.names[i])
         space.setBounds(bounds)
         return space
 
-    @staticmethod
-    def state_coords(state) -> np.ndarray:
-        """OMPL state -> coordinates (6,)."""
-        return np.array([state[0], state[1], state[2], state[3], state[4], state[5]])
+    def state_coords(self, state) -> np.ndarray:
+        """OMPL state -> coordinates (D,)."""
+        return np.array([state[i] for i in range(self.dimension)])
 
     def state_to_q(self, state) -> np.ndarray:
         return self.to_joints(self.state_coords(state))
 
     def set_state(self, state, q: np.ndarray) -> None:
-        """Write joints q (6,) into an allocated OMPL state."""
+        """Write joints q (2N,) into an allocated OMPL state."""
         y = self.clip(self.to_coords(q))
-        for i in range(6):
+        for i in range(self.dimension):
             state[i] = float(y[i])

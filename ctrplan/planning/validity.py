@@ -9,7 +9,6 @@ any OMPL planner from user code (see ``examples/custom_planner.py``).
 
 from __future__ import annotations
 
-import inspect
 import time
 from collections import OrderedDict
 from collections.abc import Callable
@@ -75,11 +74,7 @@ class ConfigurationChecker:
         self.collision = RobotCollisionChecker(self.world, self.scene.base_pose, self.points,
                                                self.margin_mm)
         self.space = BoxSpace.for_scene(self.scene)
-        try:
-            params = inspect.signature(self.backend.forward).parameters
-            self.warm_start = "guess" in params
-        except (TypeError, ValueError):  # pragma: no cover - exotic callables
-            self.warm_start = False
+        self.warm_start = self.backend.warm_startable
         self._cache: OrderedDict[bytes, _Entry] = OrderedDict()
         #: joints and scene-frame tips of recently found valid states (seeds for goal sampling)
         self.valid_q: list[np.ndarray] = []
@@ -91,10 +86,8 @@ class ConfigurationChecker:
         """Backbones of joints (B, 6) (no joint checks: planner states lie in the domain)."""
         q = np.atleast_2d(q)
         t = time.perf_counter()
-        if guess is not None and self.warm_start:
-            bb = self.backend.forward(q, points=points or self.points, check=False, guess=guess)
-        else:
-            bb = self.backend.forward(q, points=points or self.points, check=False)
+        bb = self.backend.forward(q, points=points or self.points, guess=guess if self.warm_start else None,
+                                  check=False)
         self.counters.kinematics_s += time.perf_counter() - t
         self.counters.kinematics_calls += q.shape[0]
         self.counters.kinematics_batches += 1
