@@ -84,7 +84,8 @@ class Loads:
 
 def joint_names(n_tubes: int) -> tuple[str, ...]:
     """``(beta1 … betaN, alpha1 … alphaN)``: joint and CSV column names for N tubes."""
-    return tuple(f"beta{i}" for i in range(1, n_tubes + 1)) + tuple(f"alpha{i}" for i in range(1, n_tubes + 1))
+    tubes = range(1, n_tubes + 1)
+    return tuple(f"beta{i}" for i in tubes) + tuple(f"alpha{i}" for i in tubes)
 
 
 def box_names(n_tubes: int) -> tuple[str, ...]:
@@ -334,7 +335,8 @@ class Robot:
             problems += [
                 (qe[:, i] > qe[:, i + 1] + 1e-9, f"tube order violated: need beta{i + 1} <= beta{i + 2}"),
                 (ends[:, i] < ends[:, i + 1] - 1e-9,
-                 f"tube {i + 2} reaches past tube {i + 1}: need beta{i + 1} + L{i + 1} >= beta{i + 2} + L{i + 2}"),
+                 f"tube {i + 2} reaches past tube {i + 1}: "
+                 f"need beta{i + 1} + L{i + 1} >= beta{i + 2} + L{i + 2}"),
             ]
         problems += [
             (qe[:, n - 1] > 1e-9, f"tube {n} base in front of the plate: need beta{n} <= 0"),
@@ -349,7 +351,7 @@ class Robot:
         if outside:
             r, v = outside[0]
             more = f" (and {len(outside) - 1} more rows)" if len(outside) > 1 else ""
-            msg = f"{where}: row {r + row_offset}: outside the joint domain: {v}{more}"
+            msg = f"{where}: row {r + row_offset}: outside the snap-free domain: {v}{more}"
             if not allow_outside_domain:
                 raise DomainError(msg)
             warnings.warn(msg, stacklevel=2)

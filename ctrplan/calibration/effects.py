@@ -26,8 +26,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ctrplan.measurement import Calibration
 from ctrplan.errors import InputError
+from ctrplan.measurement import Calibration
 from ctrplan.robot import Loads, Robot
 
 MAX_GRAVITY = 30.0     # m/s^2 per component

@@ -17,8 +17,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ctrplan.calibration.effects import Effect, Param
-from ctrplan.measurement import Calibration
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.measurement import Calibration
 from ctrplan.robot import Robot
 
 FD_STEP = 1e-3  # finite-difference step in units of each parameter's typical scale

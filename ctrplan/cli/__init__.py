@@ -44,7 +44,8 @@ def _register() -> None:
         diagnose,
         kinematics,
         model,
-        plan,  # noqa: F401
+        plan,
+        stability,
     )
 
 

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+
 def state_names(n_tubes: int) -> tuple[str, ...]:
     """Names of the 2N + 9 state components (paper eq. 9), in storage order."""
     rng = range(1, n_tubes + 1)

@@ -2,7 +2,8 @@
 
 OMPL states are the box coordinates of `JointDomain` (``betaN``, ``betaN - betaN-1``, …, ``beta2 -
 beta1`` in mm, ``alpha1..N``) with the rotations multiplied by ``mm_per_rad``, fixed joints left out.
-The domain is then an axis-aligned box, uniform sampling in it is uniform in the domain, and OMPL's Euclidean distance is a
+The domain is then an axis-aligned box, uniform sampling in it is uniform in the domain, and OMPL's
+Euclidean distance is a
 length in mm in which turning a tube by 1 rad costs as much as translating it by ``mm_per_rad`` mm.
 Everything stays in C++ (sampling, nearest neighbours, interpolation): no Python in the hot loops.
 
@@ -17,6 +18,7 @@ from functools import cached_property
 import numpy as np
 
 from ctrplan.robot import JointDomain, Robot, box_names
+
 
 @dataclass(frozen=True)
 class BoxSpace:

@@ -16,8 +16,8 @@ import numpy as np
 
 from ctrplan.calibration.data import MeasuredData, split_blocks
 from ctrplan.calibration.diagnosis import contiguous_subsample
-from ctrplan.measurement import motion_direction
 from ctrplan.errors import InputError
+from ctrplan.measurement import motion_direction
 from ctrplan.robot import Robot
 
 

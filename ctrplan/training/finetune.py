@@ -15,9 +15,9 @@ import torch
 
 from ctrplan.calibration.diagnosis import DiagnoseOptions, Diagnosis, diagnose, error_stats
 from ctrplan.calibration.fit import Evaluator
-from ctrplan.measurement import Calibration
 from ctrplan.kinematics.model_file import file_sha256
 from ctrplan.kinematics.pinn import PinnBackend, PinnNet
+from ctrplan.measurement import Calibration
 from ctrplan.robot import Robot
 from ctrplan.training.evaluate import compare
 from ctrplan.training.fewshot import FewShot, model_joints, observations

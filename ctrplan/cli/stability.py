@@ -1,0 +1,60 @@
+"""`ctrplan stability`: is a robot's joint domain free of snapping?"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from ctrplan.cli import app
+from ctrplan.cli.kinematics import RobotOpt
+from ctrplan.dataio import output_dir
+from ctrplan.errors import InputError
+from ctrplan.robot import Robot
+
+
+@app.command()
+def stability(
+    robot: RobotOpt = None,
+    n: Annotated[int, typer.Option("--n", help="Rotation sweeps from random configurations.")] = 64,
+    steps: Annotated[int, typer.Option("--steps", help="Configurations per sweep.")] = 73,
+    seed: Annotated[int, typer.Option("--seed")] = 0,
+    out: Annotated[Path, typer.Option(
+        "--out", metavar="DIR", help="Where stability.json and stability.png go.")] = Path("runs/stability"),
+    as_json: Annotated[bool, typer.Option("--json", help="Print the verdict as JSON on stdout.")] = False,
+) -> None:
+    """Check elastic stability over the robot's whole joint domain.
+
+    Sweeps one tube rotation at a time across its interval from N random configurations, following
+    the equilibrium by continuation, and flags configurations whose equilibrium is unstable
+    (conjugate-point test), where the continuation jumps (the branch folds: the robot snaps), or
+    where two equilibria exist. The verdict is in the output (JSON `snap_free`); exit 2 on bad input.
+    """
+    from ctrplan.stability import check_domain
+    from ctrplan.viz.stability_plot import plot_stability
+
+    if n < 1 or steps < 3:
+        raise InputError(f"--n must be >= 1 and --steps >= 3 (got {n}, {steps})")
+    model = Robot.load(robot)
+    folder = output_dir(out, "--out")
+    console = Console(stderr=True)
+    with Progress(TextColumn("stability sweeps"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=console, disable=as_json or not console.is_terminal) as bar:
+        task = bar.add_task("sweeps", total=n)
+        report = check_domain(model, n=n, steps=steps, seed=seed, progress=lambda: bar.advance(task))
+    doc = report.to_json()
+    doc["plot"] = str(plot_stability(report, folder / "stability.png"))
+    (folder / "stability.json").write_text(json.dumps(doc, indent=2) + "\n")
+    if as_json:
+        typer.echo(json.dumps(doc, indent=2))
+    else:
+        verdict = "snap-free" if report.snap_free else "NOT snap-free"
+        console.print(f"{model.name}: {verdict} over {report.checked} configurations "
+                      f"({100 * report.unstable_fraction:.2f} % flagged: {report.counts})")
+        if report.example_q is not None:
+            console.print(f"example ({report.example_reason}): q = {[round(v, 4) for v in report.example_q]}")
+        console.print(f"wrote {folder / 'stability.json'} and {doc['plot']}")
