@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ctrplan.cli import app
-from ctrplan.cli.kinematics import RobotOpt
+from ctrplan.cli.kinematics import ModelOpt, RobotOpt
 from ctrplan.dataio import atomic_write, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
@@ -23,10 +23,6 @@ from ctrplan.training.trainer import train as run_training
 
 if TYPE_CHECKING:
     from ctrplan.training.fewshot import FewShot
-
-ModelOpt = Annotated[str | None, typer.Option(
-    "--model", help=f"Model name in models/ or path to a .safetensors file (default {DEFAULT_MODEL}).")]
-
 
 @app.command()
 def train(
