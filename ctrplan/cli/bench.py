@@ -18,14 +18,15 @@ from ctrplan.bench import machine_info, single_core
 from ctrplan.bench import planning as planning_bench
 from ctrplan.bench.fanout import check_workers, run_jobs
 from ctrplan.bench.plots import planning_plots, timing_boxplot
-from ctrplan.cli import app
+from ctrplan.cli import HELP_SETTINGS, app
 from ctrplan.cli.kinematics import RobotOpt
 from ctrplan.dataio import atomic_write, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS, make_backend
 from ctrplan.robot import Robot
 
-bench_app = typer.Typer(help="Benchmarks: timings, JSON summaries and plots.", no_args_is_help=True)
+bench_app = typer.Typer(help="Benchmarks: timings, JSON summaries and plots.", no_args_is_help=True,
+                        rich_markup_mode=None, context_settings=HELP_SETTINGS)
 app.add_typer(bench_app, name="bench")
 
 PROGRESS_REFRESH_S = 0.25

@@ -31,7 +31,7 @@ Configs = Annotated[Path, typer.Argument(
     help="Joint configurations: header beta1,beta2,beta3,alpha1,alpha2,alpha3 (mm, rad); "
          "other columns are ignored.")]
 BackendOpt = Annotated[str, typer.Option(
-    "--backend", help=f"Kinematics backend: {' | '.join(BACKENDS)}.")]
+    "--backend", metavar="NAME", help=f"Kinematics backend: {' | '.join(BACKENDS)}.")]
 RobotOpt = Annotated[str | None, typer.Option(
     "--robot", metavar="R.yaml", show_default=False,
     help="Robot file, or a built-in robot name (nominal); default: nominal.")]
