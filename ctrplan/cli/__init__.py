@@ -10,12 +10,15 @@ import inspect
 import os
 import sys
 import warnings
+from typing import NoReturn
 
 import typer
 
 from ctrplan import __version__
 from ctrplan.errors import InputError
 
+#: Exit code after Ctrl-C (128 + SIGINT); no command returns it otherwise.
+INTERRUPTED = 130
 #: Click settings of every command group: help as wide as the terminal, up to 120 columns.
 HELP_SETTINGS = {"max_content_width": 120}
 
@@ -96,11 +99,19 @@ def main(argv: list[str] | None = None) -> int:
             print(f"ctrplan: error: {message}", file=sys.stderr)
         return exc.exit_code
     except (typer.Abort, KeyboardInterrupt):
-        print("ctrplan: aborted", file=sys.stderr)
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(130)
+        _abort()
+    if code == INTERRUPTED:  # typer returns Ctrl-C as this code (after the commands cleaned up)
+        _abort()
     return code if isinstance(code, int) else 0
+
+
+def _abort() -> NoReturn:
+    """One line, then end the process now: skip the interpreter's exit, where nanobind would list
+    the OMPL objects a half-finished planner still holds as "leaked"."""
+    print("ctrplan: aborted", file=sys.stderr)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(INTERRUPTED)
 
 
 if __name__ == "__main__":

@@ -25,7 +25,8 @@ from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS, make_backend
 from ctrplan.robot import Robot
 
-bench_app = typer.Typer(help="Benchmarks: timings, JSON summaries and plots.", no_args_is_help=True,
+BENCH_HELP = "Benchmarks: timings, JSON summaries and plots."
+bench_app = typer.Typer(help=BENCH_HELP, short_help=BENCH_HELP, no_args_is_help=True,
                         rich_markup_mode=None, context_settings=HELP_SETTINGS)
 app.add_typer(bench_app, name="bench")
 
@@ -152,7 +153,8 @@ def kinematics(
 
 @bench_app.command("plan")
 def plan(
-    scenes: Annotated[list[Path], typer.Argument(help="Scene files (YAML).", show_default=False)],
+    scenes: Annotated[list[Path], typer.Argument(metavar="SCENE.yaml", help="Scene files (YAML).",
+                                                 show_default=False)],
     backend: Annotated[str, typer.Option(
         "--backend", help="Comma-separated kinematics backends.")] = "pinn,cosserat,hybrid",
     planner: Annotated[str, typer.Option(
