@@ -24,7 +24,7 @@ from ctrplan.kinematics.base import DEFAULT_POINTS
 from ctrplan.robot import JOINT_NAMES, Robot
 
 #: Output rows (configurations x backbone points) solved and written per chunk.
-CHUNK_ROWS = 20_000
+CHUNK_ROWS = 10_000
 
 Configs = Annotated[Path, typer.Argument(
     metavar="CONFIGS.csv", show_default=False,
