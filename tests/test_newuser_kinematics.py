@@ -111,3 +111,20 @@ def test_progress_bar_only_on_a_terminal(tmp_path, capsys, monkeypatch, robot, t
     rc, out, err = run(capsys, "fk", str(tmp_path / "c.csv"))
     assert rc == 0 and len(out.splitlines()) == 51  # stdout: the CSV only
     assert ("configurations" in err) == (tty == "1"), err
+
+
+def test_pinn_limits_blas_threads_only_around_its_own_calls(robot):
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from ctrplan.kinematics.pinn import PinnBackend
+
+    def blas_threads() -> list[int]:
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        pinn = PinnBackend.load(None, robot)
+        pinn.forward(robot.sample_joints(3, np.random.default_rng(0)), 10)
+        assert blas_threads() and set(blas_threads()) == {2}  # the process keeps its setting
+        with pinn._one_blas_thread():
+            assert set(blas_threads()) == {1}
+        assert set(blas_threads()) == {2}
