@@ -19,10 +19,10 @@ from ctrplan.bench import planning as planning_bench
 from ctrplan.bench.fanout import check_workers, run_jobs
 from ctrplan.bench.plots import planning_plots, timing_boxplot
 from ctrplan.cli import HELP_SETTINGS, app
-from ctrplan.cli.kinematics import RobotOpt
+from ctrplan.cli.kinematics import RobotOpt, load_backend
 from ctrplan.dataio import atomic_write, output_dir
 from ctrplan.errors import InputError
-from ctrplan.kinematics import BACKENDS, make_backend
+from ctrplan.kinematics import BACKENDS
 from ctrplan.robot import Robot
 
 BENCH_HELP = "Benchmarks: timings, JSON summaries and plots."
@@ -113,7 +113,7 @@ def kinematics(
     if n < 1:
         raise InputError(f"--n: need at least 1 configuration, got {n}")
     model = Robot.load(robot)
-    backends = {name: make_backend(name, model) for name in dict.fromkeys(names)}
+    backends = {name: load_backend(name, model, None) for name in dict.fromkeys(names)}
     out = output_dir(out)
     cases = kinematics_bench.cases(list(backends), point_counts)
     with progress_bar() as bar, single_core() as core:

@@ -62,6 +62,13 @@ def load_backend(backend: str, robot: Robot, model: str | None) -> Backend:
         raise InputError(f"--backend {backend}: {exc}") from None
 
 
+def as_option(exc: InputError, options: dict[str, str]) -> InputError:
+    """A library error about a parameter (``"shots: ..."``) as one about its command-line option
+    (``"--shots: ..."``); library code names its parameters, the CLI maps them to its flags."""
+    name, sep, rest = str(exc).partition(": ")
+    return InputError(f"{options[name]}: {rest}" if sep and name in options else str(exc))
+
+
 @contextmanager
 def progress_bar(total: int, what: str) -> Iterator[Callable[[int], None]]:
     """``advance(n)`` for a transient rich progress bar on stderr, shown only when stderr is a

@@ -30,7 +30,7 @@ def make_backend(name: str, robot: Robot | None = None, model: str | Path | None
         from ctrplan.kinematics.hybrid import HybridBackend
 
         return HybridBackend(robot, model)
-    raise InputError(f"--backend: unknown backend {name!r} (available: {', '.join(BACKENDS)})")
+    raise InputError(f"backend: unknown backend {name!r} (available: {', '.join(BACKENDS)})")
 
 
 __all__ = ["BACKENDS", "STATE_NAMES", "STATE_UNITS", "Backbone", "Backend", "CosseratBackend",

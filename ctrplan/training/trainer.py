@@ -88,10 +88,10 @@ RECIPES = {
 def get_recipe(name: str, **overrides) -> Recipe:
     """Recipe ``name`` with fields replaced by ``overrides`` (None values are ignored)."""
     if name not in RECIPES:
-        raise InputError(f"--recipe: unknown recipe {name!r} (available: {', '.join(RECIPES)})")
+        raise InputError(f"recipe: unknown recipe {name!r} (available: {', '.join(RECIPES)})")
     unknown = set(overrides) - set(Recipe.__dataclass_fields__)
     if unknown:
-        raise InputError(f"--set: unknown recipe field(s) {', '.join(sorted(unknown))} "
+        raise InputError(f"overrides: unknown recipe field(s) {', '.join(sorted(unknown))} "
                          f"(fields: {', '.join(Recipe.__dataclass_fields__)})")
     return replace(RECIPES[name], **{k: v for k, v in overrides.items() if v is not None})
 
