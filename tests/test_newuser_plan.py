@@ -164,3 +164,18 @@ def test_version_does_not_import_the_commands():
                             timeout=60, check=True)
     version, flags = result.stdout.splitlines()
     assert version.startswith("ctrplan ") and flags == "0 False False False"
+
+
+def test_library_resolve_backend_does_not_fall_back(tmp_path):
+    from importlib import resources
+
+    from ctrplan.errors import InputError
+    from ctrplan.planning import resolve_backend
+    from ctrplan.robot import Robot
+
+    text = resources.files("ctrplan.data").joinpath("nominal.yaml").read_text()
+    (tmp_path / "r.yaml").write_text(text.replace("curvature_1_per_m: 28.0", "curvature_1_per_m: 30.0"))
+    other = Robot.load(str(tmp_path / "r.yaml"))  # the shipped PINN was trained for nominal
+    with pytest.raises(InputError, match="trained for robot 'nominal'"):
+        resolve_backend(None, other)
+    assert resolve_backend("cosserat", other).name == "cosserat"
