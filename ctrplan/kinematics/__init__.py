@@ -1,7 +1,8 @@
 """Kinematics backends: joints in, full backbones out (`Backbone`).
 
 ``make_backend(name, robot)`` builds one by name: ``cosserat`` (exact shooting solver), ``pinn``
-(shipped physics-informed surrogate, ``ctrplan/data/models/pinn_nominal``) or ``hybrid`` (PINN-seeded shooting).
+(physics-informed surrogate; shipped: ``ctrplan/data/models/pinn_nominal``) or ``hybrid`` (PINN-seeded
+shooting).
 """
 
 from __future__ import annotations
