@@ -95,7 +95,10 @@ def main(argv: list[str] | None = None) -> int:
         return exc.exit_code
     except typer.TyperException as exc:  # usage errors (typer bundles its own click)
         message = exc.format_message()
-        if message:  # empty when a bare `ctrplan` shows the help
+        ctx = getattr(exc, "ctx", None)
+        if ctx is not None and message == ctx.get_help():  # a group without arguments shows its help
+            print(message)
+        elif message:
             print(f"ctrplan: error: {message}", file=sys.stderr)
         return exc.exit_code
     except (typer.Abort, KeyboardInterrupt):
