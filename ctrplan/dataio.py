@@ -82,6 +82,8 @@ def parse_number(cell: str, path: str | Path, line: int, name: str, *,
     """
     cell = cell.strip()
     try:
+        if "_" in cell:  # float() reads "1_0" as 10
+            raise ValueError(cell)
         value = float(cell)
     except ValueError:
         if allow_missing and cell.lower() in MISSING_CELLS:

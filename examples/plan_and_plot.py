@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default=str(ROOT / "scenes" / "skullbase.yaml"))
-    ap.add_argument("--backend", default=None, help="pinn | cosserat | hybrid (default: pinn)")
+    ap.add_argument("--backend", default="pinn", help="pinn | cosserat | hybrid (default: pinn)")
     ap.add_argument("--planner", default="rrtconnect")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--time-limit", type=float, default=10.0)

@@ -183,11 +183,11 @@ def test_hybrid_is_exact_and_needs_fewer_iterations(robot, cosserat):
 
 @pytest.fixture()
 def model_copy(tmp_path, pinn):
-    src = pinn.card["weights_file"]
-    from ctrplan.kinematics.model_file import MODELS_DIR
+    from ctrplan.kinematics.model_file import resolve_model
 
+    src = resolve_model(pinn.card["weights_file"])
     for ext in (".safetensors", ".json"):
-        shutil.copy(MODELS_DIR / src.replace(".safetensors", ext), tmp_path / f"m{ext}")
+        shutil.copy(src.with_suffix(ext), tmp_path / f"m{ext}")
     return tmp_path / "m"
 
 

@@ -6,13 +6,21 @@ traceback, nothing half-written; ``--json`` prints one JSON document on stdout a
 
 from __future__ import annotations
 
+import inspect
+import os
 import sys
 import warnings
+from typing import NoReturn
 
 import typer
 
 from ctrplan import __version__
 from ctrplan.errors import InputError
+
+#: Exit code after Ctrl-C (128 + SIGINT); no command returns it otherwise.
+INTERRUPTED = 130
+#: Click settings of every command group: help as wide as the terminal, up to 120 columns.
+HELP_SETTINGS = {"max_content_width": 120}
 
 app = typer.Typer(
     name="ctrplan",
@@ -20,6 +28,8 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,  # plain click help: wrapped, never cut with "…", no <bool> metavars
+    context_settings=HELP_SETTINGS,
 )
 
 
@@ -48,17 +58,37 @@ def _register() -> None:
         stability,
     )
 
+    _full_short_help(app)
+
+
+def _full_short_help(group: typer.Typer) -> None:
+    """Command lists show each command's first docstring paragraph in full (click would cut it)."""
+    for info in group.registered_commands:
+        if info.short_help is None and info.callback is not None and info.callback.__doc__:
+            info.short_help = inspect.cleandoc(info.callback.__doc__).split("\n\n")[0].replace("\n", " ")
+    for sub in group.registered_groups:
+        if sub.typer_instance is not None:
+            _full_short_help(sub.typer_instance)
+
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
     print(f"ctrplan: warning: {message}", file=sys.stderr)
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Console entry point: exit 2 with one clear line for any `InputError` or usage error."""
+    """Console entry point: exit 2 with one clear line for any `InputError` or usage error.
+
+    Ctrl-C prints one line and ends the process at once (exit 130): a normal interpreter exit
+    would let nanobind list the OMPL objects still alive as "leaked".
+    """
+    args = sys.argv[1:] if argv is None else list(argv)
+    if args == ["--version"]:  # answer without importing the commands (torch, OMPL, ...)
+        print(f"ctrplan {__version__}")
+        return 0
     _register()
     warnings.showwarning = _one_line_warning
     try:
-        code = app(args=argv, standalone_mode=False)  # a command's typer.Exit(n) comes back as n
+        code = app(args=args, standalone_mode=False)  # a command's typer.Exit(n) comes back as n
     except InputError as exc:
         print(f"ctrplan: error: {exc}", file=sys.stderr)
         return 2
@@ -66,13 +96,26 @@ def main(argv: list[str] | None = None) -> int:
         return exc.exit_code
     except typer.TyperException as exc:  # usage errors (typer bundles its own click)
         message = exc.format_message()
-        if message:  # empty when a bare `ctrplan` shows the help
+        ctx = getattr(exc, "ctx", None)
+        if ctx is not None and message == ctx.get_help():  # a group without arguments shows its help
+            print(message)
+        elif message:
             print(f"ctrplan: error: {message}", file=sys.stderr)
         return exc.exit_code
     except (typer.Abort, KeyboardInterrupt):
-        print("ctrplan: aborted", file=sys.stderr)
-        return 130
+        _abort()
+    if code == INTERRUPTED:  # typer returns Ctrl-C as this code (after the commands cleaned up)
+        _abort()
     return code if isinstance(code, int) else 0
+
+
+def _abort() -> NoReturn:
+    """One line, then end the process now: skip the interpreter's exit, where nanobind would list
+    the OMPL objects a half-finished planner still holds as "leaked"."""
+    print("ctrplan: aborted", file=sys.stderr)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(INTERRUPTED)
 
 
 if __name__ == "__main__":

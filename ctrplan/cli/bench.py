@@ -18,14 +18,16 @@ from ctrplan.bench import machine_info, single_core
 from ctrplan.bench import planning as planning_bench
 from ctrplan.bench.fanout import check_workers, run_jobs
 from ctrplan.bench.plots import planning_plots, timing_boxplot
-from ctrplan.cli import app
-from ctrplan.cli.kinematics import RobotOpt
+from ctrplan.cli import HELP_SETTINGS, app
+from ctrplan.cli.kinematics import RobotOpt, load_backend
 from ctrplan.dataio import atomic_write, output_dir
 from ctrplan.errors import InputError
-from ctrplan.kinematics import BACKENDS, make_backend
+from ctrplan.kinematics import BACKENDS
 from ctrplan.robot import Robot
 
-bench_app = typer.Typer(help="Benchmarks: timings, JSON summaries and plots.", no_args_is_help=True)
+BENCH_HELP = "Benchmarks: timings, JSON summaries and plots."
+bench_app = typer.Typer(help=BENCH_HELP, short_help=BENCH_HELP, no_args_is_help=True,
+                        rich_markup_mode=None, context_settings=HELP_SETTINGS)
 app.add_typer(bench_app, name="bench")
 
 PROGRESS_REFRESH_S = 0.25
@@ -111,7 +113,7 @@ def kinematics(
     if n < 1:
         raise InputError(f"--n: need at least 1 configuration, got {n}")
     model = Robot.load(robot)
-    backends = {name: make_backend(name, model) for name in dict.fromkeys(names)}
+    backends = {name: load_backend(name, model, None) for name in dict.fromkeys(names)}
     out = output_dir(out)
     cases = kinematics_bench.cases(backends, point_counts)
     with progress_bar() as bar, single_core() as core:
@@ -151,7 +153,8 @@ def kinematics(
 
 @bench_app.command("plan")
 def plan(
-    scenes: Annotated[list[Path], typer.Argument(help="Scene files (YAML).", show_default=False)],
+    scenes: Annotated[list[Path], typer.Argument(metavar="SCENE.yaml", help="Scene files (YAML).",
+                                                 show_default=False)],
     backend: Annotated[str, typer.Option(
         "--backend", help="Comma-separated kinematics backends.")] = "pinn,cosserat,hybrid",
     planner: Annotated[str, typer.Option(

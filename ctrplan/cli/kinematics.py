@@ -1,10 +1,15 @@
-"""`ctrplan fk` and `ctrplan shape`: forward kinematics of the configurations in a CSV file."""
+"""`ctrplan fk` and `ctrplan shape`: forward kinematics of the configurations in a CSV file.
+
+Every row is read and checked before any is solved; the rows are then solved and written in chunks,
+so memory stays bounded on long inputs, with a progress bar on stderr when it is a terminal.
+"""
 
 from __future__ import annotations
 
 import sys
 import warnings
-from contextlib import nullcontext
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Annotated
 
@@ -12,20 +17,28 @@ import numpy as np
 import typer
 
 from ctrplan.cli import app
-from ctrplan.dataio import TIP_NAMES, Table, atomic_write, format_csv, read_joints
-from ctrplan.kinematics import BACKENDS, Backbone, make_backend
+from ctrplan.dataio import TIP_NAMES, atomic_write, format_csv, read_joints
+from ctrplan.errors import InputError
+from ctrplan.kinematics import BACKENDS, Backbone, Backend, make_backend
 from ctrplan.kinematics.base import DEFAULT_POINTS
 from ctrplan.robot import JOINT_NAMES, Robot
+
+#: Output rows (configurations x backbone points) solved and written per chunk.
+CHUNK_ROWS = 10_000
 
 Configs = Annotated[Path, typer.Argument(
     metavar="CONFIGS.csv", show_default=False,
     help="Joint configurations: header beta1,beta2,beta3,alpha1,alpha2,alpha3 (mm, rad); "
          "other columns are ignored.")]
 BackendOpt = Annotated[str, typer.Option(
-    "--backend", help=f"Kinematics backend: {' | '.join(BACKENDS)}.")]
+    "--backend", metavar="NAME", help=f"Kinematics backend: {' | '.join(BACKENDS)}.")]
 RobotOpt = Annotated[str | None, typer.Option(
     "--robot", metavar="R.yaml", show_default=False,
     help="Robot file, or a built-in robot name (nominal); default: nominal.")]
+ModelOpt = Annotated[str | None, typer.Option(
+    "--model", metavar="NAME|PATH", show_default=False,
+    help="PINN for the pinn and hybrid backends: a name (looked up in models/, then among the shipped "
+         "models pinn_nominal, pinn_nominal_cpu) or a .safetensors path; default: pinn_nominal.")]
 OutputOpt = Annotated[Path | None, typer.Option(
     "-o", "--output", metavar="OUT.csv", show_default=False,
     help="Output CSV, written only when every row is done; default: stdout.")]
@@ -34,33 +47,79 @@ OutsideOpt = Annotated[bool, typer.Option(
     help="Only warn for configurations outside the snap-free domain (impossible ones stay errors).")]
 
 
-def _solve(configs: Path, backend: str, robot: str | None, allow_outside_domain: bool,
-           points: int) -> tuple[Table, Backbone]:
-    """Read and validate CONFIGS, solve them in one batched call, report non-converged rows."""
-    model = Robot.load(robot)
-    kinematics = make_backend(backend, model)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        table = read_joints(configs, model, allow_outside_domain=allow_outside_domain)
-    for w in caught:
-        typer.echo(f"ctrplan: warning: {w.message}", err=True)
-    backbone = kinematics.forward(table.joints, points=points, check=False)
-    failed = table.lines[~backbone.converged]
+def load_backend(backend: str, robot: Robot, model: str | None) -> Backend:
+    """The backend named ``backend`` for ``robot`` with PINN weights ``model``.
+
+    Raises `InputError` naming the option when it cannot be used: never a silent fallback.
+    """
+    if backend not in BACKENDS:
+        raise InputError(f"--backend: unknown backend {backend!r} (available: {', '.join(BACKENDS)})")
+    if model is not None and backend == "cosserat":
+        raise InputError("--model: only the pinn and hybrid backends use a model, not cosserat")
+    try:
+        return make_backend(backend, robot, model)
+    except InputError as exc:
+        raise InputError(f"--backend {backend}: {exc}") from None
+
+
+def as_option(exc: InputError, options: dict[str, str]) -> InputError:
+    """A library error about a parameter (``"shots: ..."``) as one about its command-line option
+    (``"--shots: ..."``); library code names its parameters, the CLI maps them to its flags."""
+    name, sep, rest = str(exc).partition(": ")
+    return InputError(f"{options[name]}: {rest}" if sep and name in options else str(exc))
+
+
+@contextmanager
+def progress_bar(total: int, what: str) -> Iterator[Callable[[int], None]]:
+    """``advance(n)`` for a transient rich progress bar on stderr, shown only when stderr is a
+    terminal (stdout is never touched)."""
+    from rich.console import Console
+
+    console = Console(stderr=True)
+    if not console.is_terminal:
+        yield lambda n: None
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    with Progress(TextColumn(what), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                  console=console, transient=True,
+                  redirect_stdout=False, redirect_stderr=False) as bar:
+        task = bar.add_task(what, total=total)
+        yield lambda n: bar.update(task, advance=n)
+
+
+def _run(configs: Path, backend: str, robot: str | None, model: str | None, allow_outside_domain: bool,
+         output: Path | None, points: int, header: tuple[str, ...],
+         rows: Callable[[np.ndarray, Backbone], tuple[np.ndarray, list[str]]]) -> None:
+    """Check every row of CONFIGS, then solve and write them chunk by chunk (``rows(lines, backbone)``
+    gives a chunk's output rows and formats); note non-converged rows on stderr."""
+    with atomic_write(output) if output else nullcontext(sys.stdout) as fh:
+        robot_model = Robot.load(robot)
+        kinematics = load_backend(backend, robot_model, model)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            table = read_joints(configs, robot_model, allow_outside_domain=allow_outside_domain)
+        for w in caught:
+            typer.echo(f"ctrplan: warning: {w.message}", err=True)
+        chunk = max(1, CHUNK_ROWS // points)
+        failed = []
+        fh.write(",".join(header) + "\n")
+        with progress_bar(len(table.lines), "configurations") as advance:
+            for start in range(0, len(table.lines), chunk):
+                q, lines = table.joints[start:start + chunk], table.lines[start:start + chunk]
+                backbone = kinematics.forward(q, points=points, check=False)
+                failed.append(lines[~backbone.converged])
+                fh.write(format_csv(None, *rows(lines, backbone)))
+                advance(len(lines))
+    failed = np.concatenate(failed)
     if failed.size:
         listed = ", ".join(map(str, failed[:10])) + (", ..." if failed.size > 10 else "")
         typer.echo(f"ctrplan: note: {failed.size} of {len(table.lines)} configurations did not "
                    f"converge (rows {listed}); their outputs are NaN", err=True)
-    return table, backbone
-
-
-def _emit(output: Path | None, render) -> None:
-    """Write ``render()`` to ``output`` atomically (or to stdout) only after it succeeded."""
-    with atomic_write(output) if output else nullcontext(sys.stdout) as fh:
-        fh.write(render())
 
 
 @app.command()
-def fk(configs: Configs, backend: BackendOpt = "cosserat", robot: RobotOpt = None,
+def fk(configs: Configs, backend: BackendOpt = "cosserat", robot: RobotOpt = None, model: ModelOpt = None,
        output: OutputOpt = None, allow_outside_domain: OutsideOpt = False) -> None:
     """Tip positions of tubes 1-3 for every configuration (measured-data CSV format).
 
@@ -68,17 +127,16 @@ def fk(configs: Configs, backend: BackendOpt = "cosserat", robot: RobotOpt = Non
     Rows that do not converge get NaN tips, converged = 0 and a note on stderr.
     """
 
-    def render() -> str:
-        table, backbone = _solve(configs, backend, robot, allow_outside_domain, points=2)
-        rows = np.column_stack([table.joints, backbone.tips_mm.reshape(-1, 9), backbone.converged])
-        return format_csv((*JOINT_NAMES, *TIP_NAMES, "converged"), rows,
-                          ["%r"] * 6 + ["%.6f"] * 9 + ["%d"])
+    def rows(lines: np.ndarray, b: Backbone) -> tuple[np.ndarray, list[str]]:
+        return (np.column_stack([b.q, b.tips_mm.reshape(-1, 9), b.converged]),
+                ["%r"] * 6 + ["%.6f"] * 9 + ["%d"])
 
-    _emit(output, render)
+    _run(configs, backend, robot, model, allow_outside_domain, output, 2,
+         (*JOINT_NAMES, *TIP_NAMES, "converged"), rows)
 
 
 @app.command()
-def shape(configs: Configs, backend: BackendOpt = "cosserat", robot: RobotOpt = None,
+def shape(configs: Configs, backend: BackendOpt = "cosserat", robot: RobotOpt = None, model: ModelOpt = None,
           points: Annotated[int, typer.Option("--points", help="Backbone points per configuration, "
                                               "from s = 0 to the tip l1.")] = DEFAULT_POINTS,
           output: OutputOpt = None, allow_outside_domain: OutsideOpt = False) -> None:
@@ -86,12 +144,13 @@ def shape(configs: Configs, backend: BackendOpt = "cosserat", robot: RobotOpt = 
 
     ``row`` is the configuration's line number in CONFIGS (header = line 1), as in error messages.
     """
+    if points < 2:
+        raise InputError(f"--points: need at least 2 backbone points, got {points}")
 
-    def render() -> str:
-        table, backbone = _solve(configs, backend, robot, allow_outside_domain, points=points)
-        n = backbone.s_mm.shape[1]
-        rows = np.column_stack([np.repeat(table.lines, n), backbone.s_mm.ravel(),
-                                backbone.positions_mm.reshape(-1, 3)])
-        return format_csv(("row", "s", "x", "y", "z"), rows, ["%d"] + ["%.6f"] * 4)
+    def rows(lines: np.ndarray, b: Backbone) -> tuple[np.ndarray, list[str]]:
+        n = b.s_mm.shape[1]
+        return (np.column_stack([np.repeat(lines, n), b.s_mm.ravel(), b.positions_mm.reshape(-1, 3)]),
+                ["%d"] + ["%.6f"] * 4)
 
-    _emit(output, render)
+    _run(configs, backend, robot, model, allow_outside_domain, output, points,
+         ("row", "s", "x", "y", "z"), rows)

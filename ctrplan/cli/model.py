@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ctrplan.cli import app
-from ctrplan.cli.kinematics import RobotOpt
+from ctrplan.cli.kinematics import ModelOpt, RobotOpt, as_option
 from ctrplan.dataio import atomic_write, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
@@ -23,10 +23,6 @@ from ctrplan.training.trainer import train as run_training
 
 if TYPE_CHECKING:
     from ctrplan.training.fewshot import FewShot
-
-ModelOpt = Annotated[str | None, typer.Option(
-    "--model", help=f"Model name in models/ or path to a .safetensors file (default {DEFAULT_MODEL}).")]
-
 
 @app.command()
 def train(
@@ -82,8 +78,11 @@ def train(
     if threads:
         torch.set_num_threads(threads)
     model_robot = Robot.load(robot)
-    rec = get_recipe(recipe or ("fast" if measured is None else "finetune"), steps=steps,
-                     **_parse_settings(settings or []))
+    recipe = recipe or ("fast" if measured is None else "finetune")
+    try:
+        rec = get_recipe(recipe, steps=steps, **_parse_settings(settings or []))
+    except InputError as exc:
+        raise as_option(exc, {"recipe": "--recipe", "overrides": "--set"}) from None
     fewshot = None
     if measured is not None:
         init = init or DEFAULT_MODEL
@@ -131,7 +130,11 @@ def _measured_split(path: Path, robot: Robot, shots: int | None, heldout: float)
         raise InputError(f"--shots: must be >= 1, got {shots}")
     if not 0.0 < heldout < 1.0:
         raise InputError(f"--heldout: must be in (0, 1), got {heldout}")
-    return split_shots(read_measured(path, robot), shots, heldout)
+    data = read_measured(path, robot)
+    try:
+        return split_shots(data, shots, heldout)
+    except InputError as exc:
+        raise as_option(exc, {"shots": "--shots"}) from None
 
 
 def _parse_settings(items: list[str]) -> dict:

@@ -8,7 +8,11 @@ stderr.
 from __future__ import annotations
 
 import json
+import logging
 import math
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
@@ -16,6 +20,7 @@ import numpy as np
 import typer
 
 from ctrplan.cli import app
+from ctrplan.cli.kinematics import ModelOpt, load_backend
 from ctrplan.errors import InputError
 from ctrplan.scene import PLANNERS
 
@@ -23,24 +28,50 @@ SceneArg = Annotated[Path, typer.Argument(metavar="SCENE.yaml", show_default=Fal
                                           help="Scene file (robot, base pose, obstacles, target, start).")]
 
 
+log = logging.getLogger("ctrplan.ompl")
+
+
 def _check_out(out: Path | None) -> None:
+    """Refuse an ``--out`` that cannot become a directory; it (and its parents) are created only
+    when the outputs are written."""
     if out is None:
         return
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out: {out} exists and is not a directory")
-    if not out.exists() and not out.parent.is_dir():
-        raise InputError(f"--out: parent directory {str(out.parent)!r} does not exist")
+    existing = next(p for p in (out, *out.parents) if p.exists() or p == Path(p.anchor))
+    if not existing.is_dir():
+        raise InputError(f"--out: {existing} exists and is not a directory")
+
+
+@contextmanager
+def ompl_messages_to_logging() -> Iterator[None]:
+    """Send OMPL's own messages to the ``ctrplan.ompl`` logger (debug level) instead of stderr:
+    its raw C++ warnings mislead; the plan result states the cause in our words."""
+    from ompl import util as ou
+
+    with tempfile.TemporaryDirectory(prefix="ctrplan-ompl-") as tmp:
+        path = Path(tmp) / "ompl.log"
+        handler = ou.OutputHandlerFile(str(path))
+        ou.useOutputHandler(handler)
+        try:
+            yield
+        finally:
+            ou.restorePreviousOutputHandler()
+            del handler
+            for message in path.read_text(errors="replace").split("\n"):
+                if message.strip():
+                    log.debug("%s", message.rstrip())
 
 
 @app.command("plan")
 def plan_command(
     scene: SceneArg,
-    backend: Annotated[str | None, typer.Option(
-        "--backend", show_default=False,
-        help="Kinematics backend for planning: pinn | cosserat | hybrid (default: pinn if available, "
-             "else cosserat). The path is always re-validated with the exact Cosserat model.")] = None,
+    backend: Annotated[str, typer.Option(
+        "--backend", metavar="NAME",
+        help="Kinematics backend for planning: pinn | cosserat | hybrid (default: pinn; an error, not a "
+             "fallback, if the PINN cannot be used). The path is always re-validated with the exact "
+             "Cosserat model.")] = "pinn",
+    model: ModelOpt = None,
     planner: Annotated[str | None, typer.Option(
-        "--planner", show_default=False,
+        "--planner", metavar="NAME", show_default=False,
         help=f"OMPL planner: {' | '.join(PLANNERS)} (default: the scene's, rrtconnect).")] = None,
     time_limit: Annotated[float | None, typer.Option(
         "--time-limit", metavar="S", show_default=False,
@@ -70,20 +101,25 @@ def plan_command(
 
     from ompl import util as ou
 
-    from ctrplan.planning import plan, resolve_backend
+    from ctrplan.planning import plan
     from ctrplan.scene import load_scene
 
-    ou.setLogLevel(ou.LOG_WARN)  # OMPL's info lines go to stdout otherwise
+    ou.setLogLevel(ou.LOG_WARN)
     sc = load_scene(scene)
-    be = resolve_backend(backend, sc.robot)
+    be = load_backend(backend, sc.robot, model)
     console = Console(stderr=json_out, highlight=False)
     err = Console(stderr=True, highlight=False)
 
-    with _Progress(err) as progress:
+    with _Progress(err) as progress, ompl_messages_to_logging():
         result = plan(sc, be, planner=planner, time_limit_s=time_limit, seed=seed,
                       progress=progress.update)
     doc = result.to_json()
     doc["scene"] = str(scene)
+    pinn = getattr(be, "pinn", be)  # hybrid keeps its PINN in .pinn
+    doc["model"] = getattr(pinn, "card", {}).get("weights_file")
+    doc["target"] = sc.target.to_dict()
+    if np.ptp(sc.target.semi_axes) > 0:  # one tolerance describes only a sphere; see doc["target"]
+        doc["goal_tolerance_mm"] = None
     if out is not None:
         _write_outputs(out, sc, result, doc)
     _summary(console, sc, result, out)

@@ -1,7 +1,8 @@
 """Kinematics backends: joints in, full backbones out (`Backbone`).
 
 ``make_backend(name, robot)`` builds one by name: ``cosserat`` (exact shooting solver), ``pinn``
-(shipped physics-informed surrogate, ``models/pinn_nominal``) or ``hybrid`` (PINN-seeded shooting).
+(physics-informed surrogate; shipped: ``ctrplan/data/models/pinn_nominal``) or ``hybrid`` (PINN-seeded
+shooting).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ def make_backend(name: str, robot: Robot | None = None, model: str | Path | None
         from ctrplan.kinematics.hybrid import HybridBackend
 
         return HybridBackend(robot, model)
-    raise InputError(f"--backend: unknown backend {name!r} (available: {', '.join(BACKENDS)})")
+    raise InputError(f"backend: unknown backend {name!r} (available: {', '.join(BACKENDS)})")
 
 
 __all__ = ["BACKENDS", "STATE_NAMES", "STATE_UNITS", "Backbone", "Backend", "CosseratBackend",

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -22,21 +23,38 @@ from ctrplan.errors import InputError
 from ctrplan.kinematics.pinn import FEATURES, PinnNet
 from ctrplan.robot import Robot
 
-MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+#: Users' own models (`ctrplan train` writes here), relative to the working directory.
+MODELS_DIR = Path("models")
 DEFAULT_MODEL = "pinn_nominal"
 CARD_FORMAT = "ctrplan-pinn/1"
 
 
+def shipped_models_dir() -> Path:
+    """The models shipped inside the package (``ctrplan/data/models``; also in an installed wheel)."""
+    return Path(str(resources.files("ctrplan.data").joinpath("models")))
+
+
+def shipped_models() -> list[str]:
+    """Names of the shipped models."""
+    return sorted(p.stem for p in shipped_models_dir().glob("*.safetensors"))
+
+
 def resolve_model(model: str | Path | None) -> Path:
-    """Path of a model's ``.safetensors`` from a name in ``models/`` or a path (with or without suffix)."""
-    if model is None:
-        model = DEFAULT_MODEL
-    path = Path(model)
+    """Path of a model's ``.safetensors`` from a path (with or without suffix) or a name, looked up
+    in ``models/`` (users' models) and then among the shipped models; default `DEFAULT_MODEL`.
+
+    A name found nowhere resolves to ``models/NAME.safetensors`` (which does not exist).
+    """
+    path = Path(DEFAULT_MODEL if model is None else model)
     if path.suffix in (".safetensors", ".json"):
         path = path.with_suffix("")
-    if not path.parent.parts and not path.with_suffix(".safetensors").exists():
-        path = MODELS_DIR / path
-    return path.with_suffix(".safetensors")
+    weights = path.with_suffix(".safetensors")
+    if path.parent.parts or weights.exists():
+        return weights
+    for folder in (MODELS_DIR, shipped_models_dir()):
+        if (folder / weights).exists():
+            return folder / weights
+    return MODELS_DIR / weights
 
 
 def file_sha256(path: Path) -> str:
@@ -94,7 +112,8 @@ def load_model(model: str | Path | None, robot: Robot) -> tuple[PinnNet, dict[st
     """Load and verify a model for ``robot``; `InputError` naming the file on any mismatch."""
     weights = resolve_model(model)
     if not weights.exists():
-        raise InputError(f"{weights}: PINN model not found (train one with `ctrplan train`)")
+        raise InputError(f"{weights}: PINN model not found (shipped models: {', '.join(shipped_models())}; "
+                         "train one with `ctrplan train`)")
     card = read_card(weights)
     if card.get("robot_fingerprint") != robot.fingerprint:
         trained_for = card.get("robot", {}).get("name", "?")

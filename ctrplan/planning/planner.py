@@ -48,21 +48,11 @@ def _quiet(*_args: Any, **_kw: Any) -> None:
 
 
 def resolve_backend(name: str | Backend | None, robot) -> Backend:
-    """A backend instance: given, by name, or the first available of (pinn, cosserat)."""
+    """A backend instance: given, or by name (default ``pinn``). One that cannot be built raises
+    (`InputError` naming why): never a silent fallback to another backend."""
     if isinstance(name, Backend):
         return name
-    if name is not None:
-        return make_backend(name, robot)
-    from ctrplan import kinematics
-
-    errors = []
-    for candidate in ("pinn", "cosserat"):
-        if candidate in getattr(kinematics, "BACKENDS", ("cosserat",)):
-            try:
-                return make_backend(candidate, robot)
-            except Exception as exc:  # e.g. a PINN without weights: fall back to the next one
-                errors.append(f"{candidate}: {exc}")
-    raise InputError("no kinematics backend available (" + "; ".join(errors) + ")")
+    return make_backend(name or "pinn", robot)
 
 
 def make_planner(name: str, si) -> Any:

@@ -44,14 +44,14 @@ def split_shots(data: MeasuredData, shots: int | None = None, heldout_fraction: 
     """Hold out contiguous blocks as `diagnose` does (same defaults); take ``shots`` of the training
     rows (all if None)."""
     if shots is not None and shots < 1:
-        raise InputError(f"--shots: must be >= 1, got {shots}")
+        raise InputError(f"shots: must be >= 1, got {shots}")
     train, heldout = split_blocks(len(data), heldout_fraction, seed=seed)
     inside = ~data.outside_domain
     train, heldout = train[inside[train]], heldout[inside[heldout]]
     shots = len(train) if shots is None else shots
     if shots > len(train) or not shots:
-        raise InputError(f"--shots: {shots} requested but {data.source} has {len(train)} training rows "
-                         f"inside the snap-free domain ({len(heldout)} held out with --heldout "
+        raise InputError(f"shots: {shots} requested but {data.source} has {len(train)} training rows "
+                         f"inside the snap-free domain ({len(heldout)} held out with heldout_fraction "
                          f"{heldout_fraction:g})")
     return FewShot(data=data, direction=motion_direction(data.q),
                    shots=train[contiguous_subsample(len(train), shots)], heldout=heldout,

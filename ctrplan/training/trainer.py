@@ -39,7 +39,7 @@ from ctrplan.training.losses import (
     supervised_residual,
 )
 from ctrplan.training.physics import TubeTensors
-from ctrplan.training.samples import solve_dense, state_scales
+from ctrplan.training.samples import DenseStates, solve_dense, state_scales
 
 GROUP_WEIGHTS = (1.0, 1.0, 1.0, 1.0, 1.0)
 
@@ -88,10 +88,10 @@ RECIPES = {
 def get_recipe(name: str, **overrides) -> Recipe:
     """Recipe ``name`` with fields replaced by ``overrides`` (None values are ignored)."""
     if name not in RECIPES:
-        raise InputError(f"--recipe: unknown recipe {name!r} (available: {', '.join(RECIPES)})")
+        raise InputError(f"recipe: unknown recipe {name!r} (available: {', '.join(RECIPES)})")
     unknown = set(overrides) - set(Recipe.__dataclass_fields__)
     if unknown:
-        raise InputError(f"--set: unknown recipe field(s) {', '.join(sorted(unknown))} "
+        raise InputError(f"overrides: unknown recipe field(s) {', '.join(sorted(unknown))} "
                          f"(fields: {', '.join(Recipe.__dataclass_fields__)})")
     return replace(RECIPES[name], **{k: v for k, v in overrides.items() if v is not None})
 
@@ -135,6 +135,114 @@ class TrainResult:
     card: dict
 
 
+@dataclass
+class TrainingData:
+    """What the losses draw on, on the training device: exact Cosserat solutions (dense supervision,
+    tip observations, output scales), the sampler and, without resampling, the fixed collocation and
+    boundary sets."""
+
+    pool: DenseStates
+    sampler: Sampler
+    dense_q: torch.Tensor
+    dense_x: torch.Tensor
+    sigma_grid: torch.Tensor
+    obs_q: torch.Tensor
+    obs_tips: torch.Tensor
+    fixed_colloc: tuple[torch.Tensor, torch.Tensor] | None
+    fixed_bc: torch.Tensor | None
+
+    @classmethod
+    def build(cls, robot: Robot, recipe: Recipe, seed: int, device: torch.device,
+              observations: tuple[np.ndarray, np.ndarray] | None = None) -> TrainingData:
+        """Solve the exact pool (its size: the largest of dense configurations, observations and
+        2000) and draw the fixed sets; ``observations`` (see `train`) replace the pool's tips."""
+        n_exact = max(recipe.dense_configs, recipe.observations, 2000)
+        pool = solve_dense(robot, robot.sample_joints(n_exact, np.random.default_rng(seed)),
+                           recipe.dense_points)
+
+        def to_dev(a: np.ndarray) -> torch.Tensor:
+            return torch.as_tensor(np.asarray(a, dtype=np.float32), device=device)
+
+        obs = (pool.q[:recipe.observations], pool.tips[:recipe.observations]) \
+            if observations is None else observations
+        sampler = Sampler(robot, seed, device)
+        fixed_colloc = None if recipe.resample else sampler.collocation(recipe.collocation,
+                                                                        sampler.generator(0, 1))
+        fixed_bc = None if recipe.resample else sampler.joints(recipe.boundary, sampler.generator(0, 2))
+        return cls(pool=pool, sampler=sampler, dense_q=to_dev(pool.q), dense_x=to_dev(pool.states),
+                   sigma_grid=to_dev(pool.sigma), obs_q=to_dev(obs[0]), obs_tips=to_dev(obs[1]),
+                   fixed_colloc=fixed_colloc, fixed_bc=fixed_bc)
+
+
+class Losses:
+    """The weighted loss terms of a recipe: ODE and boundary residuals, tip observations, dense
+    supervision. ``losses(net, step) -> (total, {term: value})``; step ``k`` always draws the same
+    batches."""
+
+    def __init__(self, recipe: Recipe, data: TrainingData, tubes: TubeTensors):
+        self.recipe, self.data, self.tubes = recipe, data, tubes
+        self.group_weights = torch.tensor(GROUP_WEIGHTS, device=data.dense_q.device)
+
+    def __call__(self, net: PinnNet, k: int) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        r, d, gw, w = self.recipe, self.data, self.group_weights, self.recipe.weights
+        terms: dict[str, torch.Tensor] = {}
+        if w.get("ode", 0):
+            sg, qc = d.fixed_colloc or d.sampler.collocation(r.collocation, d.sampler.generator(k, 1))
+            terms["ode"] = (gw * ode_residual(net, sg, qc, self.tubes, r.norm)).sum()
+        if w.get("bc", 0):
+            qb = d.fixed_bc if d.fixed_bc is not None else d.sampler.joints(r.boundary,
+                                                                            d.sampler.generator(k, 2))
+            terms["bc"] = (gw * boundary_residual(net, qb, self.tubes, r.norm)).sum()
+        if w.get("obs", 0) and len(d.obs_q):
+            terms["obs"] = observation_residual(net, d.obs_q, d.obs_tips, self.tubes, r.norm)
+        if w.get("dense", 0) and r.dense_batch:
+            g = d.sampler.generator(k if r.resample else 0, 3)
+            dev = d.dense_q.device
+            ci = torch.randint(0, d.dense_q.shape[0], (r.dense_batch,), generator=g, device=dev)
+            pi = torch.randint(0, d.sigma_grid.shape[0], (r.dense_batch,), generator=g, device=dev)
+            terms["dense"] = (gw * supervised_residual(net, d.sigma_grid[pi], d.dense_q[ci],
+                                                       d.dense_x[ci, pi])).sum()
+        total = sum(w[name] * v for name, v in terms.items())
+        return total, {name: v.detach() for name, v in terms.items()}
+
+
+def make_optimizer(recipe: Recipe, params) -> torch.optim.Optimizer:
+    """Adam, or full-batch L-BFGS with strong-Wolfe line search, as the recipe says."""
+    if recipe.optimizer == "adam":
+        return torch.optim.Adam(params, lr=recipe.lr)
+    if recipe.optimizer == "lbfgs":
+        return torch.optim.LBFGS(params, lr=recipe.lr, max_iter=20, tolerance_grad=1e-10,
+                                 tolerance_change=1e-12, history_size=recipe.lbfgs_history,
+                                 line_search_fn="strong_wolfe")
+    raise InputError(f"recipe {recipe.name}: unknown optimizer {recipe.optimizer!r}")
+
+
+@dataclass(frozen=True)
+class CosineSchedule:
+    """Adam's learning rate: cosine decay from ``lr`` to ``lr_final`` over whichever ends first, the
+    step budget or the time limit, after a linear warm-up of ``warmup_steps``."""
+
+    lr: float
+    lr_final: float
+    steps: int
+    warmup_steps: int = 0
+    time_limit_s: float | None = None
+
+    @classmethod
+    def of(cls, recipe: Recipe, time_limit_s: float | None) -> CosineSchedule:
+        return cls(recipe.lr, recipe.lr_final, recipe.steps, recipe.warmup_steps, time_limit_s)
+
+    def __call__(self, step: int, elapsed_s: float) -> float:
+        frac = step / max(self.steps - 1, 1)
+        if self.time_limit_s:
+            frac = max(frac, elapsed_s / self.time_limit_s)
+        frac = min(frac, 1.0)
+        lr = self.lr_final + 0.5 * (self.lr - self.lr_final) * (1 + math.cos(math.pi * frac))
+        if step < self.warmup_steps:
+            lr *= (step + 1) / self.warmup_steps
+        return lr
+
+
 def _checkpoint_paths(out: Path) -> tuple[Path, Path]:
     return out.with_suffix(".ckpt.safetensors"), out.with_suffix(".ckpt.json")
 
@@ -170,6 +278,124 @@ def _load_checkpoint(out: Path, net: PinnNet, opt: torch.optim.Optimizer, device
     return meta
 
 
+class Trainer:
+    """Trains a `PinnNet` (DeepXDE style): ``Trainer(robot, data, net).compile(recipe).train(out)``,
+    then ``finish(out)`` writes the model and its card. `train` below is the one-call form."""
+
+    def __init__(self, robot: Robot, data: TrainingData, net: PinnNet, *, data_time_s: float = 0.0):
+        self.robot, self.data, self.net, self.data_time_s = robot, data, net, data_time_s
+        self.device = data.dense_q.device
+
+    def compile(self, recipe: Recipe, *, seed: int = 0, time_limit_s: float | None = None) -> Trainer:
+        """Set the recipe's losses, optimiser and learning-rate schedule; start at step 0."""
+        self.recipe, self.seed, self.time_limit_s = recipe, seed, time_limit_s
+        self.losses = Losses(recipe, self.data, TubeTensors.from_robot(self.robot, device=self.device))
+        self.optimizer = make_optimizer(recipe, self.net.parameters())
+        self.schedule = CosineSchedule.of(recipe, time_limit_s)
+        self.step, self.elapsed_before_s, self.history = 0, 0.0, []
+        self._stats: dict = {}
+        return self
+
+    def resume(self, out: Path) -> Trainer:
+        """Continue from the checkpoint beside ``out`` (same recipe and seed only)."""
+        meta = _load_checkpoint(out, self.net, self.optimizer, self.device)
+        if meta.get("recipe") != asdict(self.recipe) or meta.get("seed") != self.seed:
+            raise InputError(f"{out}: checkpoint was made with another recipe or seed; "
+                             "resume with the same --recipe/--seed or start afresh")
+        self.step, self.elapsed_before_s = meta["step"], meta["elapsed_s"]
+        self.history = meta.get("history", [])
+        return self
+
+    def _elapsed_s(self) -> float:
+        return self.elapsed_before_s + time.perf_counter() - self._t0
+
+    def _adam_step(self) -> torch.Tensor:
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.schedule(self.step, self._elapsed_s())
+        self.optimizer.zero_grad(set_to_none=True)
+        total, self._stats = self.losses(self.net, self.step)
+        total.backward()
+        self.optimizer.step()
+        return total
+
+    def _lbfgs_step(self) -> torch.Tensor:
+        def closure(k: int = self.step, out: dict = self._stats) -> torch.Tensor:
+            self.optimizer.zero_grad(set_to_none=True)
+            total, stats = self.losses(self.net, k)
+            total.backward()
+            out.update(stats)
+            return total
+
+        return self.optimizer.step(closure)
+
+    def _checkpoint(self, out: Path, elapsed_s: float) -> None:
+        _save_checkpoint(out, self.net, self.optimizer,
+                         {"step": self.step, "elapsed_s": elapsed_s, "recipe": asdict(self.recipe),
+                          "seed": self.seed, "history": self.history})
+
+    def train(self, out: Path, *, checkpoint_every_s: float = 120.0,
+              progress: Callable[[int, int, dict], None] | None = None) -> Trainer:
+        """Run to the recipe's step budget or the time limit, checkpointing beside ``out``.
+        ``progress(step, total, stats)`` is called every 10 steps."""
+        steps = self.recipe.steps
+        one_step = self._adam_step if self.recipe.optimizer == "adam" else self._lbfgs_step
+        self._t0 = last_ckpt = time.perf_counter()
+        while self.step < steps:
+            if self.time_limit_s is not None and self._elapsed_s() >= self.time_limit_s:
+                break
+            total = one_step()
+            self.step += 1
+            if self.step % 10 and self.step != steps:
+                continue  # host-device syncs only every 10 steps
+            loss = float(total.detach())
+            if not math.isfinite(loss):
+                raise RuntimeError(f"training diverged at step {self.step} (loss {loss}); lower --lr")
+            now = time.perf_counter()
+            values = {"loss": loss, **{k: float(v) for k, v in self._stats.items()}}
+            if self.step % 50 == 0 or self.step == steps:
+                self.history.append({"step": self.step,
+                                     "time_s": round(self.elapsed_before_s + now - self._t0, 2), **values})
+            if progress is not None:
+                progress(self.step, steps, values)
+            if now - last_ckpt > checkpoint_every_s:
+                self._checkpoint(out, self.elapsed_before_s + now - self._t0)
+                last_ckpt = now
+        self.wall_time_s = self._elapsed_s() + self.data_time_s
+        self._checkpoint(out, self.wall_time_s - self.data_time_s)
+        return self
+
+    def finish(self, out: Path, *, evaluate: Callable[[PinnNet], dict] | None = None,
+               extra_card: dict | None = None) -> TrainResult:
+        """Evaluate the network, write ``out.safetensors`` and its card ``out.json``."""
+        net = self.net.cpu().eval()
+        recipe, step, wall = self.recipe, self.step, self.wall_time_s
+        metrics = evaluate(net) if evaluate is not None else {}
+        extra = dict(extra_card or {})
+        stage = {"recipe": asdict(recipe), "steps": step, "wall_time_s": round(wall, 1),
+                 "hardware": hardware(self.device), "seed": self.seed}
+        card = {
+            **extra,
+            "stages": [*extra.get("stages", []), stage],
+            "recipe": asdict(recipe),
+            "seed": self.seed,
+            "steps": step,
+            "samples": {
+                "exact_solutions": len(self.data.pool),
+                "dense_points_per_solution": recipe.dense_points if recipe.dense_configs else 0,
+                "collocation": recipe.collocation * (step if recipe.resample else 1),
+                "boundary": recipe.boundary * (step if recipe.resample else 1),
+                "observations": len(self.data.obs_q),
+            },
+            "wall_time_s": round(wall, 1),
+            "data_generation_s": round(self.data_time_s, 1),
+            "hardware": hardware(self.device),
+            "metrics": metrics,
+            "history_tail": self.history[-5:],
+        }
+        save_model(net, self.robot, out, card)
+        return TrainResult(net=net, steps=step, wall_time_s=wall, history=self.history, card=card)
+
+
 def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str = "cpu",
           resume: bool = False, init_from: PinnNet | None = None, time_limit_s: float | None = None,
           checkpoint_every_s: float = 120.0,
@@ -190,144 +416,17 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
     dev = torch.device(device)
     torch.manual_seed(seed)
     t_start = time.perf_counter()
-    rng = np.random.default_rng(seed)
-    tt = TubeTensors.from_robot(robot, device=dev)
-
-    # exact solutions: dense supervision pool and/or tip observations, plus output scales
-    n_exact = max(recipe.dense_configs, recipe.observations, 2000)
-    pool = solve_dense(robot, robot.sample_joints(n_exact, rng), recipe.dense_points)
+    data = TrainingData.build(robot, recipe, seed, dev, observations)
     if init_from is not None:
         net = init_from.to(dev).train()
         for p in net.parameters():
             p.requires_grad_(True)
     else:
-        net = PinnNet(robot, scales=state_scales(pool, recipe.features), features=recipe.features).to(dev)
-    data_time = time.perf_counter() - t_start
-
-    def to_dev(a: np.ndarray) -> torch.Tensor:
-        return torch.as_tensor(np.asarray(a, dtype=np.float32), device=dev)
-
-    dense_q, dense_x = to_dev(pool.q), to_dev(pool.states)
-    sigma_grid = to_dev(pool.sigma)
-    obs_q, obs_tips = (to_dev(pool.q[:recipe.observations]), to_dev(pool.tips[:recipe.observations])) \
-        if observations is None else (to_dev(observations[0]), to_dev(observations[1]))
-    sampler = Sampler(robot, seed, dev)
-    fixed_colloc = None if recipe.resample else sampler.collocation(recipe.collocation,
-                                                                    sampler.generator(0, 1))
-    fixed_bc = None if recipe.resample else sampler.joints(recipe.boundary, sampler.generator(0, 2))
-    w = recipe.weights
-    gw = torch.tensor(GROUP_WEIGHTS, device=dev)
-
-    if recipe.optimizer == "adam":
-        opt: torch.optim.Optimizer = torch.optim.Adam(net.parameters(), lr=recipe.lr)
-    elif recipe.optimizer == "lbfgs":
-        opt = torch.optim.LBFGS(net.parameters(), lr=recipe.lr, max_iter=20, tolerance_grad=1e-10,
-                                tolerance_change=1e-12, history_size=recipe.lbfgs_history,
-                                line_search_fn="strong_wolfe")
-    else:
-        raise InputError(f"recipe {recipe.name}: unknown optimizer {recipe.optimizer!r}")
-
-    step, elapsed_before, history = 0, 0.0, []
+        net = PinnNet(robot, scales=state_scales(data.pool, recipe.features),
+                      features=recipe.features).to(dev)
+    trainer = Trainer(robot, data, net, data_time_s=time.perf_counter() - t_start)
+    trainer.compile(recipe, seed=seed, time_limit_s=time_limit_s)
     if resume:
-        meta = _load_checkpoint(out, net, opt, dev)
-        if meta.get("recipe") != asdict(recipe) or meta.get("seed") != seed:
-            raise InputError(f"{out}: checkpoint was made with another recipe or seed; "
-                             "resume with the same --recipe/--seed or start afresh")
-        step, elapsed_before, history = meta["step"], meta["elapsed_s"], meta.get("history", [])
-
-    def losses(k: int) -> tuple[torch.Tensor, dict]:
-        terms: dict[str, torch.Tensor] = {}
-        if w.get("ode", 0):
-            sg, qc = fixed_colloc or sampler.collocation(recipe.collocation, sampler.generator(k, 1))
-            terms["ode"] = (gw * ode_residual(net, sg, qc, tt, recipe.norm)).sum()
-        if w.get("bc", 0):
-            qb = fixed_bc if fixed_bc is not None else sampler.joints(recipe.boundary,
-                                                                      sampler.generator(k, 2))
-            terms["bc"] = (gw * boundary_residual(net, qb, tt, recipe.norm)).sum()
-        if w.get("obs", 0) and len(obs_q):
-            terms["obs"] = observation_residual(net, obs_q, obs_tips, tt, recipe.norm)
-        if w.get("dense", 0) and recipe.dense_batch:
-            g = sampler.generator(k if recipe.resample else 0, 3)
-            ci = torch.randint(0, dense_q.shape[0], (recipe.dense_batch,), generator=g, device=dev)
-            pi = torch.randint(0, sigma_grid.shape[0], (recipe.dense_batch,), generator=g, device=dev)
-            terms["dense"] = (gw * supervised_residual(net, sigma_grid[pi], dense_q[ci],
-                                                       dense_x[ci, pi])).sum()
-        total = sum(w[k_] * v for k_, v in terms.items())
-        return total, {k_: v.detach() for k_, v in terms.items()}
-
-    t0 = time.perf_counter()
-    last_ckpt = t0
-    stats: dict = {}
-    while step < recipe.steps:
-        if time_limit_s is not None and elapsed_before + time.perf_counter() - t0 >= time_limit_s:
-            break
-        if recipe.optimizer == "adam":
-            # the schedule runs to whichever ends first: the step budget or the time limit
-            frac = step / max(recipe.steps - 1, 1)
-            if time_limit_s:
-                frac = max(frac, (elapsed_before + time.perf_counter() - t0) / time_limit_s)
-            frac = min(frac, 1.0)
-            lr = recipe.lr_final + 0.5 * (recipe.lr - recipe.lr_final) * (1 + math.cos(math.pi * frac))
-            if step < recipe.warmup_steps:
-                lr *= (step + 1) / recipe.warmup_steps
-            for group in opt.param_groups:
-                group["lr"] = lr
-            opt.zero_grad(set_to_none=True)
-            total, stats = losses(step)
-            total.backward()
-            opt.step()
-        else:
-            def closure(k: int = step, out: dict = stats) -> torch.Tensor:
-                opt.zero_grad(set_to_none=True)
-                total_, stats_ = losses(k)
-                total_.backward()
-                out.update(stats_)
-                return total_
-
-            total = opt.step(closure)
-        step += 1
-        if step % 10 and step != recipe.steps:
-            continue  # host-device syncs only every 10 steps
-        loss = float(total.detach())
-        if not math.isfinite(loss):
-            raise RuntimeError(f"training diverged at step {step} (loss {loss}); lower --lr")
-        now = time.perf_counter()
-        values = {"loss": loss, **{k_: float(v) for k_, v in stats.items()}}
-        if step % 50 == 0 or step == recipe.steps:
-            history.append({"step": step, "time_s": round(elapsed_before + now - t0, 2), **values})
-        if progress is not None:
-            progress(step, recipe.steps, values)
-        if now - last_ckpt > checkpoint_every_s:
-            _save_checkpoint(out, net, opt, {"step": step, "elapsed_s": elapsed_before + now - t0,
-                                             "recipe": asdict(recipe), "seed": seed,
-                                             "history": history})
-            last_ckpt = now
-    wall = elapsed_before + time.perf_counter() - t0 + data_time
-    _save_checkpoint(out, net, opt, {"step": step, "elapsed_s": wall - data_time,
-                                     "recipe": asdict(recipe), "seed": seed, "history": history})
-    net = net.cpu().eval()
-    metrics = evaluate(net) if evaluate is not None else {}
-    extra = dict(extra_card or {})
-    stage = {"recipe": asdict(recipe), "steps": step, "wall_time_s": round(wall, 1),
-             "hardware": hardware(dev), "seed": seed}
-    card = {
-        **extra,
-        "stages": [*extra.get("stages", []), stage],
-        "recipe": asdict(recipe),
-        "seed": seed,
-        "steps": step,
-        "samples": {
-            "exact_solutions": len(pool),
-            "dense_points_per_solution": recipe.dense_points if recipe.dense_configs else 0,
-            "collocation": recipe.collocation * (step if recipe.resample else 1),
-            "boundary": recipe.boundary * (step if recipe.resample else 1),
-            "observations": len(obs_q),
-        },
-        "wall_time_s": round(wall, 1),
-        "data_generation_s": round(data_time, 1),
-        "hardware": hardware(dev),
-        "metrics": metrics,
-        "history_tail": history[-5:],
-    }
-    save_model(net, robot, out, card)
-    return TrainResult(net=net, steps=step, wall_time_s=wall, history=history, card=card)
+        trainer.resume(out)
+    trainer.train(out, checkpoint_every_s=checkpoint_every_s, progress=progress)
+    return trainer.finish(out, evaluate=evaluate, extra_card=extra_card)

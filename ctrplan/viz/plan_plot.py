@@ -52,31 +52,50 @@ def _triangles_in(scene: Scene, bounds: np.ndarray, max_triangles: int = 6000):
 
 def plot_plan(scene: Scene, backbones_scene: np.ndarray, path: str | Path, *, title: str = "",
               tip_path: np.ndarray | None = None, max_backbones: int = 12) -> Path:
-    """Write a PNG: a 3-D view plus sagittal (z-y) and axial (z-x) projections of the obstacles near
-    the robot, backbones along the path (start blue -> end red) and the target region.
+    """Write a PNG of `plan_figure` (arguments as there)."""
+    import matplotlib.pyplot as plt
 
-    ``backbones_scene`` (K, N, 3): backbones along the path in the scene frame (mm).
+    path = Path(path)
+    fig = plan_figure(scene, backbones_scene, title=title, tip_path=tip_path, max_backbones=max_backbones)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def plan_figure(scene: Scene, backbones_scene: np.ndarray, *, title: str = "",
+                tip_path: np.ndarray | None = None, max_backbones: int = 12):
+    """A matplotlib figure: a 3-D view plus sagittal (z-y) and axial (z-x) projections of the
+    obstacles near the robot, backbones along the path (start blue -> end red), the tip trace and
+    the target region; the legend names every obstacle.
+
+    ``backbones_scene`` (K, N, 3): backbones along the path in the scene frame (mm); ``tip_path``
+    (M, 3): the tip along the path (mm).
     """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.collections import PolyCollection
+    from matplotlib.patches import Patch
+    from matplotlib.ticker import MaxNLocator
     from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
-    path = Path(path)
     bbs = np.asarray(backbones_scene, dtype=float)
     k = bbs.shape[0]
     pick = np.unique(np.linspace(0, k - 1, min(k, max_backbones)).round().astype(int))
     bounds = _view_bounds(bbs, scene)
     tris = _triangles_in(scene, bounds)
     cmap = plt.get_cmap("coolwarm")
-    names = sorted({n for n, _ in tris})
-    tab = plt.get_cmap("tab20")
+    names = [o.name for o in scene.obstacles]
+    tab = plt.get_cmap("tab20")  # colours repeat after 20 obstacles; the legend names them all
     colour = {n: tab(i % 20) for i, n in enumerate(names)}
 
-    fig = plt.figure(figsize=(15, 8.0), dpi=100)
-    grid = fig.add_gridspec(2, 3, hspace=0.35)
+    ncol = 8
+    legend_rows = -(-(len(names) + 4) // ncol)
+    bottom = 0.08 + 0.025 * legend_rows
+    fig = plt.figure(figsize=(15, 8.0 + 0.2 * legend_rows), dpi=100)
+    grid = fig.add_gridspec(2, 3, hspace=0.35, wspace=0.25, left=0.02, right=0.98, top=0.92, bottom=bottom)
     ax3 = fig.add_subplot(grid[:, 0], projection="3d")
     for n, t in tris:
         pc = Poly3DCollection(t, facecolor=colour[n], edgecolor="none", alpha=0.12)
@@ -90,9 +109,12 @@ def plot_plan(scene: Scene, backbones_scene: np.ndarray, path: str | Path, *, ti
     ax3.set_xlim(bounds[:, 0])
     ax3.set_ylim(bounds[:, 1])
     ax3.set_zlim(bounds[:, 2])
-    ax3.set_xlabel("x (mm)")
-    ax3.set_ylabel("y (mm)")
-    ax3.set_zlabel("z (mm)")
+    for axis in (ax3.xaxis, ax3.yaxis, ax3.zaxis):  # few, small ticks: labels must not overlap
+        axis.set_major_locator(MaxNLocator(4))
+    ax3.tick_params(labelsize=7, pad=1)
+    ax3.set_xlabel("x (mm)", fontsize=8, labelpad=2)
+    ax3.set_ylabel("y (mm)", fontsize=8, labelpad=2)
+    ax3.set_zlabel("z (mm)", fontsize=8, labelpad=2)
     ax3.view_init(elev=18, azim=-60)
     ax3.set_box_aspect(np.maximum(np.ptp(bounds, axis=0), 0.25 * np.ptp(bounds, axis=0).max()))
     ax3.set_title("overview", fontsize=10)
@@ -116,16 +138,13 @@ def plot_plan(scene: Scene, backbones_scene: np.ndarray, path: str | Path, *, ti
         ax.set_xlabel("xyz"[a] + " (mm)")
         ax.set_ylabel("xyz"[b] + " (mm)")
         ax.set_title(lab, fontsize=10)
-    handles = [plt.Line2D([], [], color=colour[n], lw=6, alpha=0.4) for n in names[:14]]
-    handles += [plt.Line2D([], [], color=cmap(0.0), lw=2.5), plt.Line2D([], [], color=cmap(1.0), lw=2.5)]
-    labels = names[:14] + ["start", "end"]
-    fig.legend(handles, labels, loc="lower center", ncol=min(8, len(labels)), fontsize=7, frameon=False)
+    handles = [Patch(color=colour[n], alpha=0.4) for n in names]
+    handles += [Patch(color="green", alpha=0.35), plt.Line2D([], [], color="k", lw=0.8),
+                plt.Line2D([], [], color=cmap(0.0), lw=2.5), plt.Line2D([], [], color=cmap(1.0), lw=2.5)]
+    labels = [*names, "target", "tip trace", "start", "end"]
+    fig.legend(handles, labels, loc="lower center", ncol=min(ncol, len(labels)), fontsize=7, frameon=False)
     fig.suptitle(title or f"{scene.name}: planned path ({k} states)", fontsize=11)
-    fig.tight_layout(rect=(0, 0.06, 1, 0.96))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return fig
 
 
 def _ellipsoid_points(scene: Scene, n: int = 24) -> np.ndarray:

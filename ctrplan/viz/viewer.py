@@ -4,7 +4,7 @@
 No CDN, no external script: the data is embedded as JSON and drawn by a small canvas-2D renderer
 written here (depth-sorted, flat-shaded triangles; the robot's tubes as thick segments). Drag to
 rotate, shift-drag (or right-drag) to pan, wheel to zoom; a slider and a play button step along the
-path; obstacle names in the legend toggle their visibility.
+path; obstacle names in the legend toggle their visibility; a scale bar gives lengths in mm.
 """
 
 from __future__ import annotations
@@ -178,7 +178,16 @@ function draw(){
     else { ctx.beginPath(); ctx.moveTo(it.line[0][0], it.line[0][1]); ctx.lineTo(it.line[1][0], it.line[1][1]);
       ctx.strokeStyle = it.col; ctx.lineWidth = it.w; ctx.lineCap = "round"; ctx.stroke(); }
   }
+  scaleBar();
   document.getElementById("lab").textContent = "state " + k + " / " + Math.max(0, K-1);
+}
+// scale bar: a round length in mm, true at the depth of the view centre
+function scaleBar(){
+  const pxmm = F/dist, want = 140/pxmm, e = Math.pow(10, Math.floor(Math.log10(want)));
+  const mm = [1,2,5,10].map(m => m*e).filter(m => m <= want).pop(), len = mm*pxmm, x0 = 20, y0 = H - 56;
+  ctx.strokeStyle = "#222"; ctx.lineWidth = 2; ctx.beginPath();
+  ctx.moveTo(x0,y0); ctx.lineTo(x0+len,y0); ctx.moveTo(x0,y0-5); ctx.lineTo(x0,y0+5); ctx.moveTo(x0+len,y0-5); ctx.lineTo(x0+len,y0+5); ctx.stroke();
+  ctx.fillStyle = "#222"; ctx.font = "12px system-ui,sans-serif"; ctx.fillText(+mm.toPrecision(3) + " mm (at the view centre)", x0, y0-9);
 }
 // ---- interaction ----------------------------------------------------------------------------
 let drag = null;

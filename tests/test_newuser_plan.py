@@ -1,0 +1,181 @@
+"""New-user pitfalls of `ctrplan plan` (issue 10): no silent backend fallback, --model, --out parents,
+OMPL noise and Ctrl-C, a meaningful target in the JSON, the plan figure and viewer."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ctrplan.cli import main
+from ctrplan.kinematics.model_file import resolve_model
+
+REPO = Path(__file__).resolve().parents[1]
+OPEN = (REPO / "scenes" / "open.yaml").read_text()
+TARGET = "target:\n  point: [37.2, -27.2, 181.6]\n  tolerance_mm: 3.0\n"
+#: an ellipsoid target around the centre of the obstacle `ball`: every goal configuration collides
+BLOCKED = OPEN.replace(TARGET, "target:\n  ellipsoid:\n    center: [43.0, -47.0, 150.0]\n"
+                               "    semi_axes_mm: [2.0, 3.0, 4.0]\n")
+
+
+def run(capsys, *args: str) -> tuple[int, str, str]:
+    rc = main(list(args))
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def one_line_error(rc: int, out: str, err: str, *fragments: str) -> None:
+    assert rc == 2 and out == "", err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("ctrplan: error: "), err
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+
+
+def test_unusable_model_is_an_error_not_a_fallback(tmp_path, capsys):
+    shipped = resolve_model(None)
+    for ext in (".safetensors", ".json"):
+        shutil.copy(shipped.with_suffix(ext), tmp_path / f"broken{ext}")
+    data = bytearray((tmp_path / "broken.safetensors").read_bytes())
+    data[-10] ^= 0xFF
+    (tmp_path / "broken.safetensors").write_bytes(bytes(data))
+    scene = REPO / "scenes" / "open.yaml"
+    one_line_error(*run(capsys, "plan", str(scene), "--model", str(tmp_path / "broken"), "--json"),
+                   "--backend pinn", "broken.safetensors", "SHA-256")
+    one_line_error(*run(capsys, "plan", str(scene), "--model", "no_such_model"),
+                   "no_such_model", "not found", "pinn_nominal_cpu")
+    one_line_error(*run(capsys, "plan", str(scene), "--backend", "cosserat", "--model", "pinn_nominal"),
+                   "--model", "cosserat")
+
+
+def test_plan_default_pinn_out_with_new_parents(tmp_path, capsys):
+    out = tmp_path / "runs" / "deep" / "open"
+    rc, stdout, err = run(capsys, "plan", str(REPO / "scenes" / "open.yaml"), "--out", str(out),
+                          "--json", "--time-limit", "5", "--seed", "1")
+    assert rc == 0, err
+    doc = json.loads(stdout)
+    assert doc["backend"] == "pinn" and doc["model"] == "pinn_nominal.safetensors"
+    assert doc["goal_tolerance_mm"] == 3.0 and doc["target"]["kind"] == "sphere"
+    assert sorted(p.name for p in out.iterdir()) == ["obstacles.ply", "path.json", "plan.html", "plan.png"]
+    assert "warning" not in err  # e.g. matplotlib's tight_layout warning
+
+
+def test_out_under_a_file_is_refused_before_planning(tmp_path, capsys):
+    (tmp_path / "runs").write_text("")
+    one_line_error(*run(capsys, "plan", str(REPO / "scenes" / "open.yaml"), "--out",
+                        str(tmp_path / "runs" / "x")), "--out", "not a directory")
+
+
+def test_blocked_goal_reports_our_cause_not_ompl_noise(tmp_path, capfd):
+    scene = tmp_path / "blocked.yaml"
+    scene.write_text(BLOCKED)
+    rc = main(["plan", str(scene), "--backend", "cosserat", "--time-limit", "2", "--json"])
+    out, err = capfd.readouterr()  # file descriptors: OMPL writes from C++
+    assert rc == 1
+    doc = json.loads(out)
+    assert "all in collision" in doc["message"]
+    assert doc["goal_tolerance_mm"] is None
+    assert doc["target"]["kind"] == "ellipsoid" and doc["target"]["semi_axes_mm"] == [2.0, 3.0, 4.0]
+    assert "Skipping invalid goal" not in err and "at line" not in err and "Warning:" not in err
+
+
+def test_ctrl_c_prints_one_line(tmp_path):
+    scene = tmp_path / "blocked.yaml"
+    scene.write_text(BLOCKED)
+    # Ctrl-C 3 s into planning (the planner would search for 60 s)
+    script = ("import os, signal, sys, threading\n"
+              "import ctrplan.planning as planning\n"
+              "from ctrplan.cli import main\n"
+              "plan = planning.plan\n"
+              "def interrupted_plan(*args, **kwargs):\n"
+              "    threading.Timer(3.0, lambda: os.kill(os.getpid(), signal.SIGINT)).start()\n"
+              "    return plan(*args, **kwargs)\n"
+              "planning.plan = interrupted_plan\n"
+              "sys.exit(main(sys.argv[1:]))\n")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    result = subprocess.run([sys.executable, "-c", script, "plan", str(scene), "--backend", "cosserat",
+                             "--time-limit", "60", "--json"], capture_output=True, text=True,
+                            timeout=120, env=env, check=False)
+    assert result.returncode == 130
+    assert result.stderr.strip() == "ctrplan: aborted", result.stderr
+    assert result.stdout == ""
+
+
+def test_plan_figure_names_every_obstacle_target_and_tip_trace(tmp_path):
+    from ctrplan.scene import load_scene
+    from ctrplan.viz.plan_plot import plan_figure, plot_plan
+
+    balls = "".join(f"- name: ball{i:02d}\n  sphere:\n    center: [{-60 + 8 * i}.0, 40.0, 150.0]\n"
+                    f"    radius: 2.0\n" for i in range(16))
+    text = OPEN.replace(OPEN[OPEN.index("- name: ball"):OPEN.index("target:")], balls)
+    (tmp_path / "many.yaml").write_text(text)
+    scene = load_scene(tmp_path / "many.yaml")
+    z = np.linspace(0, 180, 30)
+    bbs = np.stack([np.column_stack([np.zeros(30) + k, np.zeros(30), z]) for k in range(5)])
+    fig = plan_figure(scene, bbs, tip_path=bbs[:, -1])
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert labels[:16] == [f"ball{i:02d}" for i in range(16)]
+    assert {"target", "tip trace", "start", "end"} <= set(labels)
+    ax3 = next(a for a in fig.axes if a.name == "3d")
+    for axis in (ax3.xaxis, ax3.yaxis, ax3.zaxis):
+        assert len(axis.get_major_locator()()) <= 6
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the old tight_layout call warned on every figure
+        plot_plan(scene, bbs, tmp_path / "p.png", tip_path=bbs[:, -1])
+    assert (tmp_path / "p.png").stat().st_size > 0
+
+
+def test_viewer_has_a_scale_bar(tmp_path):
+    from ctrplan.scene import load_scene
+    from ctrplan.viz import viewer_data, write_viewer
+
+    scene = load_scene(REPO / "scenes" / "open.yaml")
+    bbs = np.zeros((2, 5, 3))
+    bbs[..., 2] = np.linspace(0, 100, 5)
+    html = write_viewer(tmp_path / "v.html", viewer_data(scene, bbs, np.full((2, 5), 0.75))).read_text()
+    assert "function scaleBar()" in html and "scaleBar();" in html and '" mm (at the view centre)"' in html
+
+
+@pytest.mark.parametrize("command", [[], ["fk"], ["shape"], ["plan"], ["train"], ["eval-model"],
+                                     ["diagnose"], ["bench", "kinematics"], ["bench", "plan"]])
+def test_help_is_never_cut_and_flags_have_no_metavar(capsys, monkeypatch, command):
+    monkeypatch.setenv("COLUMNS", "60")
+    rc, out, _ = run(capsys, *command, "--help")
+    assert rc == 0 and "Usage:" in out
+    assert "…" not in out
+    cut = [line for line in out.splitlines()[1:] if re.search(r"\w\.\.\.$", line)]  # click's short help
+    assert not cut
+    assert "<bool>" not in out and "BOOLEAN" not in out
+
+
+def test_version_does_not_import_the_commands():
+    code = ("import sys\nfrom ctrplan.cli import main\nrc = main(['--version'])\n"
+            "print(rc, 'torch' in sys.modules, 'ompl' in sys.modules, 'matplotlib' in sys.modules)")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                            timeout=60, check=True)
+    version, flags = result.stdout.splitlines()
+    assert version.startswith("ctrplan ") and flags == "0 False False False"
+
+
+def test_library_resolve_backend_does_not_fall_back(tmp_path):
+    from importlib import resources
+
+    from ctrplan.errors import InputError
+    from ctrplan.planning import resolve_backend
+    from ctrplan.robot import Robot
+
+    text = resources.files("ctrplan.data").joinpath("nominal.yaml").read_text()
+    (tmp_path / "r.yaml").write_text(text.replace("curvature_1_per_m: 28.0", "curvature_1_per_m: 30.0"))
+    other = Robot.load(str(tmp_path / "r.yaml"))  # the shipped PINN was trained for nominal
+    with pytest.raises(InputError, match="trained for robot 'nominal'"):
+        resolve_backend(None, other)
+    assert resolve_backend("cosserat", other).name == "cosserat"

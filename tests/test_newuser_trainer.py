@@ -1,0 +1,59 @@
+"""The trainer in small named steps (issue 10): data, losses, optimiser, schedule, `Trainer`."""
+
+from __future__ import annotations
+
+import inspect
+
+import pytest
+import torch
+
+from ctrplan.kinematics.pinn import PinnNet
+from ctrplan.training.samples import state_scales
+from ctrplan.training.trainer import (
+    CosineSchedule,
+    Trainer,
+    TrainingData,
+    get_recipe,
+    make_optimizer,
+    train,
+)
+
+TINY = dict(steps=20, collocation=64, boundary=32, dense_configs=100, dense_batch=256, dense_points=9)
+
+
+def test_schedule_warms_up_decays_and_fits_the_time_limit():
+    s = CosineSchedule(lr=1e-3, lr_final=1e-5, steps=101, warmup_steps=10)
+    assert s(0, 0.0) == pytest.approx(1e-4)           # warm-up: 1/10 of the cosine value
+    assert s(9, 0.0) == pytest.approx(s.lr_final + 0.5 * (1e-3 - 1e-5) * (1 + torch.cos(
+        torch.tensor(torch.pi * 9 / 100)).item()))
+    assert s(100, 0.0) == pytest.approx(1e-5)
+    timed = CosineSchedule(lr=1e-3, lr_final=1e-5, steps=10_000, time_limit_s=60.0)
+    assert timed(1, 60.0) == pytest.approx(1e-5)      # the time limit ends the schedule first
+
+
+def test_optimiser_follows_the_recipe():
+    params = [torch.nn.Parameter(torch.zeros(3))]
+    assert isinstance(make_optimizer(get_recipe("fast"), params), torch.optim.Adam)
+    assert isinstance(make_optimizer(get_recipe("polish"), params), torch.optim.LBFGS)
+
+
+def test_trainer_object_form_equals_train(tmp_path, robot):
+    recipe = get_recipe("fast", **TINY)
+    one_call = train(robot, recipe, tmp_path / "a", seed=4)
+
+    torch.manual_seed(4)
+    data = TrainingData.build(robot, recipe, 4, torch.device("cpu"))
+    net = PinnNet(robot, scales=state_scales(data.pool, recipe.features), features=recipe.features)
+    result = Trainer(robot, data, net).compile(recipe, seed=4).train(tmp_path / "b").finish(tmp_path / "b")
+
+    assert result.steps == one_call.steps == 20
+    for (k, v), w in zip(result.net.state_dict().items(), one_call.net.state_dict().values(), strict=True):
+        assert torch.equal(v, w), k
+    assert (tmp_path / "b.safetensors").exists() and (tmp_path / "b.json").exists()
+    assert result.card["samples"] == one_call.card["samples"]
+
+
+def test_train_is_short():
+    assert len(inspect.getsource(train).splitlines()) <= 40
+    assert all(len(inspect.getsource(m).splitlines()) <= 40
+               for m in (Trainer.train, Trainer.finish, TrainingData.build))
