@@ -60,7 +60,6 @@ from ctrplan.errors import InputError
 from ctrplan.robot import Robot
 from ctrplan.yamlio import YamlDoc, load_yaml
 
-PLANNERS = ("rrtconnect", "rrt", "rrtstar", "bitstar", "kpiece")
 PRIMITIVES = ("sphere", "box", "cylinder", "capsule")
 MESH_SUFFIXES = (".stl", ".obj", ".ply")
 
@@ -203,6 +202,41 @@ class TargetRegion:
     def to_dict(self) -> dict[str, Any]:
         return {"kind": self.kind, "center_mm": self.center.tolist(),
                 "semi_axes_mm": self.semi_axes.tolist(), "rotation": self.rotation.tolist()}
+
+
+@dataclass(frozen=True)
+class PlannerSpec:
+    """One OMPL geometric planner (the class ``ompl.geometric.<ompl_name>``) and how ctrplan runs it.
+
+    Attributes:
+        ompl_name: OMPL's class name (also used in logs and benchmark databases).
+        optimizing: asymptotically optimal: gets a path-length objective and uses its whole budget.
+        fixed_goal_set: drains every goal sample whenever it (re)starts a batch (BIT*): give it a
+            fixed set of goal configurations before the search.
+    """
+
+    ompl_name: str
+    optimizing: bool = False
+    fixed_goal_set: bool = False
+
+
+#: The one table of planners by ctrplan name (as OMPL's demos keep theirs).
+PLANNERS: dict[str, PlannerSpec] = {
+    "rrtconnect": PlannerSpec("RRTConnect"),
+    "rrt": PlannerSpec("RRT"),
+    "rrtstar": PlannerSpec("RRTstar", optimizing=True),
+    "bitstar": PlannerSpec("BITstar", optimizing=True, fixed_goal_set=True),
+    "kpiece": PlannerSpec("KPIECE1"),
+}
+
+
+def planner_spec(name: str) -> PlannerSpec:
+    """The `PlannerSpec` of a planner name; `InputError` naming the ``planner`` parameter otherwise."""
+    try:
+        return PLANNERS[name]
+    except (KeyError, TypeError):
+        raise InputError(f"planner: unknown planner {name!r} (choose from {', '.join(PLANNERS)})") \
+            from None
 
 
 @dataclass(frozen=True)
@@ -519,8 +553,10 @@ def _settings(doc: YamlDoc, raw: Any) -> PlannerSettings:
     for name, value in spec.items():
         k = keys + (name,)
         if name == "planner":
-            if value not in PLANNERS:
-                raise doc.error(k, f"unknown planner {value!r} (choose from {', '.join(PLANNERS)})")
+            try:
+                planner_spec(value)
+            except InputError as exc:
+                raise doc.error(k, str(exc).removeprefix("planner: ")) from None
             kw[name] = value
         elif name in ("simplify", "repair"):
             if not isinstance(value, bool):
