@@ -14,7 +14,6 @@ import trimesh
 from ctrplan.cli import main
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.planning import (
-    PLANNER_CLASSES,
     BoxSpace,
     ConfigurationChecker,
     GoalSampler,
@@ -27,7 +26,7 @@ from ctrplan.planning import (
 from ctrplan.planning.ik import fd_tip_jacobian
 from ctrplan.planning.validity import bisection_order
 from ctrplan.robot import Robot
-from ctrplan.scene import load_scene
+from ctrplan.scene import PLANNERS, load_scene
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
@@ -152,7 +151,7 @@ def test_python_api_with_any_ompl_planner(open_scene, exact):
     assert open_scene.target.contains(problem.checker.tip(path[-1]))
     dense = problem.box.densify(path, open_scene.settings.resolution_mm)
     assert problem.checker.check(dense).all()
-    for name in PLANNER_CLASSES:
+    for name in PLANNERS:
         assert make_planner(name, problem.si) is not None
 
 
@@ -228,8 +227,10 @@ def test_cli_missing_mesh_and_malformed_scene(mini_dir, capsys):
     (mini_dir / "t.yaml").write_text(MINI.replace("radius: 3}}", "radius: [3]}}"))
     rc, out, err = run_cli(["plan", str(mini_dir / "t.yaml")], capsys)
     assert rc == 2 and re.search(r"t\.yaml:4: obstacles\[0\]\.sphere\.radius: expected a finite number", err)
-    rc, out, err = run_cli(["plan", str(mini_dir / "t.yaml"), "--planner", "prm"], capsys)
-    assert rc == 2 and "--planner" in err
+    (mini_dir / "s.yaml").write_text(MINI)
+    rc, out, err = run_cli(["plan", str(mini_dir / "s.yaml"), "--planner", "prm"], capsys)
+    assert rc == 2 and out == "" and err.count("\n") == 1
+    assert "planner: unknown planner 'prm' (choose from rrtconnect, rrt, rrtstar" in err
 
 
 def test_cli_unreachable_target(mini_dir, capsys):

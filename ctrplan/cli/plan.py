@@ -60,8 +60,6 @@ def plan_command(
     """
     from rich.console import Console
 
-    if planner is not None and planner not in PLANNERS:
-        raise InputError(f"--planner: unknown planner {planner!r} (choose from {', '.join(PLANNERS)})")
     if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
         raise InputError(f"--time-limit: must be a positive number of seconds, got {time_limit}")
     if seed is not None and seed < 0:
@@ -70,17 +68,16 @@ def plan_command(
 
     from ompl import util as ou
 
-    from ctrplan.planning import plan, resolve_backend
+    from ctrplan.planning import plan
     from ctrplan.scene import load_scene
 
     ou.setLogLevel(ou.LOG_WARN)  # OMPL's info lines go to stdout otherwise
     sc = load_scene(scene)
-    be = resolve_backend(backend, sc.robot)
     console = Console(stderr=json_out, highlight=False)
     err = Console(stderr=True, highlight=False)
 
     with _Progress(err) as progress:
-        result = plan(sc, be, planner=planner, time_limit_s=time_limit, seed=seed,
+        result = plan(sc, backend, planner=planner, time_limit_s=time_limit, seed=seed,
                       progress=progress.update)
     doc = result.to_json()
     doc["scene"] = str(scene)
@@ -113,7 +110,8 @@ class _Progress:
     def update(self, stage: str, **info) -> None:
         if self.status is None:
             return
-        text = {"goal": "sampling goal configurations (IK)", "search": "searching",
+        text = {"compile": "compiling kernels (first run only)",
+                "goal": "sampling goal configurations (IK)", "search": "searching",
                 "simplify": "simplifying the path", "validate": "validating with the exact model",
                 "repair": "repairing with the exact model"}.get(stage, stage)
         if "elapsed" in info and "limit" in info:
