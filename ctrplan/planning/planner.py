@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -21,18 +21,22 @@ from ompl import util as ou
 
 from ctrplan.errors import InputError
 from ctrplan.kinematics import make_backend
-from ctrplan.kinematics.base import Backend
+from ctrplan.kinematics.backbone import Backbone
+from ctrplan.kinematics.base import DEFAULT_POINTS, Backend
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.planning.goal import GoalSampler, TipGoal
 from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate_path
 from ctrplan.planning.validity import BatchMotionValidator, ConfigurationChecker, ValidityChecker
 from ctrplan.scene import PLANNERS, Scene, planner_spec
+from ctrplan.training.evaluate import ERROR_BOUND_KEY, region_margins_mm
 
 #: Names OMPL uses for the planners (for logs and benchmark databases), from the one table `PLANNERS`.
 OMPL_NAMES = {name: spec.ompl_name for name, spec in PLANNERS.items()}
 #: Search time above the limit (s) that is reported as an overrun (OMPL checks its clock between
 #: iterations; an inverse-kinematics batch cannot be interrupted).
 OVERRUN_TOLERANCE_S = 0.05
+#: Surrogate margin (mm) for a model whose card has no calibrated error bound.
+DEFAULT_SURROGATE_MARGIN_MM = 0.3
 
 Progress = Callable[..., None]
 
@@ -388,11 +392,51 @@ def compile_kernels(backends: list[Backend], q: np.ndarray, points: int) -> None
         be.forward(np.stack([q, q]), points=points, check=False)   # batched (parallel) kernels
 
 
-def planning_margin_mm(scene: Scene, backend: Backend) -> float:
-    """Capsule margin while planning: the scene's ``margin_mm``, plus ``surrogate_margin_mm`` for an
-    approximate backend."""
+class RegionMarginBackend(Backend):
+    """A surrogate whose backbones carry extra radius (mm) by arc-length region: its calibrated
+    error bound (`ctrplan.training.evaluate.error_bound`), so that planning keeps that much more
+    clearance where the surrogate is less accurate. Positions, tips and all else are the wrapped
+    backend's."""
+
+    def __init__(self, inner: Backend, bound: dict):
+        super().__init__(inner.robot)
+        self.inner = inner
+        self.bound = bound
+        self.name = inner.name
+
+    def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
+                check: bool = True) -> Backbone:
+        bb = self.inner.forward(q, points, check=check)
+        extra = region_margins_mm(self.bound, bb.s_mm / bb.s_mm[:, -1:])
+        return replace(bb, radius_mm=bb.radius_mm + extra)
+
+    def __getattr__(self, attr: str) -> Any:  # the surrogate's Jacobian, model card, ...
+        if attr == "inner":
+            raise AttributeError(attr)
+        return getattr(self.inner, attr)
+
+
+def planning_backend(scene: Scene, backend: Backend) -> tuple[Backend, float, dict]:
+    """The backend and capsule margin (mm) to plan with, and where the margin comes from.
+
+    An exact backend plans with the scene's ``margin_mm``. A surrogate adds the scene's
+    ``surrogate_margin_mm`` everywhere if the scene sets one; otherwise the calibrated error bound
+    of its model card by arc-length region (`RegionMarginBackend`); a model without one gets
+    `DEFAULT_SURROGATE_MARGIN_MM`."""
     s = scene.settings
-    return s.margin_mm + (0.0 if is_exact(backend) else s.surrogate_margin_mm)
+    if is_exact(backend):
+        return backend, s.margin_mm, {"source": "exact backend"}
+    if s.surrogate_margin_mm is not None:
+        return backend, s.margin_mm + s.surrogate_margin_mm, {
+            "source": "scene surrogate_margin_mm", "surrogate_margin_mm": s.surrogate_margin_mm}
+    bound = getattr(backend, "card", {}).get(ERROR_BOUND_KEY)
+    if bound is None:
+        return backend, s.margin_mm + DEFAULT_SURROGATE_MARGIN_MM, {
+            "source": "default (the model card has no calibrated error bound)",
+            "surrogate_margin_mm": DEFAULT_SURROGATE_MARGIN_MM}
+    return RegionMarginBackend(backend, bound), s.margin_mm, {
+        "source": f"model card {ERROR_BOUND_KEY} (coverage {bound['coverage']:g})",
+        "regions": [{"s_fraction": r["s_fraction"], "margin_mm": r["bound_mm"]} for r in bound["regions"]]}
 
 
 def _time_limit(scene: Scene, time_limit_s: float | None) -> float:
@@ -467,8 +511,9 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
          exact: Backend | None = None, repair: bool | None = None) -> PlanResult:
     """Plan a collision-free motion from the scene's start to its target, then validate it exactly.
 
-    With an approximate backend (the PINN) the capsules get ``surrogate_margin_mm`` extra while
-    planning. Every path is re-validated with the exact model at the planner's resolution; a path
+    With an approximate backend (the PINN) the capsules get extra radius while planning: its
+    calibrated error bound by arc-length region, or the scene's ``surrogate_margin_mm`` (see
+    `planning_backend`). Every path is re-validated with the exact model at the planner's resolution; a path
     that fails there is repaired (colliding stretches re-planned with the exact model) or reported
     as not solved. ``solved`` is True only if the exact model confirms a collision-free path that
     ends with the tip in the target. Kernels are compiled before the clock starts; a plan that takes
@@ -488,24 +533,25 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
                       else CosseratBackend(scene.robot))
     compile_kernels([be] if be is exact else [be, exact], scene.start, s.points)
     compile_s = time.perf_counter() - t_compile
-    margin = planning_margin_mm(scene, be)
-    checker = ConfigurationChecker(scene, be, margin_mm=margin)
+    planning_be, margin, margin_source = planning_backend(scene, be)
+    checker = ConfigurationChecker(scene, planning_be, margin_mm=margin)
     check_start(scene, checker, exact)
 
     result = PlanResult(False, planner, be.name, 0.0, 0, np.zeros((0, len(scene.start))),
                         scene.target.center, scene.target.tolerance_mm, scene.base_pose, seed=seed,
                         time_limit_s=time_limit_s, scene=scene.name)
-    result.details = {"planning_margin_mm": margin, "compile_s": compile_s}
+    result.details = {"planning_margin_mm": margin, "surrogate_margin": margin_source,
+                      "compile_s": compile_s}
     if not checker.is_valid(scene.start):
         # valid for the exact model (checked above), not for the planning backend + its margin
         result.status = "INVALID_START"
         result.message = (f"the start configuration collides under the {be.name} backend with its "
-                          f"planning margin of {margin:g} mm (but not under the exact model with "
-                          f"{s.margin_mm:g} mm)")
+                          f"planning margin ({margin_source['source']}) but not under the exact model "
+                          f"with {s.margin_mm:g} mm")
         result.details["counters"] = vars(checker.counters).copy()
         return result
 
-    outcome, checker = search(scene, be, planner=planner, time_limit_s=time_limit_s, seed=seed,
+    outcome, checker = search(scene, planning_be, planner=planner, time_limit_s=time_limit_s, seed=seed,
                               progress=progress, checker=checker)
     result.planning_time_s = outcome.time_s
     result.kinematics_calls = checker.counters.kinematics_calls

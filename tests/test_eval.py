@@ -1,0 +1,86 @@
+"""The surrogate's calibrated error bound: conformal quantile, tail metrics, model card, planner use."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ctrplan.kinematics.model_file import read_card, resolve_model
+from ctrplan.kinematics.pinn import PinnBackend
+from ctrplan.planning.planner import RegionMarginBackend, planning_backend
+from ctrplan.robot import Robot
+from ctrplan.scene import load_scene
+from ctrplan.training.evaluate import (
+    CALIBRATION_SEED,
+    ERROR_BOUND_KEY,
+    EVAL_SEED,
+    REGIONS,
+    compare,
+    conformal_quantile,
+    error_bound,
+)
+
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
+
+
+@pytest.fixture(scope="module")
+def pinn() -> PinnBackend:
+    return PinnBackend.load(None, Robot.nominal())
+
+
+def test_conformal_quantile_is_the_right_order_statistic_and_covers():
+    scores = np.arange(1.0, 100.0)  # 99 scores
+    assert conformal_quantile(scores[::-1], 0.9) == 90.0  # ceil(100 * 0.9) = 90th smallest
+    assert conformal_quantile(scores, 0.995) == np.inf  # 99 scores cannot promise 99.5 %
+    rng = np.random.default_rng(0)
+    q = conformal_quantile(rng.lognormal(size=2000), 0.99)
+    assert 0.985 <= np.mean(rng.lognormal(size=100_000) <= q) <= 0.995
+
+
+def test_error_bound_holds_on_fresh_configurations(pinn):
+    robot = pinn.robot
+    bound = error_bound(compare(pinn, robot, n=400, points=40, seed=CALIBRATION_SEED), 0.95)
+    assert [r["s_fraction"] for r in bound["regions"]] == [list(r) for r in REGIONS]
+    fresh = compare(pinn, robot, n=400, points=40, seed=EVAL_SEED)
+    d = np.linalg.norm(fresh.predicted.positions_mm - fresh.exact.positions_mm, axis=-1)
+    frac = fresh.exact.s_mm / fresh.exact.s_mm[:, -1:]
+    for r in bound["regions"]:
+        lo, hi = r["s_fraction"]
+        score = np.where((frac >= lo) & (frac <= hi), d, 0).max(axis=1)
+        assert np.mean(score <= r["bound_mm"]) >= 0.92
+    assert bound["regions"][0]["bound_mm"] < bound["regions"][-1]["bound_mm"]  # error grows to the tip
+
+
+def test_metrics_report_the_tail(pinn):
+    m = compare(pinn, pinn.robot, n=50, points=20).metrics()
+    for tube in ("tube1", "tube2", "tube3"):
+        t = m["tip_error_mm"][tube]
+        assert t["mean"] <= t["p99"] <= t["p99_9"] <= t["max"]
+    o = m["orientation_error_deg"]
+    assert o["mean"] <= o["p99"] <= o["max"]
+
+
+def test_shipped_model_card_has_a_calibrated_bound_that_the_planner_uses(pinn):
+    card = read_card(resolve_model(None))
+    bound = card[ERROR_BOUND_KEY]
+    assert bound["configurations"] >= 2000 and bound["seed"] == CALIBRATION_SEED
+    assert bound["truth"] == "cosserat" and bound["coverage"] >= 0.99
+    assert all(np.isfinite(r["bound_mm"]) and r["bound_mm"] > 0 for r in bound["regions"])
+    assert pinn.card[ERROR_BOUND_KEY] == bound  # the card still loads: the weights hash is valid
+
+    scene = load_scene(SCENES / "open.yaml")
+    be, margin, source = planning_backend(scene, pinn)
+    assert isinstance(be, RegionMarginBackend) and margin == scene.settings.margin_mm
+    assert source["source"].startswith("model card")
+    q = scene.start
+    plain, inflated = pinn.forward(q, 30), be.forward(q, 30)
+    assert np.array_equal(plain.positions_mm, inflated.positions_mm)
+    extra = inflated.radius_mm - plain.radius_mm
+    assert np.isclose(extra[0, 0], bound["regions"][0]["bound_mm"])
+    assert np.isclose(extra[0, -1], bound["regions"][-1]["bound_mm"])
+
+    fixed = scene.with_settings(surrogate_margin_mm=0.5)
+    be, margin, source = planning_backend(fixed, pinn)
+    assert be is pinn and margin == pytest.approx(scene.settings.margin_mm + 0.5)
