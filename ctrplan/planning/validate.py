@@ -22,6 +22,7 @@ from ctrplan.collision import CollisionWorld, RobotCollisionChecker
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.cosserat import CosseratBackend
+from ctrplan.planning.goal import tip_tangents
 from ctrplan.planning.space import BoxSpace
 from ctrplan.scene import Scene
 
@@ -34,7 +35,9 @@ class Validation:
     any obstacle over the checked states (0 on contact); ``max_position_error_mm`` the largest
     distance between corresponding backbone points of the planning backend and the exact model;
     ``max_step_mm`` the largest displacement of any exact backbone point between two consecutive
-    checked states, ``step_bound_mm`` the bound it was refined to (the thinnest capsule radius).
+    checked states, ``step_bound_mm`` the bound it was refined to (the thinnest capsule radius);
+    ``tip_angle_deg`` the angle between the final tip tangent and the target's approach direction
+    (0 without one), which ``tip_in_target`` requires within the target's tolerance.
     """
 
     backend: str = "cosserat"
@@ -43,6 +46,7 @@ class Validation:
     max_position_error_mm: float = 0.0
     max_tip_error_mm: float = 0.0
     tip_in_target: bool = False
+    tip_angle_deg: float = 0.0
     converged: bool = False
     states: int = 0
     colliding_states: list[int] = field(default_factory=list)
@@ -143,7 +147,10 @@ def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | 
 
     tip = scene.to_scene(ebb.tip_mm[-1])
     report.tip_mm = tip.tolist()
-    report.tip_in_target = bool(ebb.converged[-1] and scene.target.contains(tip))
+    angle = float(scene.target.angle_rad(tip_tangents(scene, ebb)[-1]))
+    report.tip_angle_deg = float(np.degrees(angle))
+    report.tip_in_target = bool(ebb.converged[-1] and scene.target.contains(tip)
+                                and angle <= scene.target.angle_tolerance_rad + 1e-12)
     report.time_s = time.perf_counter() - t0
     return ValidatedPath(dense, ebb, pbb, report)
 
