@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -84,3 +85,14 @@ def test_shipped_model_card_has_a_calibrated_bound_that_the_planner_uses(pinn):
     fixed = scene.with_settings(surrogate_margin_mm=0.5)
     be, margin, source = planning_backend(fixed, pinn)
     assert be is pinn and margin == pytest.approx(scene.settings.margin_mm + 0.5)
+
+
+def test_eval_model_prints_the_tail(tmp_path, capsys):
+    from ctrplan.cli import main
+
+    assert main(["eval-model", "--n", "30", "--points", "20", "--out", str(tmp_path)]) in (0, None)
+    out = capsys.readouterr().out
+    assert "tube1 tip error: mean" in out and "p99 " in out and "p99.9 " in out and "max " in out
+    assert main(["eval-model", "--n", "30", "--points", "20", "--out", str(tmp_path), "--json"]) in (0, None)
+    doc = json.loads(capsys.readouterr().out)
+    assert set(doc["tip_error_mm"]["tube1"]) == {"mean", "p99", "p99_9", "max"}
