@@ -34,7 +34,8 @@ file, the key and the line (`ctrplan.yamlio`). Layout::
       seed: null
       margin_mm: 0.2                      # added to the capsule radii (planning and validation)
       surrogate_margin_mm: null           # extra while planning with the PINN (null: the model
-                                          #   card's calibrated error bound by arc-length region)
+                                          #   card's calibrated error bound by arc-length region
+      surrogate_coverage: 0.9             #   at this coverage: 0.5 | 0.8 | 0.9 | 0.95 | 0.99)
       points: 40                          # backbone points (capsules + 1)
       resolution_mm: 1.0                  # edge checking step in the planning metric
       mm_per_rad: 40.0                    # metric weight of rotations
@@ -275,6 +276,8 @@ class PlannerSettings:
         surrogate_margin_mm: extra margin everywhere while planning with an approximate backend
             (the PINN) so that its error rarely makes the exact robot touch; None: the model card's
             calibrated error bound by arc-length region. Validation uses ``margin_mm`` alone.
+        surrogate_coverage: which of the model card's calibrated bounds to plan with: the
+            probability that a configuration's error in a region is within its bound.
         points: backbone points (capsules + 1) per configuration.
         resolution_mm: edge checking resolution in the planning metric (mm; radians weighted by
             ``mm_per_rad``).
@@ -290,6 +293,7 @@ class PlannerSettings:
     seed: int | None = None
     margin_mm: float = 0.2
     surrogate_margin_mm: float | None = None
+    surrogate_coverage: float = 0.9
     points: int = 40
     resolution_mm: float = 1.0
     mm_per_rad: float = 40.0
@@ -617,6 +621,10 @@ def _settings(doc: YamlDoc, raw: Any) -> PlannerSettings:
             kw[name] = None if value is None else _num(doc, k, value, nonneg=True)
         elif name == "margin_mm":
             kw[name] = _num(doc, k, value, nonneg=True)
+        elif name == "surrogate_coverage":
+            kw[name] = _num(doc, k, value, positive=True)
+            if kw[name] >= 1:
+                raise doc.error(k, f"must be below 1, got {value!r}")
         else:
             kw[name] = _num(doc, k, value, positive=True)
     return PlannerSettings(**kw)

@@ -28,7 +28,7 @@ from ctrplan.planning.goal import GoalSampler, TipGoal
 from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate_path
 from ctrplan.planning.validity import BatchMotionValidator, ConfigurationChecker, ValidityChecker
 from ctrplan.scene import PLANNERS, Scene, planner_spec
-from ctrplan.training.evaluate import ERROR_BOUND_KEY, region_margins_mm
+from ctrplan.training.evaluate import ERROR_BOUND_KEY, region_bounds_mm, region_margins_mm
 
 #: Names OMPL uses for the planners (for logs and benchmark databases), from the one table `PLANNERS`.
 OMPL_NAMES = {name: spec.ompl_name for name, spec in PLANNERS.items()}
@@ -394,20 +394,21 @@ def compile_kernels(backends: list[Backend], q: np.ndarray, points: int) -> None
 
 class RegionMarginBackend(Backend):
     """A surrogate whose backbones carry extra radius (mm) by arc-length region: its calibrated
-    error bound (`ctrplan.training.evaluate.error_bound`), so that planning keeps that much more
-    clearance where the surrogate is less accurate. Positions, tips and all else are the wrapped
-    backend's."""
+    error bound at ``coverage`` (`ctrplan.training.evaluate.error_bound`), so that planning keeps
+    that much more clearance where the surrogate is less accurate. Positions, tips and all else are
+    the wrapped backend's."""
 
-    def __init__(self, inner: Backend, bound: dict):
+    def __init__(self, inner: Backend, bound: dict, coverage: float):
         super().__init__(inner.robot)
         self.inner = inner
         self.bound = bound
+        self.coverage = coverage
         self.name = inner.name
 
     def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
                 check: bool = True) -> Backbone:
         bb = self.inner.forward(q, points, check=check)
-        extra = region_margins_mm(self.bound, bb.s_mm / bb.s_mm[:, -1:])
+        extra = region_margins_mm(self.bound, self.coverage, bb.s_mm / bb.s_mm[:, -1:])
         return replace(bb, radius_mm=bb.radius_mm + extra)
 
     def __getattr__(self, attr: str) -> Any:  # the surrogate's Jacobian, model card, ...
@@ -421,8 +422,8 @@ def planning_backend(scene: Scene, backend: Backend) -> tuple[Backend, float, di
 
     An exact backend plans with the scene's ``margin_mm``. A surrogate adds the scene's
     ``surrogate_margin_mm`` everywhere if the scene sets one; otherwise the calibrated error bound
-    of its model card by arc-length region (`RegionMarginBackend`); a model without one gets
-    `DEFAULT_SURROGATE_MARGIN_MM`."""
+    of its model card at the scene's ``surrogate_coverage``, by arc-length region
+    (`RegionMarginBackend`); a model without one gets `DEFAULT_SURROGATE_MARGIN_MM`."""
     s = scene.settings
     if is_exact(backend):
         return backend, s.margin_mm, {"source": "exact backend"}
@@ -434,9 +435,11 @@ def planning_backend(scene: Scene, backend: Backend) -> tuple[Backend, float, di
         return backend, s.margin_mm + DEFAULT_SURROGATE_MARGIN_MM, {
             "source": "default (the model card has no calibrated error bound)",
             "surrogate_margin_mm": DEFAULT_SURROGATE_MARGIN_MM}
-    return RegionMarginBackend(backend, bound), s.margin_mm, {
-        "source": f"model card {ERROR_BOUND_KEY} (coverage {bound['coverage']:g})",
-        "regions": [{"s_fraction": r["s_fraction"], "margin_mm": r["bound_mm"]} for r in bound["regions"]]}
+    margins = region_bounds_mm(bound, s.surrogate_coverage)
+    return RegionMarginBackend(backend, bound, s.surrogate_coverage), s.margin_mm, {
+        "source": f"model card {ERROR_BOUND_KEY} at coverage {s.surrogate_coverage:g}",
+        "regions": [{"s_fraction": r["s_fraction"], "margin_mm": m}
+                    for r, m in zip(bound["regions"], margins, strict=True)]}
 
 
 def _time_limit(scene: Scene, time_limit_s: float | None) -> float:
@@ -512,13 +515,14 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     """Plan a collision-free motion from the scene's start to its target, then validate it exactly.
 
     With an approximate backend (the PINN) the capsules get extra radius while planning: its
-    calibrated error bound by arc-length region, or the scene's ``surrogate_margin_mm`` (see
-    `planning_backend`). Every path is re-validated with the exact model at the planner's resolution; a path
-    that fails there is repaired (colliding stretches re-planned with the exact model) or reported
-    as not solved. ``solved`` is True only if the exact model confirms a collision-free path that
-    ends with the tip in the target. Kernels are compiled before the clock starts; a plan that takes
-    longer than ``time_limit_s`` says so. Bad input (an unknown planner, a start in collision)
-    raises `InputError` naming the parameter.
+    calibrated error bound by arc-length region at the scene's ``surrogate_coverage``, or the
+    scene's ``surrogate_margin_mm`` (see `planning_backend`). Every path is re-validated with the
+    exact model at the planner's resolution (refined where the backbone moves more than a capsule
+    radius); a path that fails there is repaired (colliding stretches re-planned with the exact
+    model) or reported as not solved. ``solved`` is True only if the exact model confirms a
+    collision-free path that ends with the tip in the target. Kernels are compiled before the clock
+    starts; a plan that takes longer than ``time_limit_s`` says so. Bad input (an unknown planner,
+    a start in collision) raises `InputError` naming the parameter.
     """
     s = scene.settings
     planner = planner or s.planner

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ctrplan.errors import InputError
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.cosserat import CosseratBackend
@@ -25,6 +26,8 @@ CALIBRATION_SEED = 555_012_907
 ERROR_BOUND_KEY = "backbone_error_bound"
 #: Arc-length regions (fractions of l1) with a bound each.
 REGIONS = ((0.0, 0.25), (0.25, 0.5), (0.5, 0.75), (0.75, 1.0))
+#: Coverages (probability that a configuration's error in a region is within its bound) calibrated.
+COVERAGES = (0.5, 0.8, 0.9, 0.95, 0.99)
 
 
 def _tail(x: np.ndarray) -> dict:
@@ -81,11 +84,11 @@ def compare(model: Backend, robot: Robot, n: int = 100, points: int = 100,
     return Comparison(predicted=model.forward(q, points), exact=exact)
 
 
-def error_bound(cmp: Comparison, coverage: float = 0.99, seed: int | None = None) -> dict:
-    """Split-conformal bound (mm) of the backbone position error in each arc-length region of
-    `REGIONS`: per configuration the score is the largest distance between predicted and exact
-    backbone points in the region; the bound is `conformal_quantile` of the scores. JSON-ready, for
-    the model card under `ERROR_BOUND_KEY`."""
+def error_bound(cmp: Comparison, coverages: tuple[float, ...] = COVERAGES, seed: int | None = None) -> dict:
+    """Split-conformal bounds (mm) of the backbone position error in each arc-length region of
+    `REGIONS`, one per coverage: per configuration the score is the largest distance between
+    predicted and exact backbone points in the region; the bound is `conformal_quantile` of the
+    scores. JSON-ready, for the model card under `ERROR_BOUND_KEY`."""
     d = np.linalg.norm(cmp.predicted.positions_mm - cmp.exact.positions_mm, axis=-1)  # (B, N)
     frac = cmp.exact.s_mm / cmp.exact.s_mm[:, -1:]
     ok = cmp.exact.converged & np.isfinite(d).all(axis=1)
@@ -93,24 +96,34 @@ def error_bound(cmp: Comparison, coverage: float = 0.99, seed: int | None = None
     for lo, hi in REGIONS:
         inside = (frac >= lo) & ((frac < hi) | (hi == REGIONS[-1][1]))
         scores = np.where(inside, d, 0.0).max(axis=1)[ok]
-        regions.append({"s_fraction": [lo, hi], "bound_mm": conformal_quantile(scores, coverage),
-                        "max_mm": float(scores.max())})
+        regions.append({"s_fraction": [lo, hi], "max_mm": float(scores.max()),
+                        "bound_mm": [conformal_quantile(scores, c) for c in coverages]})
     return {"method": "split-conformal quantile of the largest backbone position error per region",
-            "truth": "cosserat", "coverage": coverage, "configurations": int(ok.sum()),
-            "points": int(d.shape[1]), "seed": seed, "regions": regions,
-            "bound_mm": max(r["bound_mm"] for r in regions)}
+            "truth": "cosserat", "configurations": int(ok.sum()), "points": int(d.shape[1]), "seed": seed,
+            "coverages": list(coverages), "regions": regions}
 
 
-def region_margins_mm(bound: dict, s_fraction: np.ndarray) -> np.ndarray:
-    """The bound (mm) of the region each arc fraction (any shape) falls in."""
+def region_bounds_mm(bound: dict, coverage: float) -> list[float]:
+    """The bound (mm) of every region at ``coverage``; `InputError` naming ``surrogate_coverage``
+    if the card has no bound at that coverage."""
+    covs = bound["coverages"]
+    hits = [i for i, c in enumerate(covs) if math.isclose(c, coverage)]
+    if not hits:
+        raise InputError(f"surrogate_coverage: the model card has error bounds at coverages "
+                         f"{', '.join(f'{c:g}' for c in covs)} only, not {coverage:g}")
+    return [r["bound_mm"][hits[0]] for r in bound["regions"]]
+
+
+def region_margins_mm(bound: dict, coverage: float, s_fraction: np.ndarray) -> np.ndarray:
+    """The bound (mm) at ``coverage`` of the region each arc fraction (any shape) falls in."""
     out = np.zeros(np.shape(s_fraction))
-    for r in bound["regions"]:
+    for r, b in zip(bound["regions"], region_bounds_mm(bound, coverage), strict=True):
         lo, hi = r["s_fraction"]
-        out = np.where((s_fraction >= lo) & (s_fraction <= hi), np.maximum(out, r["bound_mm"]), out)
+        out = np.where((s_fraction >= lo) & (s_fraction <= hi), np.maximum(out, b), out)
     return out
 
 
-def calibrate(model: Backend, robot: Robot, n: int = 5000, coverage: float = 0.99,
-              points: int = 64, seed: int = CALIBRATION_SEED) -> dict:
+def calibrate(model: Backend, robot: Robot, n: int = 5000, points: int = 64,
+              seed: int = CALIBRATION_SEED) -> dict:
     """`error_bound` of ``model`` against the exact solver on ``n`` configurations of ``seed``."""
-    return error_bound(compare(model, robot, n=n, points=points, seed=seed), coverage, seed)
+    return error_bound(compare(model, robot, n=n, points=points, seed=seed), COVERAGES, seed)
