@@ -249,8 +249,11 @@ def _failure_message(problem: PlanningProblem, limit_s: float, to_configuration:
     if to_configuration:
         return f"no path to the given configuration within {limit_s:g} s"
     if not sampler.goals:
-        return (f"no collision-free goal configuration found ({sampler.stats.ik_reached} IK solutions "
-                f"reached the target, all in collision)")
+        st = sampler.stats
+        turned = f", {st.wrong_direction} of them not along the approach direction" \
+            if st.wrong_direction else ""
+        return (f"no collision-free goal configuration found ({st.ik_reached} IK solutions reached "
+                f"the target{turned}, the rest in collision)")
     return f"no path found within {limit_s:g} s ({len(sampler.goals)} goal configurations)"
 
 
