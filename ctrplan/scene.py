@@ -35,7 +35,7 @@ file, the key and the line (`ctrplan.yamlio`). Layout::
       margin_mm: 0.2                      # added to the capsule radii (planning and validation)
       surrogate_margin_mm: null           # extra while planning with the PINN (null: the model
                                           #   card's calibrated error bound by arc-length region
-      surrogate_coverage: 0.9             #   at this coverage: 0.5 | 0.8 | 0.9 | 0.95 | 0.99)
+      surrogate_coverage: 0.8             #   at this coverage: 0.5 | 0.8 | 0.9 | 0.95 | 0.99)
       points: 40                          # backbone points (capsules + 1)
       resolution_mm: 1.0                  # edge checking step in the planning metric
       mm_per_rad: 40.0                    # metric weight of rotations
@@ -293,7 +293,7 @@ class PlannerSettings:
     seed: int | None = None
     margin_mm: float = 0.2
     surrogate_margin_mm: float | None = None
-    surrogate_coverage: float = 0.9
+    surrogate_coverage: float = 0.8
     points: int = 40
     resolution_mm: float = 1.0
     mm_per_rad: float = 40.0

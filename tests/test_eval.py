@@ -82,7 +82,7 @@ def test_shipped_model_card_has_a_calibrated_bound_that_the_planner_uses(pinn):
     scene = load_scene(SCENES / "open.yaml")
     be, margin, source = planning_backend(scene, pinn)
     assert isinstance(be, RegionMarginBackend) and margin == scene.settings.margin_mm
-    assert source["source"] == f"model card {ERROR_BOUND_KEY} at coverage 0.9"
+    assert source["source"] == f"model card {ERROR_BOUND_KEY} at coverage 0.8"
     expected = region_bounds_mm(bound, scene.settings.surrogate_coverage)
     q = scene.start
     plain, inflated = pinn.forward(q, 30), be.forward(q, 30)
