@@ -22,6 +22,8 @@ file, the key and the line (`ctrplan.yamlio`). Layout::
       point: [x, y, z]                    # with
       tolerance_mm: 2.0
       # or: ellipsoid: {center: [...], semi_axes_mm: [a, b, c], rotation: {...}}
+      direction: [dx, dy, dz]             # optional approach: the tip's tangent (scene frame) ...
+      angle_tolerance_deg: 20             # ... within this angle of direction (give both)
     start: [beta1, beta2, beta3, alpha1, alpha2, alpha3]    # mm, rad; inside the snap-free domain
     joint_limits:                         # optional: narrow the planning box (box coordinates)
       alpha1_deg: [-60, 60]               # keys: beta3_mm, beta3_minus_beta2_mm, beta2_minus_beta1_mm,
@@ -31,7 +33,9 @@ file, the key and the line (`ctrplan.yamlio`). Layout::
       time_limit_s: 10
       seed: null
       margin_mm: 0.2                      # added to the capsule radii (planning and validation)
-      surrogate_margin_mm: 0.3            # extra, while planning with the PINN
+      surrogate_margin_mm: null           # extra while planning with the PINN (null: the model
+                                          #   card's calibrated error bound by arc-length region
+      surrogate_coverage: 0.8             #   at this coverage: 0.5 | 0.8 | 0.9 | 0.95 | 0.99)
       points: 40                          # backbone points (capsules + 1)
       resolution_mm: 1.0                  # edge checking step in the planning metric
       mm_per_rad: 40.0                    # metric weight of rotations
@@ -60,7 +64,6 @@ from ctrplan.errors import InputError
 from ctrplan.robot import Robot
 from ctrplan.yamlio import YamlDoc, load_yaml
 
-PLANNERS = ("rrtconnect", "rrt", "rrtstar", "bitstar", "kpiece")
 PRIMITIVES = ("sphere", "box", "cylinder", "capsule")
 MESH_SUFFIXES = (".stl", ".obj", ".ply")
 
@@ -159,12 +162,29 @@ class Obstacle:
 
 @dataclass(frozen=True)
 class TargetRegion:
-    """Where the tip must end: an ellipsoid (a sphere when all semi-axes are equal), scene frame."""
+    """Where the tip must end: an ellipsoid (a sphere when all semi-axes are equal), scene frame;
+    optionally with an approach ``direction`` (unit vector) that the tip's tangent must be within
+    ``angle_tolerance_rad`` of."""
 
     center: np.ndarray
     semi_axes: np.ndarray
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
     kind: str = "sphere"
+    direction: np.ndarray | None = None
+    angle_tolerance_rad: float = math.pi
+
+    def angle_rad(self, tangent: np.ndarray) -> np.ndarray:
+        """Angle (rad) between tip tangents (..., 3) (scene frame) and the approach direction
+        (0 without one; pi for non-finite tangents)."""
+        t = np.asarray(tangent, dtype=float)
+        if self.direction is None:
+            return np.zeros(t.shape[:-1])
+        c = (t @ self.direction) / np.maximum(np.linalg.norm(t, axis=-1), 1e-300)
+        return np.where(np.isfinite(c), np.arccos(np.clip(c, -1.0, 1.0)), math.pi)
+
+    def direction_ok(self, tangent: np.ndarray) -> np.ndarray:
+        """Whether tip tangents (..., 3) (scene frame) respect the approach direction."""
+        return self.angle_rad(tangent) <= self.angle_tolerance_rad + 1e-12
 
     @classmethod
     def sphere(cls, center, radius: float) -> TargetRegion:
@@ -201,8 +221,47 @@ class TargetRegion:
         return (u * r * self.semi_axes) @ self.rotation.T + self.center
 
     def to_dict(self) -> dict[str, Any]:
-        return {"kind": self.kind, "center_mm": self.center.tolist(),
-                "semi_axes_mm": self.semi_axes.tolist(), "rotation": self.rotation.tolist()}
+        d = {"kind": self.kind, "center_mm": self.center.tolist(),
+             "semi_axes_mm": self.semi_axes.tolist(), "rotation": self.rotation.tolist()}
+        if self.direction is not None:
+            d["direction"] = self.direction.tolist()
+            d["angle_tolerance_deg"] = math.degrees(self.angle_tolerance_rad)
+        return d
+
+
+@dataclass(frozen=True)
+class PlannerSpec:
+    """One OMPL geometric planner (the class ``ompl.geometric.<ompl_name>``) and how ctrplan runs it.
+
+    Attributes:
+        ompl_name: OMPL's class name (also used in logs and benchmark databases).
+        optimizing: asymptotically optimal: gets a path-length objective and uses its whole budget.
+        fixed_goal_set: drains every goal sample whenever it (re)starts a batch (BIT*): give it a
+            fixed set of goal configurations before the search.
+    """
+
+    ompl_name: str
+    optimizing: bool = False
+    fixed_goal_set: bool = False
+
+
+#: The one table of planners by ctrplan name (as OMPL's demos keep theirs).
+PLANNERS: dict[str, PlannerSpec] = {
+    "rrtconnect": PlannerSpec("RRTConnect"),
+    "rrt": PlannerSpec("RRT"),
+    "rrtstar": PlannerSpec("RRTstar", optimizing=True),
+    "bitstar": PlannerSpec("BITstar", optimizing=True, fixed_goal_set=True),
+    "kpiece": PlannerSpec("KPIECE1"),
+}
+
+
+def planner_spec(name: str) -> PlannerSpec:
+    """The `PlannerSpec` of a planner name; `InputError` naming the ``planner`` parameter otherwise."""
+    try:
+        return PLANNERS[name]
+    except (KeyError, TypeError):
+        raise InputError(f"planner: unknown planner {name!r} (choose from {', '.join(PLANNERS)})") \
+            from None
 
 
 @dataclass(frozen=True)
@@ -214,9 +273,11 @@ class PlannerSettings:
         time_limit_s: wall-clock budget for goal sampling plus search.
         seed: OMPL and numpy seed (None: random).
         margin_mm: added to every capsule radius in planning and validation.
-        surrogate_margin_mm: extra margin while planning with an approximate backend (pinn,
-            hybrid) so that its error rarely makes the exact robot touch; validation uses
-            ``margin_mm`` alone.
+        surrogate_margin_mm: extra margin everywhere while planning with an approximate backend
+            (the PINN) so that its error rarely makes the exact robot touch; None: the model card's
+            calibrated error bound by arc-length region. Validation uses ``margin_mm`` alone.
+        surrogate_coverage: which of the model card's calibrated bounds to plan with: the
+            probability that a configuration's error in a region is within its bound.
         points: backbone points (capsules + 1) per configuration.
         resolution_mm: edge checking resolution in the planning metric (mm; radians weighted by
             ``mm_per_rad``).
@@ -231,7 +292,8 @@ class PlannerSettings:
     time_limit_s: float = 10.0
     seed: int | None = None
     margin_mm: float = 0.2
-    surrogate_margin_mm: float = 0.3
+    surrogate_margin_mm: float | None = None
+    surrogate_coverage: float = 0.8
     points: int = 40
     resolution_mm: float = 1.0
     mm_per_rad: float = 40.0
@@ -489,7 +551,22 @@ def _obstacle(doc: YamlDoc, keys: tuple, raw: Any, index: int) -> Obstacle:
 
 def _target(doc: YamlDoc, raw: Any) -> TargetRegion:
     keys = ("target",)
-    spec = _mapping(doc, keys, raw, {"point", "tolerance_mm", "ellipsoid"})
+    spec = _mapping(doc, keys, raw, {"point", "tolerance_mm", "ellipsoid", "direction",
+                                     "angle_tolerance_deg"})
+    region = _target_region(doc, keys, {k: v for k, v in spec.items()
+                                        if k not in ("direction", "angle_tolerance_deg")})
+    if ("direction" in spec) != ("angle_tolerance_deg" in spec):
+        raise doc.error(keys, "give direction and angle_tolerance_deg together")
+    if "direction" not in spec:
+        return region
+    tol = _num(doc, keys + ("angle_tolerance_deg",), spec["angle_tolerance_deg"], positive=True)
+    if tol >= 180:
+        raise doc.error(keys + ("angle_tolerance_deg",), f"must be < 180, got {tol:g}")
+    return replace(region, direction=_direction(doc, keys + ("direction",), spec["direction"]),
+                   angle_tolerance_rad=math.radians(tol))
+
+
+def _target_region(doc: YamlDoc, keys: tuple, spec: dict) -> TargetRegion:
     if "ellipsoid" in spec:
         if len(spec) != 1:
             raise doc.error(keys, "give either point + tolerance_mm or ellipsoid")
@@ -519,8 +596,10 @@ def _settings(doc: YamlDoc, raw: Any) -> PlannerSettings:
     for name, value in spec.items():
         k = keys + (name,)
         if name == "planner":
-            if value not in PLANNERS:
-                raise doc.error(k, f"unknown planner {value!r} (choose from {', '.join(PLANNERS)})")
+            try:
+                planner_spec(value)
+            except InputError as exc:
+                raise doc.error(k, str(exc).removeprefix("planner: ")) from None
             kw[name] = value
         elif name in ("simplify", "repair"):
             if not isinstance(value, bool):
@@ -538,8 +617,14 @@ def _settings(doc: YamlDoc, raw: Any) -> PlannerSettings:
             kw[name] = int(value)
         elif name == "range_mm":
             kw[name] = None if value is None else _num(doc, k, value, positive=True)
-        elif name in ("margin_mm", "surrogate_margin_mm"):
+        elif name == "surrogate_margin_mm":
+            kw[name] = None if value is None else _num(doc, k, value, nonneg=True)
+        elif name == "margin_mm":
             kw[name] = _num(doc, k, value, nonneg=True)
+        elif name == "surrogate_coverage":
+            kw[name] = _num(doc, k, value, positive=True)
+            if kw[name] >= 1:
+                raise doc.error(k, f"must be below 1, got {value!r}")
         else:
             kw[name] = _num(doc, k, value, positive=True)
     return PlannerSettings(**kw)

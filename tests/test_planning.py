@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -13,21 +14,23 @@ import trimesh
 
 from ctrplan.cli import main
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.kinematics.base import DEFAULT_POINTS, Backend
 from ctrplan.planning import (
-    PLANNER_CLASSES,
     BoxSpace,
     ConfigurationChecker,
     GoalSampler,
     build_problem,
     make_planner,
     plan,
+    resolve_backend,
     solve_ik,
     validate_path,
 )
 from ctrplan.planning.ik import fd_tip_jacobian
+from ctrplan.planning.planner import OVERRUN_TOLERANCE_S
 from ctrplan.planning.validity import bisection_order
 from ctrplan.robot import Robot
-from ctrplan.scene import load_scene
+from ctrplan.scene import PLANNERS, load_scene
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
@@ -152,7 +155,7 @@ def test_python_api_with_any_ompl_planner(open_scene, exact):
     assert open_scene.target.contains(problem.checker.tip(path[-1]))
     dense = problem.box.densify(path, open_scene.settings.resolution_mm)
     assert problem.checker.check(dense).all()
-    for name in PLANNER_CLASSES:
+    for name in PLANNERS:
         assert make_planner(name, problem.si) is not None
 
 
@@ -228,8 +231,10 @@ def test_cli_missing_mesh_and_malformed_scene(mini_dir, capsys):
     (mini_dir / "t.yaml").write_text(MINI.replace("radius: 3}}", "radius: [3]}}"))
     rc, out, err = run_cli(["plan", str(mini_dir / "t.yaml")], capsys)
     assert rc == 2 and re.search(r"t\.yaml:4: obstacles\[0\]\.sphere\.radius: expected a finite number", err)
-    rc, out, err = run_cli(["plan", str(mini_dir / "t.yaml"), "--planner", "prm"], capsys)
-    assert rc == 2 and "--planner" in err
+    (mini_dir / "s.yaml").write_text(MINI)
+    rc, out, err = run_cli(["plan", str(mini_dir / "s.yaml"), "--planner", "prm"], capsys)
+    assert rc == 2 and out == "" and err.count("\n") == 1
+    assert "planner: unknown planner 'prm' (choose from rrtconnect, rrt, rrtstar" in err
 
 
 def test_cli_unreachable_target(mini_dir, capsys):
@@ -245,3 +250,40 @@ def test_cli_unreachable_target(mini_dir, capsys):
     assert rc == 1, out
     doc = json.loads(out)
     assert doc["solved"] is False and doc["path"] == [] and "unreachable" in doc["message"]
+
+
+# ---- the clock --------------------------------------------------------------------------------------
+class SlowFirstCall(Backend):
+    """The PINN, but its first single and first batched call take 2 s more each -- like cold numba
+    compiles of its single-query and batched kernels."""
+
+    name = "pinn-cold"
+
+    def __init__(self, inner: Backend):
+        super().__init__(inner.robot)
+        self.inner = inner
+        self.compiled: set[bool] = set()
+
+    def forward(self, q, points=DEFAULT_POINTS, *, check=True):
+        batched = np.atleast_2d(q).shape[0] > 1
+        if batched not in self.compiled:
+            self.compiled.add(batched)
+            time.sleep(2.0)
+        return self.inner.forward(q, points, check=check)
+
+
+def test_compilation_is_outside_the_time_limit(open_scene):
+    cold = SlowFirstCall(resolve_backend("pinn", open_scene.robot))
+    res = plan(open_scene, cold, seed=0, time_limit_s=1.5)
+    assert res.solved, res.message
+    assert res.details["compile_s"] >= 4.0
+    assert res.planning_time_s <= 1.5 + OVERRUN_TOLERANCE_S
+
+
+def test_a_tiny_time_limit_is_honoured_or_the_overrun_reported(open_scene, exact):
+    res = plan(open_scene, exact, seed=0, time_limit_s=0.001)
+    assert not res.solved and res.status == "TIMEOUT"
+    assert "time limit of 0.001 s reached" in res.message
+    over = res.details["time_limit_overrun_s"]
+    assert over == pytest.approx(res.planning_time_s - 0.001)
+    assert over <= OVERRUN_TOLERANCE_S or "over the time limit" in res.message

@@ -199,8 +199,10 @@ def eval_model(
     console.print(f"  backbone error / arc length: mean {e['mean']:.3f} %, p95 {e['p95']:.3f} %, "
                   f"max {e['max']:.3f} %")
     for tube, v in tip.items():
-        console.print(f"  {tube} tip error: mean {v['mean']:.3f} mm, max {v['max']:.3f} mm")
+        console.print(f"  {tube} tip error: mean {v['mean']:.3f} mm, p99 {v['p99']:.3f} mm, "
+                      f"p99.9 {v['p99_9']:.3f} mm, max {v['max']:.3f} mm")
+    o = metrics["orientation_error_deg"]
     console.print(f"  u_z RMSE {metrics['u_z_rmse_1_per_m']:.3f} 1/m, theta RMSE "
-                  f"{metrics['theta_rmse_rad']:.4f} rad, orientation error mean "
-                  f"{metrics['orientation_error_deg']['mean']:.2f} deg")
+                  f"{metrics['theta_rmse_rad']:.4f} rad, orientation error mean {o['mean']:.2f} deg, "
+                  f"p99 {o['p99']:.2f} deg, max {o['max']:.2f} deg")
     console.print(f"  figures in {out}/")

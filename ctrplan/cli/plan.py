@@ -91,8 +91,6 @@ def plan_command(
     """
     from rich.console import Console
 
-    if planner is not None and planner not in PLANNERS:
-        raise InputError(f"--planner: unknown planner {planner!r} (choose from {', '.join(PLANNERS)})")
     if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
         raise InputError(f"--time-limit: must be a positive number of seconds, got {time_limit}")
     if seed is not None and seed < 0:
@@ -106,11 +104,12 @@ def plan_command(
 
     ou.setLogLevel(ou.LOG_WARN)
     sc = load_scene(scene)
-    be = load_backend(backend, sc.robot, model)
     console = Console(stderr=json_out, highlight=False)
     err = Console(stderr=True, highlight=False)
 
     with _Progress(err) as progress, ompl_messages_to_logging():
+        progress.update("compile")  # loading a backend compiles (or loads) its kernels
+        be = load_backend(backend, sc.robot, model)
         result = plan(sc, be, planner=planner, time_limit_s=time_limit, seed=seed,
                       progress=progress.update)
     doc = result.to_json()
@@ -149,7 +148,8 @@ class _Progress:
     def update(self, stage: str, **info) -> None:
         if self.status is None:
             return
-        text = {"goal": "sampling goal configurations (IK)", "search": "searching",
+        text = {"compile": "compiling kernels (first run only)",
+                "goal": "sampling goal configurations (IK)", "search": "searching",
                 "simplify": "simplifying the path", "validate": "validating with the exact model",
                 "repair": "repairing with the exact model"}.get(stage, stage)
         if "elapsed" in info and "limit" in info:

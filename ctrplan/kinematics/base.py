@@ -82,6 +82,13 @@ class Backend(ABC):
         """Settings that shape this backend's backbones (JSON-ready), reported next to its timings."""
         return {}
 
+    @property
+    def error_bound(self) -> dict | None:
+        """A surrogate's calibrated backbone position error bound (mm, by arc-length region and
+        coverage; see `ctrplan.training.evaluate.error_bound`); None for exact backends and for
+        surrogates without one."""
+        return None
+
     def tips(self, q: np.ndarray, *, check: bool = True) -> np.ndarray:
         """Tube tip positions (B, N, 3), mm."""
         return self.forward(q, points=2, check=check).tips_mm

@@ -108,6 +108,14 @@ def read_card(weights: Path) -> dict[str, Any]:
     return card
 
 
+def write_card_field(weights: Path, key: str, value: Any) -> None:
+    """Set one top-level field of a model's card (atomically); the weights and their hash stay."""
+    card = read_card(weights)
+    card[key] = value
+    with atomic_write(weights.with_suffix(".json")) as fh:
+        fh.write(json.dumps(card, indent=2, default=_jsonable))
+
+
 def load_model(model: str | Path | None, robot: Robot) -> tuple[PinnNet, dict[str, Any]]:
     """Load and verify a model for ``robot``; `InputError` naming the file on any mismatch."""
     weights = resolve_model(model)

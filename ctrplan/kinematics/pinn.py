@@ -37,6 +37,8 @@ FEATURES = {"paper": 7, "equivariant": 8}
 #: Network nodes per backbone (`PinnBackend`). Measured on the shipped model (1000 configurations, 64
 #: points): interpolated backbones lie within 0.06 mm of the network evaluated at every point, and the
 #: error against the exact model is unchanged (mean 0.1143 % vs 0.1142 % of arc length).
+#: Model-card key of the calibrated backbone position error bound (`PinnBackend.error_bound`).
+ERROR_BOUND_KEY = "backbone_error_bound"
 DEFAULT_NODES = 25
 #: Network rows (configurations x nodes) per block of batched inference: activations stay in L2.
 CHUNK_ROWS = 512
@@ -180,6 +182,10 @@ class PinnBackend(Backend):
 
     def describe(self) -> dict:
         return {"weights": self.card.get("weights_file"), "nodes": self.nodes}
+
+    @property
+    def error_bound(self) -> dict | None:
+        return self.card.get(ERROR_BOUND_KEY)
 
     @contextmanager
     def _one_blas_thread(self) -> Iterator[None]:

@@ -21,10 +21,10 @@ from ctrplan.planning.goal import GoalSampler, TipGoal
 from ctrplan.planning.ik import IKResult, backend_tip_jacobian, fd_tip_jacobian, solve_ik
 from ctrplan.planning.planner import (
     OMPL_NAMES,
-    PLANNER_CLASSES,
     PlanningProblem,
     PlanResult,
     build_problem,
+    compile_kernels,
     make_planner,
     plan,
     resolve_backend,
@@ -41,9 +41,9 @@ from ctrplan.planning.validity import (
 )
 
 __all__ = [
-    "OMPL_NAMES", "PLANNER_CLASSES", "BatchMotionValidator", "BoxSpace", "ConfigurationChecker",
+    "OMPL_NAMES", "BatchMotionValidator", "BoxSpace", "ConfigurationChecker",
     "Counters", "GoalSampler", "IKResult", "PlanResult", "PlanningProblem", "TipGoal", "Validation",
-    "ValidatedPath", "ValidityChecker", "backend_tip_jacobian", "build_problem",
+    "ValidatedPath", "ValidityChecker", "backend_tip_jacobian", "build_problem", "compile_kernels",
     "fd_tip_jacobian", "make_planner", "plan", "repair_path", "resolve_backend", "search", "seed_ompl",
     "solve_ik", "validate_path",
 ]

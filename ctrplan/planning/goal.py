@@ -4,8 +4,9 @@
 configurations, keeps those whose tip lies nearest the target, moves them into the region with
 damped-least-squares IK (`ctrplan.planning.ik`, one batched Jacobian call per iteration) and keeps the
 valid ones; later batches also start from perturbed copies of goals already found, which matters when
-the valid goal set is thin. `TipGoal` exposes it to OMPL as a ``GoalSampleableRegion`` so
-bidirectional planners (RRTConnect) and goal-biased ones work.
+the valid goal set is thin. A target with an approach direction keeps only goals whose tip tangent is
+within its angular tolerance, and prefers seeds that point that way. `TipGoal` exposes it to OMPL as
+a ``GoalSampleableRegion`` so bidirectional planners (RRTConnect) and goal-biased ones work.
 """
 
 from __future__ import annotations
@@ -16,9 +17,18 @@ from dataclasses import dataclass
 import numpy as np
 from ompl import base as ob
 
+from ctrplan.kinematics.backbone import Backbone, quaternion_to_matrix
 from ctrplan.planning.ik import TipJacobian, backend_tip_jacobian, solve_ik
 from ctrplan.planning.validity import ConfigurationChecker
-from ctrplan.scene import TargetRegion
+from ctrplan.scene import Scene, TargetRegion
+
+#: Seed ranking: mm of tip distance that one radian of approach-angle excess counts as.
+ANGLE_WEIGHT_MM_PER_RAD = 20.0
+
+
+def tip_tangents(scene: Scene, bb: Backbone) -> np.ndarray:
+    """Unit tangent of the backbone at the tip (B, 3), scene frame."""
+    return quaternion_to_matrix(bb.quaternions[:, -1])[:, :, 2] @ scene.base_pose[:3, :3].T
 
 
 @dataclass
@@ -26,6 +36,7 @@ class GoalStats:
     batches: int = 0
     seeds: int = 0
     ik_reached: int = 0
+    wrong_direction: int = 0
     valid: int = 0
     closest_mm: float = float("inf")
 
@@ -68,8 +79,19 @@ class GoalSampler:
         bb = self.checker.forward(q, points=2)
         tips = self.checker.scene.to_scene(bb.tip_mm)
         d = self.region.distance(tips)
+        if self.region.direction is not None:
+            angle = self.region.angle_rad(tip_tangents(self.checker.scene, bb))
+            excess = angle - self.region.angle_tolerance_rad
+            d = d + ANGLE_WEIGHT_MM_PER_RAD * np.maximum(excess, 0.0)
         d = np.where(bb.converged & np.isfinite(d), d, np.inf)
         return q[np.argsort(d)[:n]]
+
+    def directions_ok(self, q: np.ndarray) -> np.ndarray:
+        """Whether the tips of configurations (B, 6) respect the target's approach direction."""
+        if self.region.direction is None or len(q) == 0:
+            return np.ones(len(q), dtype=bool)
+        bb = self.checker.forward(q, points=2)
+        return self.region.direction_ok(tip_tangents(self.checker.scene, bb)) & bb.converged
 
     def _frontier(self, m: int) -> np.ndarray:
         """Valid states met so far (e.g. by the planner's trees) whose tips are nearest the target,
@@ -142,6 +164,9 @@ class GoalSampler:
         self.stats.closest_mm = float(min(self.stats.closest_mm, dist.min(initial=np.inf)))
         inside = np.flatnonzero(dist <= 0.0)
         self.stats.ik_reached += inside.size
+        aligned = self.directions_ok(res.q[inside])
+        self.stats.wrong_direction += int((~aligned).sum())
+        inside = inside[aligned]
         new = []
         if inside.size:
             valid = self.checker.check(res.q[inside])
@@ -192,8 +217,10 @@ class TipGoal(ob.GoalSampleableRegion):
         return not self.sampler.goals or now - self._last_refill >= self.refill_interval_s
 
     def distanceGoal(self, state) -> float:  # noqa: N802 - OMPL API
-        tip = self.checker.tip(self.space.state_to_q(state))
-        d = float(self.sampler.region.distance(tip))
+        q = self.space.state_to_q(state)
+        d = float(self.sampler.region.distance(self.checker.tip(q)))
+        if d == 0.0 and not self.sampler.directions_ok(q[None])[0]:
+            return 1.0  # tip inside, approach direction wrong: not satisfied
         return d if np.isfinite(d) else 1e9
 
     def sampleGoal(self, state) -> None:  # noqa: N802 - OMPL API

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -21,24 +21,23 @@ from ompl import util as ou
 
 from ctrplan.errors import InputError
 from ctrplan.kinematics import make_backend
-from ctrplan.kinematics.base import Backend
+from ctrplan.kinematics.backbone import Backbone
+from ctrplan.kinematics.base import DEFAULT_POINTS, Backend
 from ctrplan.kinematics.cosserat import CosseratBackend
+from ctrplan.kinematics.pinn import ERROR_BOUND_KEY
 from ctrplan.planning.goal import GoalSampler, TipGoal
 from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate_path
 from ctrplan.planning.validity import BatchMotionValidator, ConfigurationChecker, ValidityChecker
-from ctrplan.scene import PLANNERS, Scene
+from ctrplan.scene import PLANNERS, Scene, planner_spec
+from ctrplan.training.evaluate import region_bounds_mm, region_margins_mm
 
-PLANNER_CLASSES = {
-    "rrtconnect": og.RRTConnect,
-    "rrt": og.RRT,
-    "rrtstar": og.RRTstar,
-    "bitstar": og.BITstar,
-    "kpiece": og.KPIECE1,
-}
-#: Names OMPL uses for the planners (for logs and benchmark databases).
-OMPL_NAMES = {"rrtconnect": "RRTConnect", "rrt": "RRT", "rrtstar": "RRTstar", "bitstar": "BITstar",
-              "kpiece": "KPIECE1"}
-OPTIMIZING = {"rrtstar", "bitstar"}
+#: Names OMPL uses for the planners (for logs and benchmark databases), from the one table `PLANNERS`.
+OMPL_NAMES = {name: spec.ompl_name for name, spec in PLANNERS.items()}
+#: Search time above the limit (s) that is reported as an overrun (OMPL checks its clock between
+#: iterations; an inverse-kinematics batch cannot be interrupted).
+OVERRUN_TOLERANCE_S = 0.05
+#: Surrogate margin (mm) for a model whose card has no calibrated error bound.
+DEFAULT_SURROGATE_MARGIN_MM = 0.3
 
 Progress = Callable[..., None]
 
@@ -56,13 +55,8 @@ def resolve_backend(name: str | Backend | None, robot) -> Backend:
 
 
 def make_planner(name: str, si) -> Any:
-    """An OMPL geometric planner by ctrplan name (`PLANNERS`)."""
-    try:
-        cls = PLANNER_CLASSES[name]
-    except KeyError:
-        raise InputError(f"--planner: unknown planner {name!r} (choose from {', '.join(PLANNERS)})") \
-            from None
-    return cls(si)
+    """An OMPL geometric planner by ctrplan name (see `ctrplan.scene.PLANNERS`)."""
+    return getattr(og, planner_spec(name).ompl_name)(si)
 
 
 def seed_ompl(seed: int | None) -> None:
@@ -165,102 +159,152 @@ def _path_q(problem: PlanningProblem, path) -> np.ndarray:
     return np.stack([problem.box.state_to_q(path.getState(i)) for i in range(path.getStateCount())])
 
 
-def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, planner: str | None = None,
-           time_limit_s: float | None = None, seed: int | None = None, progress: Progress = _quiet,
-           simplify: bool | None = None, checker: ConfigurationChecker | None = None,
-           goal_q: np.ndarray | None = None) -> tuple[SearchOutcome, ConfigurationChecker]:
-    """One OMPL search from ``start`` (default: the scene's) to the target region (or to the
-    configuration ``goal_q``) with ``backend``."""
-    s = scene.settings
-    planner = planner or s.planner
-    time_limit_s = float(time_limit_s if time_limit_s is not None else s.time_limit_s)
-    simplify = s.simplify if simplify is None else simplify
-    t0 = time.perf_counter()
-    seed_ompl(seed)
-    rng = np.random.default_rng(seed)
-    problem = build_problem(scene, backend, start=start, rng=rng, checker=checker, goal_q=goal_q)
-    checker = problem.checker
+class _Clock:
+    """The search's wall-clock budget: started at construction, ``limit_s`` long."""
+
+    def __init__(self, limit_s: float):
+        self.limit_s = float(limit_s)
+        self.t0 = time.perf_counter()
+        self.deadline = self.t0 + self.limit_s
+
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.t0
+
+    def remaining(self) -> float:
+        return self.deadline - time.perf_counter()
+
+
+def _progress_hook(problem: PlanningProblem, clock: _Clock, progress: Progress) -> Callable[[], None]:
+    """A checker hook that reports the search's progress at most every 0.1 s."""
     last = [0.0]
+    counters = problem.checker.counters
 
     def hook() -> None:
         now = time.perf_counter()
         if now - last[0] > 0.1:
             last[0] = now
-            progress("search", elapsed=now - t0, limit=time_limit_s,
-                     kinematics_calls=checker.counters.kinematics_calls,
-                     goals=len(problem.sampler.goals))
+            progress("search", elapsed=now - clock.t0, limit=clock.limit_s,
+                     kinematics_calls=counters.kinematics_calls, goals=len(problem.sampler.goals))
 
-    checker.hook = hook
-    if isinstance(problem.goal, TipGoal):
-        problem.goal.deadline = t0 + time_limit_s
+    return hook
 
-    def remaining() -> float:
-        return time_limit_s - (time.perf_counter() - t0)
 
-    # Goal configurations first: they tell early whether the target is reachable at all.
-    sampler = problem.sampler
-    progress("goal", elapsed=0.0, limit=time_limit_s)
-    for _ in range(6 if goal_q is None else 0):
-        if sampler.goals or remaining() <= 0:
+def _sample_goals(sampler: GoalSampler, clock: _Clock) -> None:
+    """Goal configurations first: they tell early whether the target is reachable at all."""
+    for _ in range(6):
+        if sampler.goals or clock.remaining() <= 0:
             break
         sampler.sample_batch()
         if sampler.stats.batches >= 2 and sampler.stats.ik_reached == 0 and not sampler.goals:
             break
-    gstats = sampler.stats
-    if goal_q is None and not sampler.goals and gstats.ik_reached == 0:
-        msg = (f"target unreachable: inverse kinematics got the tip no closer than "
-               f"{gstats.closest_mm:.1f} mm to the target region after {gstats.seeds} seeds")
-        checker.hook = None
-        return SearchOutcome(None, "INVALID_GOAL", False, time.perf_counter() - t0, vars(gstats).copy(),
-                             msg), checker
 
-    if planner == "bitstar" and isinstance(problem.goal, TipGoal):
-        # BIT* drains every goal sample when it (re)starts a batch and restarts on new goals: give
-        # it a fixed set
-        while len(sampler.goals) < 8 and remaining() > 0.5 * time_limit_s and sampler.stats.batches < 12:
-            sampler.sample_batch()
-        problem.goal.max_batches = sampler.stats.batches
-    pl = make_planner(planner, problem.si)
-    if s.range_mm is not None and hasattr(pl, "setRange"):
-        pl.setRange(float(s.range_mm))
-    if planner in OPTIMIZING:
+
+def _fix_goal_set(problem: PlanningProblem, clock: _Clock) -> None:
+    """For planners that drain every goal sample when they (re)start a batch and restart on new
+    goals (BIT*): a fixed set of goal configurations, sampled now."""
+    sampler = problem.sampler
+    while len(sampler.goals) < 8 and clock.remaining() > 0.5 * clock.limit_s and sampler.stats.batches < 12:
+        sampler.sample_batch()
+    problem.goal.max_batches = sampler.stats.batches
+
+
+def _setup_planner(name: str, problem: PlanningProblem, range_mm: float | None) -> Any:
+    """The OMPL planner ``name`` on ``problem``: its range, and a path-length objective if it
+    optimises."""
+    pl = make_planner(name, problem.si)
+    if range_mm is not None and hasattr(pl, "setRange"):
+        pl.setRange(float(range_mm))
+    if PLANNERS[name].optimizing:
         problem.pdef.setOptimizationObjective(ob.PathLengthOptimizationObjective(problem.si))
     pl.setProblemDefinition(problem.pdef)
     pl.setup()
-    progress("search", elapsed=time.perf_counter() - t0, limit=time_limit_s,
-             kinematics_calls=checker.counters.kinematics_calls, goals=len(sampler.goals))
-    t_solve = time.perf_counter()
-    timings = {"goal_sampling_s": t_solve - t0}
-    status = pl.solve(max(remaining(), 1e-3))
-    timings["search_s"] = time.perf_counter() - t_solve
-    status_name = status.asString() if hasattr(status, "asString") else str(status)
-    exact = bool(problem.pdef.hasExactSolution())
-    path_q = None
-    msg = ""
-    if exact:
-        path = problem.pdef.getSolutionPath()
+    return pl
+
+
+def _simplified_path(problem: PlanningProblem, simplify: bool, timings: dict) -> np.ndarray:
+    """The solution as joints (K, 6), shortcut first if ``simplify``."""
+    path = problem.pdef.getSolutionPath()
+    if simplify:
+        simp = og.PathSimplifier(problem.si, problem.pdef.getGoal())
+        t_simp = time.perf_counter()
+        # shortcuts between random vertex pairs; full `simplify` (B-spline smoothing) costs
+        # seconds with an exact backend and adds many vertices
+        simp.reduceVertices(path)
+        simp.collapseCloseVertices(path)
+        timings["simplify_s"] = time.perf_counter() - t_simp
+    return _path_q(problem, path)
+
+
+def _failure_message(problem: PlanningProblem, limit_s: float, to_configuration: bool) -> str:
+    sampler = problem.sampler
+    if to_configuration:
+        return f"no path to the given configuration within {limit_s:g} s"
+    if not sampler.goals:
+        st = sampler.stats
+        turned = f", {st.wrong_direction} of them not along the approach direction" \
+            if st.wrong_direction else ""
+        return (f"no collision-free goal configuration found ({st.ik_reached} IK solutions reached "
+                f"the target{turned}, the rest in collision)")
+    return f"no path found within {limit_s:g} s ({len(sampler.goals)} goal configurations)"
+
+
+def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, planner: str | None = None,
+           time_limit_s: float | None = None, seed: int | None = None, progress: Progress = _quiet,
+           simplify: bool | None = None, checker: ConfigurationChecker | None = None,
+           goal_q: np.ndarray | None = None) -> tuple[SearchOutcome, ConfigurationChecker]:
+    """One OMPL search from ``start`` (default: the scene's) to the target region (or to the
+    configuration ``goal_q``) with ``backend``, within ``time_limit_s`` (goal sampling included).
+
+    Steps: build the problem, sample goal configurations, set up the planner, solve, simplify."""
+    s = scene.settings
+    planner = planner or s.planner
+    spec = planner_spec(planner)
+    simplify = s.simplify if simplify is None else simplify
+    clock = _Clock(time_limit_s if time_limit_s is not None else s.time_limit_s)
+    seed_ompl(seed)
+    problem = build_problem(scene, backend, start=start, rng=np.random.default_rng(seed), checker=checker,
+                            goal_q=goal_q)
+    checker = problem.checker
+    sampler = problem.sampler
+    checker.hook = _progress_hook(problem, clock, progress)
+    try:
+        region_goal = isinstance(problem.goal, TipGoal)
+        if region_goal:
+            problem.goal.deadline = clock.deadline
+            progress("goal", elapsed=0.0, limit=clock.limit_s)
+            _sample_goals(sampler, clock)
+        timings = {"goal_sampling_s": clock.elapsed()}
+
+        def outcome(path_q: np.ndarray | None, status: str, exact: bool, message: str) -> SearchOutcome:
+            return SearchOutcome(path_q, status, exact, clock.elapsed(), {**vars(sampler.stats), **timings},
+                                 message)
+
+        if region_goal and not sampler.goals and sampler.stats.ik_reached == 0:
+            return outcome(None, "INVALID_GOAL", False,
+                           f"target unreachable: inverse kinematics got the tip no closer than "
+                           f"{sampler.stats.closest_mm:.1f} mm to the target region after "
+                           f"{sampler.stats.seeds} seeds"), checker
+        if clock.remaining() <= 0:
+            return outcome(None, "TIMEOUT", False,
+                           f"time limit of {clock.limit_s:g} s reached while sampling goal "
+                           f"configurations ({len(sampler.goals)} found)"), checker
+        if spec.fixed_goal_set and region_goal:
+            _fix_goal_set(problem, clock)
+        pl = _setup_planner(planner, problem, s.range_mm)
+        progress("search", elapsed=clock.elapsed(), limit=clock.limit_s,
+                 kinematics_calls=checker.counters.kinematics_calls, goals=len(sampler.goals))
+        t_solve = time.perf_counter()
+        status = pl.solve(max(clock.remaining(), 1e-3))
+        timings["search_s"] = time.perf_counter() - t_solve
+        status_name = status.asString() if hasattr(status, "asString") else str(status)
+        if not problem.pdef.hasExactSolution():
+            return outcome(None, status_name, False,
+                           _failure_message(problem, clock.limit_s, goal_q is not None)), checker
         if simplify:
-            progress("simplify", elapsed=time.perf_counter() - t0)
-            simp = og.PathSimplifier(problem.si, problem.pdef.getGoal())
-            t_simp = time.perf_counter()
-            # shortcuts between random vertex pairs; full `simplify` (B-spline smoothing) costs
-            # seconds with an exact backend and adds many vertices
-            simp.reduceVertices(path)
-            simp.collapseCloseVertices(path)
-            timings["simplify_s"] = time.perf_counter() - t_simp
-        path_q = _path_q(problem, path)
-    else:
-        if goal_q is not None:
-            msg = f"no path to the given configuration within {time_limit_s:g} s"
-        elif not sampler.goals:
-            msg = (f"no collision-free goal configuration found ({gstats.ik_reached} IK solutions "
-                   f"reached the target, all in collision)")
-        else:
-            msg = f"no path found within {time_limit_s:g} s ({len(sampler.goals)} goal configurations)"
-    checker.hook = None
-    out = SearchOutcome(path_q, status_name, exact, time.perf_counter() - t0,
-                        {**vars(gstats), **timings}, msg)
-    return out, checker
+            progress("simplify", elapsed=clock.elapsed())
+        return outcome(_simplified_path(problem, simplify, timings), status_name, True, ""), checker
+    finally:
+        checker.hook = None
 
 
 @dataclass
@@ -324,99 +368,195 @@ def check_start(scene: Scene, checker: ConfigurationChecker, exact: Backend) -> 
                          f"{names} (margin {scene.settings.margin_mm:g} mm)")
 
 
+def compile_kernels(backends: list[Backend], q: np.ndarray, points: int) -> None:
+    """Run every backend on one and on two configurations ``q`` (mm, rad), so that numba compiles
+    (first run only) or loads from its cache every kernel a plan uses before the planning clock
+    starts."""
+    q = np.asarray(q, dtype=float)
+    for be in backends:
+        be.forward(q, points=points, check=False)                  # single-query kernels
+        be.forward(np.stack([q, q]), points=points, check=False)   # batched (parallel) kernels
+
+
+class RegionMarginBackend(Backend):
+    """A surrogate whose backbones carry extra radius (mm) by arc-length region: its calibrated
+    error bound at ``coverage`` (`ctrplan.training.evaluate.error_bound`), so that planning keeps
+    that much more clearance where the surrogate is less accurate. Positions, tips and all else are
+    the wrapped backend's."""
+
+    def __init__(self, inner: Backend, bound: dict, coverage: float):
+        super().__init__(inner.robot)
+        self.inner = inner
+        self.bound = bound
+        self.coverage = coverage
+        self.name = inner.name
+        self.exact = inner.exact
+        self.warm_startable = inner.warm_startable
+        self.analytic_tip_jacobian = inner.analytic_tip_jacobian
+
+    def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
+                guess: np.ndarray | None = None, check: bool = True) -> Backbone:
+        bb = self.inner.forward(q, points, guess=guess, check=check)
+        extra = region_margins_mm(self.bound, self.coverage, bb.s_mm / bb.s_mm[:, -1:])
+        return replace(bb, radius_mm=bb.radius_mm + extra)
+
+    def tip_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.inner.tip_jacobian(q)
+
+    def describe(self) -> dict:
+        return {**self.inner.describe(), "coverage": self.coverage}
+
+
+def planning_backend(scene: Scene, backend: Backend) -> tuple[Backend, float, dict]:
+    """The backend and capsule margin (mm) to plan with, and where the margin comes from.
+
+    An exact backend plans with the scene's ``margin_mm``. A surrogate adds the scene's
+    ``surrogate_margin_mm`` everywhere if the scene sets one; otherwise the calibrated error bound
+    of its model card at the scene's ``surrogate_coverage``, by arc-length region
+    (`RegionMarginBackend`); a model without one gets `DEFAULT_SURROGATE_MARGIN_MM`."""
+    s = scene.settings
+    if backend.exact:
+        return backend, s.margin_mm, {"source": "exact backend"}
+    if s.surrogate_margin_mm is not None:
+        return backend, s.margin_mm + s.surrogate_margin_mm, {
+            "source": "scene surrogate_margin_mm", "surrogate_margin_mm": s.surrogate_margin_mm}
+    bound = backend.error_bound
+    if bound is None:
+        return backend, s.margin_mm + DEFAULT_SURROGATE_MARGIN_MM, {
+            "source": "default (the model card has no calibrated error bound)",
+            "surrogate_margin_mm": DEFAULT_SURROGATE_MARGIN_MM}
+    margins = region_bounds_mm(bound, s.surrogate_coverage)
+    return RegionMarginBackend(backend, bound, s.surrogate_coverage), s.margin_mm, {
+        "source": f"model card {ERROR_BOUND_KEY} at coverage {s.surrogate_coverage:g}",
+        "regions": [{"s_fraction": r["s_fraction"], "margin_mm": m}
+                    for r, m in zip(bound["regions"], margins, strict=True)]}
+
+
+def _time_limit(scene: Scene, time_limit_s: float | None) -> float:
+    limit = float(time_limit_s if time_limit_s is not None else scene.settings.time_limit_s)
+    if not math.isfinite(limit) or limit <= 0:
+        raise InputError(f"time_limit_s: must be > 0, got {limit}")
+    return limit
+
+
+def _validate_and_repair(scene: Scene, path_q: np.ndarray, be: Backend, exact: Backend,
+                         checker: ConfigurationChecker, result: PlanResult, repair: bool,
+                         progress: Progress) -> tuple[ValidatedPath, np.ndarray]:
+    """Exact validation of a planned path; if it fails and ``repair``, the failing stretches are
+    re-planned with the exact model and the repaired path is validated again. Records repair time
+    and calls in ``result``; returns the validated path and its joints."""
+    progress("validate")
+    vp = validate_path(scene, path_q, be, exact=exact, world=checker.world)
+    result.details["validation_time_s"] = vp.report.time_s
+    if vp.report.ok or not repair:
+        return vp, path_q
+    progress("repair")
+    t_rep = time.perf_counter()
+    rep_checker = ConfigurationChecker(scene, exact, world=checker.world)
+    rep_seed = None if result.seed is None else result.seed + 1
+
+    def replan(start_q: np.ndarray, goal_q: np.ndarray | None, limit: float) -> np.ndarray | None:
+        out, _ = search(scene, exact, start=start_q, goal_q=goal_q, planner="rrtconnect",
+                        time_limit_s=limit, seed=rep_seed, checker=rep_checker)
+        return out.path_q
+
+    fixed = repair_path(vp, replan, max(5.0, result.time_limit_s))
+    rep_time = time.perf_counter() - t_rep
+    result.details["repair_time_s"] = rep_time
+    result.planning_time_s += rep_time
+    result.kinematics_calls += rep_checker.counters.kinematics_calls
+    result.details["first_validation"] = vp.report.to_json()
+    if fixed is None:
+        result.details["repair"] = "re-planning with the exact model failed"
+        return vp, path_q
+    vp2 = validate_path(scene, fixed, be, exact=exact, world=checker.world)
+    vp2.report.repaired = True
+    if vp2.report.ok:
+        return vp2, fixed
+    result.details["repair"] = "the repaired path failed exact validation"
+    return vp, path_q
+
+
+def _verdict(report: Validation, repair: bool) -> str:
+    """The result message of a validated path."""
+    if report.ok:
+        return "solved" + (" (repaired with the exact model)" if report.repaired else "")
+    why = []
+    if not report.collision_free:
+        fc = report.first_collision or {}
+        why.append(f"the exact robot collides along the path ({len(report.colliding_states)} of "
+                   f"{report.states} states; first with {', '.join(fc.get('obstacles', []))})")
+    if not report.tip_in_target:
+        why.append("the exact tip misses the target")
+    return "not solved: " + "; ".join(why) + ("" if repair else " (repair disabled)")
+
+
+def _report_overrun(result: PlanResult) -> None:
+    """Say so when the planning took longer than its time limit."""
+    over = result.planning_time_s - result.time_limit_s
+    result.details["time_limit_overrun_s"] = max(0.0, over)
+    if over > OVERRUN_TOLERANCE_S:
+        result.message += f" (took {result.planning_time_s:.2f} s: {over:.2f} s over the time limit)"
+
+
 def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | None = None,
          time_limit_s: float | None = None, seed: int | None = None, progress: Progress = _quiet,
          exact: Backend | None = None, repair: bool | None = None) -> PlanResult:
     """Plan a collision-free motion from the scene's start to its target, then validate it exactly.
 
-    With an approximate backend (the PINN) the capsules get ``surrogate_margin_mm`` extra while
-    planning. Every path is re-validated with the exact model at the planner's resolution; a path
-    that fails there is repaired (colliding stretches re-planned with the exact model) or reported
-    as not solved. ``solved`` is True only if the exact model confirms a collision-free path that
-    ends with the tip in the target. Bad input (e.g. a start in collision) raises `InputError`.
+    With an approximate backend (the PINN) the capsules get extra radius while planning: its
+    calibrated error bound by arc-length region at the scene's ``surrogate_coverage``, or the
+    scene's ``surrogate_margin_mm`` (see `planning_backend`). Every path is re-validated with the
+    exact model at the planner's resolution (refined where the backbone moves more than a capsule
+    radius); a path that fails there is repaired (colliding stretches re-planned with the exact
+    model) or reported as not solved. ``solved`` is True only if the exact model confirms a
+    collision-free path that ends with the tip in the target. Kernels are compiled before the clock
+    starts; a plan that takes longer than ``time_limit_s`` says so. Bad input (an unknown planner,
+    a start in collision) raises `InputError` naming the parameter.
     """
     s = scene.settings
     planner = planner or s.planner
-    if planner not in PLANNERS:
-        raise InputError(f"--planner: unknown planner {planner!r} (choose from {', '.join(PLANNERS)})")
-    time_limit_s = float(time_limit_s if time_limit_s is not None else s.time_limit_s)
-    if not math.isfinite(time_limit_s) or time_limit_s <= 0:
-        raise InputError(f"--time-limit: must be > 0, got {time_limit_s}")
+    planner_spec(planner)
+    time_limit_s = _time_limit(scene, time_limit_s)
     seed = s.seed if seed is None else seed
     repair = s.repair if repair is None else repair
+    progress("compile")  # loading a backend compiles its kernels too
+    t_compile = time.perf_counter()
     be = resolve_backend(backend, scene.robot)
     exact = exact or (be if be.exact and be.robot is scene.robot else CosseratBackend(scene.robot))
-    margin = s.margin_mm + (0.0 if be.exact else s.surrogate_margin_mm)
-    checker = ConfigurationChecker(scene, be, margin_mm=margin)
+    compile_kernels([be] if be is exact else [be, exact], scene.start, s.points)
+    compile_s = time.perf_counter() - t_compile
+    planning_be, margin, margin_source = planning_backend(scene, be)
+    checker = ConfigurationChecker(scene, planning_be, margin_mm=margin)
     check_start(scene, checker, exact)
 
-    def result_of(outcome: SearchOutcome | None, message: str, status: str) -> PlanResult:
-        r = PlanResult(False, planner, be.name, 0.0 if outcome is None else outcome.time_s,
-                       checker.counters.kinematics_calls, np.zeros((0, 6)), scene.target.center,
-                       scene.target.tolerance_mm, scene.base_pose, message=message, status=status,
-                       seed=seed, time_limit_s=time_limit_s, scene=scene.name)
-        r.details = {"planning_margin_mm": margin, "counters": vars(checker.counters).copy()}
-        if outcome is not None:
-            r.details["goal_sampling"] = outcome.goal_stats
-        return r
-
+    result = PlanResult(False, planner, be.name, 0.0, 0, np.zeros((0, len(scene.start))),
+                        scene.target.center, scene.target.tolerance_mm, scene.base_pose, seed=seed,
+                        time_limit_s=time_limit_s, scene=scene.name)
+    result.details = {"planning_margin_mm": margin, "surrogate_margin": margin_source,
+                      "compile_s": compile_s}
     if not checker.is_valid(scene.start):
         # valid for the exact model (checked above), not for the planning backend + its margin
-        return result_of(None, f"the start configuration collides under the {be.name} backend "
-                               f"with its planning margin of {margin:g} mm (but not under the exact "
-                               f"model with {s.margin_mm:g} mm)", "INVALID_START")
-
-    outcome, checker = search(scene, be, planner=planner, time_limit_s=time_limit_s, seed=seed,
-                              progress=progress, checker=checker)
-    result = result_of(outcome, outcome.message, outcome.status)
-    if outcome.path_q is None:
+        result.status = "INVALID_START"
+        result.message = (f"the start configuration collides under the {be.name} backend with its "
+                          f"planning margin ({margin_source['source']}) but not under the exact model "
+                          f"with {s.margin_mm:g} mm")
+        result.details["counters"] = vars(checker.counters).copy()
         return result
 
-    progress("validate")
-    vp = validate_path(scene, outcome.path_q, be, exact=exact, world=checker.world)
-    path_q = outcome.path_q
-    result.details["validation_time_s"] = vp.report.time_s
-    if not vp.report.ok and repair:
-        progress("repair")
-        t_rep = time.perf_counter()
-        rep_checker = ConfigurationChecker(scene, exact, world=checker.world)
-        rep_seed = None if seed is None else seed + 1
-
-        def replan(start_q: np.ndarray, goal_q: np.ndarray | None, limit: float) -> np.ndarray | None:
-            out, _ = search(scene, exact, start=start_q, goal_q=goal_q, planner="rrtconnect",
-                            time_limit_s=limit, seed=rep_seed, checker=rep_checker)
-            return out.path_q
-
-        fixed = repair_path(vp, replan, max(5.0, time_limit_s))
-        rep_time = time.perf_counter() - t_rep
-        result.details["repair_time_s"] = rep_time
-        result.planning_time_s += rep_time
-        result.kinematics_calls += rep_checker.counters.kinematics_calls
-        result.details["first_validation"] = vp.report.to_json()
-        if fixed is not None:
-            vp2 = validate_path(scene, fixed, be, exact=exact, world=checker.world)
-            vp2.report.repaired = True
-            if vp2.report.ok:
-                vp, path_q = vp2, fixed
-            else:
-                result.details["repair"] = "the repaired path failed exact validation"
-        else:
-            result.details["repair"] = "re-planning with the exact model failed"
-
-    result.validated = vp.report
-    result.dense = vp
-    result.tip_mm = np.asarray(vp.report.tip_mm)
-    result.path = path_q
-    result.solved = vp.report.ok
-    if result.solved:
-        result.message = "solved" + (" (repaired with the exact model)" if vp.report.repaired else "")
-    else:
-        why = []
-        if not vp.report.collision_free:
-            fc = vp.report.first_collision or {}
-            why.append(f"the exact robot collides along the path ({len(vp.report.colliding_states)} of "
-                       f"{vp.report.states} states; first with {', '.join(fc.get('obstacles', []))})")
-        if not vp.report.tip_in_target:
-            why.append("the exact tip misses the target")
-        result.message = "not solved: " + "; ".join(why) + ("" if repair else " (repair disabled)")
+    outcome, checker = search(scene, planning_be, planner=planner, time_limit_s=time_limit_s, seed=seed,
+                              progress=progress, checker=checker)
+    result.planning_time_s = outcome.time_s
+    result.kinematics_calls = checker.counters.kinematics_calls
+    result.status, result.message = outcome.status, outcome.message
+    result.details["counters"] = vars(checker.counters).copy()
+    result.details["goal_sampling"] = outcome.goal_stats
+    if outcome.path_q is not None:
+        vp, result.path = _validate_and_repair(scene, outcome.path_q, be, exact, checker, result, repair,
+                                               progress)
+        result.validated, result.dense = vp.report, vp
+        result.tip_mm = np.asarray(vp.report.tip_mm)
+        result.solved = vp.report.ok
+        result.message = _verdict(vp.report, repair)
+    _report_overrun(result)
     return result

@@ -1,7 +1,9 @@
 """Safety net: re-validate a planned path with the exact Cosserat model, and repair it if needed.
 
 Whatever backend planned the path, `validate_path` densifies it at the planner's resolution, solves
-every state with the exact model, and reports the position error between the planning backend and the
+every state with the exact model, adds states wherever a backbone point would move further than the
+thinnest capsule's radius between two checked states (so an obstacle thinner than the resolution
+cannot slip between them), and reports the position error between the planning backend and the
 exact model along the whole backbone, whether the exact robot is collision-free (same capsules and
 margin as in planning), its clearance, and whether its tip ends in the target. `repair_path` keeps the
 exact-valid prefix of a path that fails and re-plans the rest with the exact model; a path that still
@@ -12,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
 
@@ -20,6 +22,7 @@ from ctrplan.collision import CollisionWorld, RobotCollisionChecker
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.cosserat import CosseratBackend
+from ctrplan.planning.goal import tip_tangents
 from ctrplan.planning.space import BoxSpace
 from ctrplan.scene import Scene
 
@@ -30,7 +33,11 @@ class Validation:
 
     ``min_clearance_mm`` is the smallest distance between the exact robot's surface (no margin) and
     any obstacle over the checked states (0 on contact); ``max_position_error_mm`` the largest
-    distance between corresponding backbone points of the planning backend and the exact model.
+    distance between corresponding backbone points of the planning backend and the exact model;
+    ``max_step_mm`` the largest displacement of any exact backbone point between two consecutive
+    checked states, ``step_bound_mm`` the bound it was refined to (the thinnest capsule radius);
+    ``tip_angle_deg`` the angle between the final tip tangent and the target's approach direction
+    (0 without one), which ``tip_in_target`` requires within the target's tolerance.
     """
 
     backend: str = "cosserat"
@@ -39,6 +46,7 @@ class Validation:
     max_position_error_mm: float = 0.0
     max_tip_error_mm: float = 0.0
     tip_in_target: bool = False
+    tip_angle_deg: float = 0.0
     converged: bool = False
     states: int = 0
     colliding_states: list[int] = field(default_factory=list)
@@ -46,6 +54,8 @@ class Validation:
     nearest_obstacle: str = ""
     tip_mm: list[float] = field(default_factory=list)
     repaired: bool = False
+    max_step_mm: float = 0.0
+    step_bound_mm: float = 0.0
     time_s: float = 0.0
 
     @property
@@ -55,7 +65,7 @@ class Validation:
     def to_json(self) -> dict:
         d = asdict(self)
         d["colliding_states"] = len(self.colliding_states)
-        for k in ("min_clearance_mm", "max_position_error_mm", "max_tip_error_mm"):
+        for k in ("min_clearance_mm", "max_position_error_mm", "max_tip_error_mm", "max_step_mm"):
             d[k] = _finite(d[k])
         return d
 
@@ -93,7 +103,10 @@ def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | 
     exact = exact or CosseratBackend(scene.robot)
     dense = space.densify(path_q, resolution)
     ebb = exact.forward(dense, points=points, check=False)
-    report = Validation(backend=exact.name, states=len(dense))
+    bound = float(np.min(ebb.radius_mm)) + margin
+    dense, ebb = refine_steps(space, exact, dense, ebb, bound)
+    report = Validation(backend=exact.name, states=len(dense), step_bound_mm=bound,
+                        max_step_mm=float(np.max(backbone_steps(ebb), initial=0.0)))
     report.converged = bool(ebb.converged.all())
 
     pbb = None
@@ -134,9 +147,58 @@ def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | 
 
     tip = scene.to_scene(ebb.tip_mm[-1])
     report.tip_mm = tip.tolist()
-    report.tip_in_target = bool(ebb.converged[-1] and scene.target.contains(tip))
+    angle = float(scene.target.angle_rad(tip_tangents(scene, ebb)[-1]))
+    report.tip_angle_deg = float(np.degrees(angle))
+    report.tip_in_target = bool(ebb.converged[-1] and scene.target.contains(tip)
+                                and angle <= scene.target.angle_tolerance_rad + 1e-12)
     report.time_s = time.perf_counter() - t0
     return ValidatedPath(dense, ebb, pbb, report)
+
+
+def backbone_steps(bb: Backbone) -> np.ndarray:
+    """Largest displacement (mm) of any backbone point between consecutive rows (B-1,); inf where
+    a row did not converge."""
+    d = np.linalg.norm(np.diff(bb.positions_mm, axis=0), axis=-1).max(axis=1, initial=0.0)
+    return np.where(np.isfinite(d), d, np.inf)
+
+
+def _stack(parts: list[Backbone], order: np.ndarray) -> Backbone:
+    """Rows of several backbone batches (same points), concatenated and then taken in ``order``."""
+    kw = {}
+    for f in fields(Backbone):
+        vals = [getattr(b, f.name) for b in parts]
+        kw[f.name] = vals[0] if isinstance(vals[0], str) else np.concatenate(vals)[order]
+    return Backbone(**kw)
+
+
+def refine_steps(space: BoxSpace, exact: Backend, dense: np.ndarray, bb: Backbone, bound_mm: float,
+                 max_split: int = 64, rounds: int = 4) -> tuple[np.ndarray, Backbone]:
+    """Insert states between consecutive rows of ``dense`` (K, 6) until no backbone point moves more
+    than ``bound_mm`` between two of them.
+
+    A point moving by at most d passes within d / 2 of one of its two checked positions, so with d
+    no larger than the capsule radius an obstacle of any thickness that the robot sweeps through
+    touches a checked capsule (twice the needed safety, for curved motion). Segments whose ends did
+    not converge are left alone (they already fail); at most ``max_split`` pieces per segment and
+    round. Returns the refined joints and their exact backbones (one batched call per round)."""
+    points = bb.s_mm.shape[1]
+    for _ in range(rounds):
+        step = backbone_steps(bb)
+        pieces = np.where(np.isfinite(step), np.ceil(step / bound_mm), 1).astype(int)
+        pieces = np.clip(pieces, 1, max_split)
+        if pieces.max(initial=1) <= 1:
+            break
+        new_q, slot = [], []
+        for k in np.flatnonzero(pieces > 1):
+            n = pieces[k]
+            new_q.append(space.interpolate(dense[k], dense[k + 1], np.arange(1, n) / n))
+            slot.append(k + np.arange(1, n) / n)
+        extra_q = np.concatenate(new_q)
+        extra = exact.forward(extra_q, points=points, check=False)
+        order = np.argsort(np.concatenate([np.arange(len(dense), dtype=float), *slot]), kind="stable")
+        dense = np.concatenate([dense, extra_q])[order]
+        bb = _stack([bb, extra], order)
+    return dense, bb
 
 
 Replanner = Callable[[np.ndarray, "np.ndarray | None", float], "np.ndarray | None"]

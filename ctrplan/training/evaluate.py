@@ -1,21 +1,47 @@
-"""Accuracy of a PINN against the exact Cosserat model on unseen configurations (paper IV-A).
+"""Accuracy of a PINN against the exact Cosserat model on unseen configurations (paper IV-A), and
+the calibrated error bound the planner uses as the surrogate's safety margin.
 
 The evaluation configurations come from their own seed stream (`EVAL_SEED`), which no training
-sampler uses, so they are never seen in training.
+sampler uses, so they are never seen in training; the calibration configurations of `error_bound`
+from another one (`CALIBRATION_SEED`), used nowhere else.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from ctrplan.errors import InputError
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.robot import Robot
 
 EVAL_SEED = 918_273_645
+#: Seed of the calibration configurations of `error_bound` (used nowhere else).
+CALIBRATION_SEED = 555_012_907
+#: Arc-length regions (fractions of l1) with a bound each.
+REGIONS = ((0.0, 0.25), (0.25, 0.5), (0.5, 0.75), (0.75, 1.0))
+#: Coverages (probability that a configuration's error in a region is within its bound) calibrated.
+COVERAGES = (0.5, 0.8, 0.9, 0.95, 0.99)
+
+
+def _tail(x: np.ndarray) -> dict:
+    """mean, p99, p99.9 and max of errors (any shape)."""
+    x = np.ravel(x)
+    return {"mean": float(x.mean()), "p99": float(np.percentile(x, 99)),
+            "p99_9": float(np.percentile(x, 99.9)), "max": float(x.max())}
+
+
+def conformal_quantile(scores: np.ndarray, coverage: float) -> float:
+    """Split-conformal quantile of n calibration scores: the ceil((n + 1) coverage)-th smallest,
+    so that a new exchangeable score is at most it with probability >= ``coverage`` (inf when n is
+    too small for that coverage)."""
+    scores = np.sort(np.ravel(scores))
+    k = math.ceil((len(scores) + 1) * coverage)
+    return float(scores[k - 1]) if k <= len(scores) else math.inf
 
 
 @dataclass(frozen=True)
@@ -41,11 +67,10 @@ class Comparison:
             "configurations": len(self.exact),
             "backbone_error_pct": {"mean": float(e.mean()), "max": float(e.max()),
                                    "p95": float(np.percentile(e, 95))},
-            "tip_error_mm": {f"tube{i + 1}": {"mean": float(tip[:, i].mean()), "max": float(tip[:, i].max())}
-                             for i in range(3)},
+            "tip_error_mm": {f"tube{i + 1}": _tail(tip[:, i]) for i in range(tip.shape[1])},
             "u_z_rmse_1_per_m": float(np.sqrt(((ps[..., 2:5] - es[..., 2:5]) ** 2).mean()) * 1e3),
             "theta_rmse_rad": float(np.sqrt(((ps[..., 6:8] - es[..., 6:8]) ** 2).mean())),
-            "orientation_error_deg": {"mean": float(angle.mean()), "max": float(angle.max())},
+            "orientation_error_deg": _tail(angle),
         }
 
 
@@ -55,3 +80,48 @@ def compare(model: Backend, robot: Robot, n: int = 100, points: int = 100,
     q = robot.sample_joints(n, rng=seed)
     exact = CosseratBackend(robot).forward(q, points)
     return Comparison(predicted=model.forward(q, points), exact=exact)
+
+
+def error_bound(cmp: Comparison, coverages: tuple[float, ...] = COVERAGES, seed: int | None = None) -> dict:
+    """Split-conformal bounds (mm) of the backbone position error in each arc-length region of
+    `REGIONS`, one per coverage: per configuration the score is the largest distance between
+    predicted and exact backbone points in the region; the bound is `conformal_quantile` of the
+    scores. JSON-ready, for the model card under `ERROR_BOUND_KEY`."""
+    d = np.linalg.norm(cmp.predicted.positions_mm - cmp.exact.positions_mm, axis=-1)  # (B, N)
+    frac = cmp.exact.s_mm / cmp.exact.s_mm[:, -1:]
+    ok = cmp.exact.converged & np.isfinite(d).all(axis=1)
+    regions = []
+    for lo, hi in REGIONS:
+        inside = (frac >= lo) & ((frac < hi) | (hi == REGIONS[-1][1]))
+        scores = np.where(inside, d, 0.0).max(axis=1)[ok]
+        regions.append({"s_fraction": [lo, hi], "max_mm": float(scores.max()),
+                        "bound_mm": [conformal_quantile(scores, c) for c in coverages]})
+    return {"method": "split-conformal quantile of the largest backbone position error per region",
+            "truth": "cosserat", "configurations": int(ok.sum()), "points": int(d.shape[1]), "seed": seed,
+            "coverages": list(coverages), "regions": regions}
+
+
+def region_bounds_mm(bound: dict, coverage: float) -> list[float]:
+    """The bound (mm) of every region at ``coverage``; `InputError` naming ``surrogate_coverage``
+    if the card has no bound at that coverage."""
+    covs = bound["coverages"]
+    hits = [i for i, c in enumerate(covs) if math.isclose(c, coverage)]
+    if not hits:
+        raise InputError(f"surrogate_coverage: the model card has error bounds at coverages "
+                         f"{', '.join(f'{c:g}' for c in covs)} only, not {coverage:g}")
+    return [r["bound_mm"][hits[0]] for r in bound["regions"]]
+
+
+def region_margins_mm(bound: dict, coverage: float, s_fraction: np.ndarray) -> np.ndarray:
+    """The bound (mm) at ``coverage`` of the region each arc fraction (any shape) falls in."""
+    out = np.zeros(np.shape(s_fraction))
+    for r, b in zip(bound["regions"], region_bounds_mm(bound, coverage), strict=True):
+        lo, hi = r["s_fraction"]
+        out = np.where((s_fraction >= lo) & (s_fraction <= hi), np.maximum(out, b), out)
+    return out
+
+
+def calibrate(model: Backend, robot: Robot, n: int = 5000, points: int = 64,
+              seed: int = CALIBRATION_SEED) -> dict:
+    """`error_bound` of ``model`` against the exact solver on ``n`` configurations of ``seed``."""
+    return error_bound(compare(model, robot, n=n, points=points, seed=seed), COVERAGES, seed)

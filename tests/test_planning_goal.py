@@ -1,0 +1,81 @@
+"""A target with an approach direction: scene input, goal sampling, exact validation, planning."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ctrplan.errors import InputError
+from ctrplan.kinematics import CosseratBackend
+from ctrplan.planning import ConfigurationChecker, GoalSampler, plan, validate_path
+from ctrplan.planning.goal import tip_tangents
+from ctrplan.scene import load_scene
+
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
+
+
+@pytest.fixture(scope="module")
+def open_scene():
+    return load_scene(SCENES / "open.yaml")
+
+
+@pytest.fixture(scope="module")
+def exact(open_scene):
+    return CosseratBackend(open_scene.robot)
+
+
+def test_scene_reads_the_approach_direction(tmp_path):
+    sc = load_scene(SCENES / "skullbase_approach.yaml")
+    assert np.allclose(sc.target.direction, [0, 0, 1])
+    assert math.isclose(sc.target.angle_tolerance_rad, math.radians(20))
+    assert sc.target.to_dict()["angle_tolerance_deg"] == pytest.approx(20)
+    base = (SCENES / "open.yaml").read_text()
+    for extra, msg in (("  direction: [0, 0, 1]\n", "give direction and angle_tolerance_deg together"),
+                       ("  direction: [0, 0, 0]\n  angle_tolerance_deg: 10\n", "zero vector"),
+                       ("  direction: [0, 0, 1]\n  angle_tolerance_deg: 180\n", "must be < 180")):
+        bad = tmp_path / "bad.yaml"
+        bad.write_text(base.replace("  tolerance_mm: 3.0\n", "  tolerance_mm: 3.0\n" + extra))
+        with pytest.raises(InputError, match=msg) as err:
+            load_scene(bad)
+        assert "bad.yaml:" in str(err.value) and "target" in str(err.value)
+
+
+def test_goal_sampling_and_validation_respect_the_direction(open_scene, exact):
+    free = GoalSampler(ConfigurationChecker(open_scene, exact), open_scene.target,
+                       np.random.default_rng(0), start=open_scene.start)
+    goals = np.stack(free.sample_batch())
+    tangents = tip_tangents(open_scene, exact.forward(goals, points=2, check=False))
+    # aim at the first goal's approach, 10 deg wide: other goals point elsewhere
+    target = replace(open_scene.target, direction=tangents[0], angle_tolerance_rad=math.radians(10))
+    off = np.degrees(target.angle_rad(tangents))
+    assert off.max() > 10, "the goals all point the same way: the test would prove nothing"
+    scene = replace(open_scene, target=target)
+
+    sampler = GoalSampler(ConfigurationChecker(scene, exact), target, np.random.default_rng(1),
+                          start=scene.start)
+    for _ in range(4):
+        sampler.sample_batch()
+    assert sampler.goals and sampler.stats.wrong_direction > 0
+    found = exact.forward(np.stack(sampler.goals), points=2, check=False)
+    assert np.all(np.degrees(target.angle_rad(tip_tangents(scene, found))) <= 10 + 1e-9)
+
+    wrong = goals[int(np.argmax(off))]
+    rep = validate_path(scene, np.stack([scene.start, wrong]), exact, exact=exact).report
+    assert scene.target.contains(np.array(rep.tip_mm)) and rep.tip_angle_deg > 10
+    assert not rep.tip_in_target and not rep.ok
+
+
+def test_plan_reaches_the_target_along_the_direction(open_scene, exact):
+    goals = GoalSampler(ConfigurationChecker(open_scene, exact), open_scene.target,
+                        np.random.default_rng(0), start=open_scene.start).sample_batch()
+    tangent = tip_tangents(open_scene, exact.forward(goals[0], points=2, check=False))[0]
+    scene = replace(open_scene, target=replace(open_scene.target, direction=tangent,
+                                               angle_tolerance_rad=math.radians(15)))
+    res = plan(scene, exact, seed=0, time_limit_s=10.0)
+    assert res.solved, res.message
+    assert res.validated.tip_angle_deg <= 15
+    assert res.to_json()["validated"]["tip_angle_deg"] <= 15
