@@ -17,9 +17,9 @@ import argparse
 import json
 
 from ctrplan.kinematics.model_file import resolve_model, write_card_field
-from ctrplan.kinematics.pinn import PinnBackend
+from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnBackend
 from ctrplan.robot import Robot
-from ctrplan.training.evaluate import ERROR_BOUND_KEY, calibrate
+from ctrplan.training.evaluate import calibrate
 
 
 def main() -> None:

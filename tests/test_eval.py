@@ -10,14 +10,13 @@ import pytest
 
 from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import read_card, resolve_model
-from ctrplan.kinematics.pinn import PinnBackend
+from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnBackend
 from ctrplan.planning.planner import RegionMarginBackend, planning_backend
 from ctrplan.robot import Robot
 from ctrplan.scene import load_scene
 from ctrplan.training.evaluate import (
     CALIBRATION_SEED,
     COVERAGES,
-    ERROR_BOUND_KEY,
     EVAL_SEED,
     REGIONS,
     compare,

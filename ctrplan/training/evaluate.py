@@ -86,7 +86,7 @@ def error_bound(cmp: Comparison, coverages: tuple[float, ...] = COVERAGES, seed:
     """Split-conformal bounds (mm) of the backbone position error in each arc-length region of
     `REGIONS`, one per coverage: per configuration the score is the largest distance between
     predicted and exact backbone points in the region; the bound is `conformal_quantile` of the
-    scores. JSON-ready, for the model card under `ERROR_BOUND_KEY`."""
+    scores. JSON-ready, for the model card under `ctrplan.kinematics.pinn.ERROR_BOUND_KEY`."""
     d = np.linalg.norm(cmp.predicted.positions_mm - cmp.exact.positions_mm, axis=-1)  # (B, N)
     frac = cmp.exact.s_mm / cmp.exact.s_mm[:, -1:]
     ok = cmp.exact.converged & np.isfinite(d).all(axis=1)
