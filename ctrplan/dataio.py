@@ -20,10 +20,16 @@ from typing import IO
 import numpy as np
 
 from ctrplan.errors import InputError
-from ctrplan.robot import JOINT_NAMES, Robot
+from ctrplan.robot import Robot, joint_names
 
-#: Tip columns of the measured-data format (mm, robot frame), tubes 1..3.
-TIP_NAMES = tuple(f"tip{i}_{a}" for i in (1, 2, 3) for a in "xyz")
+
+def tip_names(n_tubes: int) -> tuple[str, ...]:
+    """Tip columns of the measured-data format (mm, robot frame): tip1_x … tipN_z."""
+    return tuple(f"tip{i}_{a}" for i in range(1, n_tubes + 1) for a in "xyz")
+
+
+#: Tip columns of a three-tube robot.
+TIP_NAMES = tip_names(3)
 
 
 @dataclass(frozen=True)
@@ -48,8 +54,9 @@ class Table:
 
     @property
     def joints(self) -> np.ndarray:
-        """Joint columns (R, 6) in `JOINT_NAMES` order (mm, rad)."""
-        return self.values[:, [self.columns.index(n) for n in JOINT_NAMES]]
+        """Joint columns (R, 2N) in the order beta1..betaN, alpha1..alphaN (mm, rad)."""
+        n = sum(c.startswith("beta") for c in self.columns)
+        return self.values[:, [self.columns.index(c) for c in joint_names(n)]]
 
 
 #: Cells a reader that allows missing values reads as NaN (compared in lower case).
@@ -147,12 +154,13 @@ def parse_table(text: str, path: str | Path, columns: Sequence[str], *,
 
 
 def read_joints(path: str | Path, robot: Robot, *, allow_outside_domain: bool = False) -> Table:
-    """Read a configurations CSV (header ``beta1,...,alpha3``) and validate every row against ``robot``.
+    """Read a configurations CSV (header ``beta1,...,betaN,alpha1,...,alphaN`` for the robot's N tubes)
+    and validate every row against ``robot``.
 
     Out-of-domain rows raise `DomainError` (or warn, with ``allow_outside_domain``) naming the row's
     line and the violated inequality; physically impossible rows always raise `InputError`.
     """
-    table = read_table(path, JOINT_NAMES)
+    table = read_table(path, robot.joint_names)
     check_joint_rows(robot, table.joints, table.lines, str(table.path),
                      allow_outside_domain=allow_outside_domain)
     return table

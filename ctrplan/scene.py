@@ -61,7 +61,7 @@ from typing import Any
 import numpy as np
 
 from ctrplan.errors import InputError
-from ctrplan.robot import Robot
+from ctrplan.robot import Robot, box_keys
 from ctrplan.yamlio import YamlDoc, load_yaml
 
 PRIMITIVES = ("sphere", "box", "cylinder", "capsule")
@@ -364,8 +364,12 @@ class Scene:
 # ---- loading ---------------------------------------------------------------------------------------
 _TOP_KEYS = {"name", "description", "robot", "base_pose", "obstacles", "target", "start", "planner",
              "joint_limits"}
-JOINT_LIMIT_KEYS = ("beta3_mm", "beta3_minus_beta2_mm", "beta2_minus_beta1_mm", "alpha1_deg", "alpha2_deg",
-                    "alpha3_deg")
+def joint_limit_keys(n_tubes: int) -> tuple[str, ...]:
+    """Keys of a scene's ``joint_limits`` (box coordinates; translations in mm, rotations in deg):
+    the robot file's domain keys with ``alphaI_deg`` for the rotations."""
+    return tuple(k.replace("_rad", "_deg") for k in box_keys(n_tubes))
+
+
 
 
 def _num(doc: YamlDoc, keys: tuple, value: Any, *, positive: bool = False,
@@ -632,16 +636,17 @@ def _settings(doc: YamlDoc, raw: Any) -> PlannerSettings:
 
 def _joint_limits(doc: YamlDoc, raw: Any, robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     keys = ("joint_limits",)
-    spec = _mapping(doc, keys, raw, set(JOINT_LIMIT_KEYS))
+    names = joint_limit_keys(robot.n_tubes)
+    spec = _mapping(doc, keys, raw, set(names))
     lo, hi = robot.domain.box_lower.copy(), robot.domain.box_upper.copy()
-    for i, name in enumerate(JOINT_LIMIT_KEYS):
+    for i, name in enumerate(names):
         if name not in spec:
             continue
         a, b = _vec(doc, keys + (name,), spec[name], 2)
         if name.endswith("_deg"):
             a, b = math.radians(a), math.radians(b)
-        if a >= b:
-            raise doc.error(keys + (name,), f"lower limit must be below the upper limit, got {spec[name]}")
+        if a > b:
+            raise doc.error(keys + (name,), f"lower limit must not exceed the upper limit, got {spec[name]}")
         tol = 1e-9
         if a < lo[i] - tol or b > hi[i] + tol:
             unit = "deg" if name.endswith("_deg") else "mm"
@@ -701,7 +706,7 @@ def scene_from_yaml(doc: YamlDoc) -> Scene:
     if gap > reach:
         raise doc.error(("target",), f"out of reach: the target region is {gap:.1f} mm from the robot "
                                      f"base, but the robot is at most {reach:.1f} mm long")
-    start = _vec(doc, ("start",), d["start"], 6)
+    start = _vec(doc, ("start",), d["start"], robot.n_joints)
     try:
         robot.check_joints(start, where="start")
     except InputError as exc:
@@ -714,7 +719,8 @@ def scene_from_yaml(doc: YamlDoc) -> Scene:
         out = np.flatnonzero((box < limits[0] - 1e-9) | (box > limits[1] + 1e-9))
         if out.size:
             i = int(out[0])
-            raise doc.error(("start",), f"outside the scene's joint_limits: {JOINT_LIMIT_KEYS[i]}")
+            names = joint_limit_keys(robot.n_tubes)
+            raise doc.error(("start",), f"outside the scene's joint_limits: {names[i]}")
 
     name = d.get("name", doc.path.stem)
     desc = d.get("description", "")

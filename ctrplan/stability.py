@@ -18,10 +18,15 @@ tubes of length L are snap-free for every rotation iff ``L sqrt((1 + nu) kappa1 
 
 from __future__ import annotations
 
+import json
+import os
 from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
 
 import numpy as np
 
+from ctrplan.dataio import atomic_write
 from ctrplan.kinematics.cosserat import CosseratBackend, SolverSettings
 from ctrplan.robot import Robot
 
@@ -142,3 +147,48 @@ def critical_length_mm(robot: Robot) -> float:
     t1, t2 = robot.tubes[:2]
     nu = t1.youngs_modulus_mpa / (2 * t1.shear_modulus_mpa) - 1
     return float(np.pi / (2 * np.sqrt((1 + nu) * t1.curvature_per_mm * t2.curvature_per_mm)))
+
+
+# ---- certificates ---------------------------------------------------------------------------------
+# A robot whose whole domain `check_domain` found snap-free is certified by a small JSON file named
+# after its fingerprint: shipped ones in the package (`ctrplan/data/stability/`), the user's own in
+# the cache `ctrplan stability` writes to. A certified robot is planned without per-state stability
+# checks; any other robot's planning and validation reject unstable states.
+
+
+def user_certificate_dir() -> Path:
+    """Where `ctrplan stability` keeps certificates: ``$XDG_CACHE_HOME/ctrplan/stability`` (default
+    ``~/.cache/ctrplan/stability``)."""
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "ctrplan" / "stability"
+
+
+def _read_certificate(path: Path, robot: Robot) -> bool:
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return False
+    return doc.get("fingerprint") == robot.fingerprint and doc.get("snap_free") is True
+
+
+def is_certified(robot: Robot) -> bool:
+    """Whether a snap-free verdict for exactly this robot (its fingerprint) was shipped or made here."""
+    name = f"{robot.fingerprint}.json"
+    shipped = resources.files("ctrplan.data") / "stability" / name
+    if shipped.is_file():
+        with resources.as_file(shipped) as path:
+            return _read_certificate(path, robot)
+    return _read_certificate(user_certificate_dir() / name, robot)
+
+
+def write_certificate(report: StabilityReport, robot: Robot, settings: dict,
+                      folder: Path | None = None) -> Path:
+    """Record a snap-free verdict for ``robot`` (fingerprint, sweep settings, counts); returns the
+    file. Only snap-free verdicts certify anything."""
+    folder = folder or user_certificate_dir()
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{robot.fingerprint}.json"
+    doc = {"fingerprint": robot.fingerprint, "robot": robot.name, **report.to_json(), "settings": settings}
+    with atomic_write(path) as fh:
+        fh.write(json.dumps(doc, indent=2) + "\n")
+    return path

@@ -264,7 +264,7 @@ class SlowFirstCall(Backend):
         self.inner = inner
         self.compiled: set[bool] = set()
 
-    def forward(self, q, points=DEFAULT_POINTS, *, check=True):
+    def forward(self, q, points=DEFAULT_POINTS, *, guess=None, check=True):
         batched = np.atleast_2d(q).shape[0] > 1
         if batched not in self.compiled:
             self.compiled.add(batched)

@@ -17,19 +17,19 @@ import numpy as np
 import typer
 
 from ctrplan.cli import app
-from ctrplan.dataio import TIP_NAMES, atomic_write, format_csv, read_joints
+from ctrplan.dataio import atomic_write, format_csv, read_joints, tip_names
 from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS, Backbone, Backend, make_backend
 from ctrplan.kinematics.base import DEFAULT_POINTS
-from ctrplan.robot import JOINT_NAMES, Robot
+from ctrplan.robot import Robot
 
 #: Output rows (configurations x backbone points) solved and written per chunk.
 CHUNK_ROWS = 10_000
 
 Configs = Annotated[Path, typer.Argument(
     metavar="CONFIGS.csv", show_default=False,
-    help="Joint configurations: header beta1,beta2,beta3,alpha1,alpha2,alpha3 (mm, rad); "
-         "other columns are ignored.")]
+    help="Joint configurations: header beta1..betaN,alpha1..alphaN for the robot's N tubes (three "
+         "tubes: beta1,beta2,beta3,alpha1,alpha2,alpha3), mm and rad; other columns are ignored.")]
 BackendOpt = Annotated[str, typer.Option(
     "--backend", metavar="NAME", help=f"Kinematics backend: {' | '.join(BACKENDS)}.")]
 RobotOpt = Annotated[str | None, typer.Option(
@@ -89,13 +89,17 @@ def progress_bar(total: int, what: str) -> Iterator[Callable[[int], None]]:
 
 
 def _run(configs: Path, backend: str, robot: str | None, model: str | None, allow_outside_domain: bool,
-         output: Path | None, points: int, header: tuple[str, ...],
-         rows: Callable[[np.ndarray, Backbone], tuple[np.ndarray, list[str]]]) -> None:
+         output: Path | None, points: int, header: Callable[[Robot], tuple[str, ...]],
+         rows: Callable[[np.ndarray, Backbone], tuple[np.ndarray, list[str]]],
+         stability: bool = False) -> None:
     """Check every row of CONFIGS, then solve and write them chunk by chunk (``rows(lines, backbone)``
-    gives a chunk's output rows and formats); note non-converged rows on stderr."""
+    gives a chunk's output rows and formats, ``header(robot)`` the columns); note non-converged rows
+    on stderr. With ``stability`` the backbones carry elastic stability where the backend computes it."""
     with atomic_write(output) if output else nullcontext(sys.stdout) as fh:
         robot_model = Robot.load(robot)
         kinematics = load_backend(backend, robot_model, model)
+        if stability:
+            kinematics = kinematics.checking_stability()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             table = read_joints(configs, robot_model, allow_outside_domain=allow_outside_domain)
@@ -103,7 +107,7 @@ def _run(configs: Path, backend: str, robot: str | None, model: str | None, allo
             typer.echo(f"ctrplan: warning: {w.message}", err=True)
         chunk = max(1, CHUNK_ROWS // points)
         failed = []
-        fh.write(",".join(header) + "\n")
+        fh.write(",".join(header(robot_model)) + "\n")
         with progress_bar(len(table.lines), "configurations") as advance:
             for start in range(0, len(table.lines), chunk):
                 q, lines = table.joints[start:start + chunk], table.lines[start:start + chunk]
@@ -121,18 +125,21 @@ def _run(configs: Path, backend: str, robot: str | None, model: str | None, allo
 @app.command()
 def fk(configs: Configs, backend: BackendOpt = "cosserat", robot: RobotOpt = None, model: ModelOpt = None,
        output: OutputOpt = None, allow_outside_domain: OutsideOpt = False) -> None:
-    """Tip positions of tubes 1-3 for every configuration (measured-data CSV format).
+    """Tip positions of tubes 1-N for every configuration (measured-data CSV format).
 
-    Output columns: beta1..alpha3, tip1_x..tip3_z (mm, robot frame), converged (1/0).
+    Output columns: beta1..alphaN, tip1_x..tipN_z (mm, robot frame), converged (1/0), stable (1/0:
+    the equilibrium is elastically stable; nan where the backend cannot tell -- the PINN).
     Rows that do not converge get NaN tips, converged = 0 and a note on stderr.
     """
 
     def rows(lines: np.ndarray, b: Backbone) -> tuple[np.ndarray, list[str]]:
-        return (np.column_stack([b.q, b.tips_mm.reshape(-1, 9), b.converged]),
-                ["%r"] * 6 + ["%.6f"] * 9 + ["%d"])
+        n = b.n_tubes
+        stable = b.stable.astype(float) if b.stability is not None else np.full(len(b), np.nan)
+        return (np.column_stack([b.q, b.tips_mm.reshape(-1, 3 * n), b.converged, stable]),
+                ["%r"] * (2 * n) + ["%.6f"] * (3 * n) + ["%d", "%.0f"])
 
     _run(configs, backend, robot, model, allow_outside_domain, output, 2,
-         (*JOINT_NAMES, *TIP_NAMES, "converged"), rows)
+         lambda r: (*r.joint_names, *tip_names(r.n_tubes), "converged", "stable"), rows, stability=True)
 
 
 @app.command()
@@ -153,4 +160,4 @@ def shape(configs: Configs, backend: BackendOpt = "cosserat", robot: RobotOpt = 
                 ["%d"] + ["%.6f"] * 4)
 
     _run(configs, backend, robot, model, allow_outside_domain, output, points,
-         ("row", "s", "x", "y", "z"), rows)
+         lambda r: ("row", "s", "x", "y", "z"), rows)

@@ -82,6 +82,12 @@ class Backend(ABC):
         """Settings that shape this backend's backbones (JSON-ready), reported next to its timings."""
         return {}
 
+    def checking_stability(self) -> Backend:
+        """This backend with elastic stability computed for every backbone (`Backbone.stability`),
+        where it can compute it (the exact backends); a surrogate returns itself -- its paths are
+        checked by exact validation."""
+        return self
+
     @property
     def error_bound(self) -> dict | None:
         """A surrogate's calibrated backbone position error bound (mm, by arc-length region and

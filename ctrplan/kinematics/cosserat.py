@@ -6,7 +6,7 @@ kernel's arrays once, and exposes the `Backend` interface with cold and warm sta
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -104,6 +104,11 @@ class CosseratBackend(Backend):
 
     def describe(self) -> dict:
         return asdict(self.settings)
+
+    def checking_stability(self) -> CosseratBackend:
+        if self.settings.stability:
+            return self
+        return CosseratBackend(self.robot, replace(self.settings, stability=True))
 
     def unknowns_from_state(self, state0: np.ndarray) -> np.ndarray:
         """Shooting unknowns (B, N - 1 | N + 2) from initial states (B, 2N + 9)."""

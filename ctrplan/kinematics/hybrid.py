@@ -3,6 +3,7 @@ exact Cosserat solution reached in few Newton iterations."""
 
 from __future__ import annotations
 
+from copy import copy
 from dataclasses import replace
 from pathlib import Path
 
@@ -32,6 +33,11 @@ class HybridBackend(Backend):
 
     def describe(self) -> dict:
         return self.solver.describe()
+
+    def checking_stability(self) -> HybridBackend:
+        checked = copy(self)
+        checked.solver = self.solver.checking_stability()
+        return checked
 
     def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
                 guess: np.ndarray | None = None, check: bool = True) -> Backbone:

@@ -87,7 +87,7 @@ class GoalSampler:
         return q[np.argsort(d)[:n]]
 
     def directions_ok(self, q: np.ndarray) -> np.ndarray:
-        """Whether the tips of configurations (B, 6) respect the target's approach direction."""
+        """Whether the tips of configurations (B, 2N) respect the target's approach direction."""
         if self.region.direction is None or len(q) == 0:
             return np.ones(len(q), dtype=bool)
         bb = self.checker.forward(q, points=2)
@@ -98,7 +98,7 @@ class GoalSampler:
         slightly perturbed: IK from there stays in the free space more often than from random
         seeds."""
         if m <= 0 or not self.checker.valid_q:
-            return np.zeros((0, 6))
+            return np.zeros((0, self.checker.scene.robot.n_joints))
         tips = np.asarray(self.checker.valid_tips)
         d = self.region.distance(tips)
         d = np.where(np.isfinite(d), d, np.inf)
@@ -128,14 +128,19 @@ class GoalSampler:
             y = self.space.to_coords(self._perturbed([self.start], m, sigma=1.0))
             # each tube turned by a quarter, half and three-quarter turn; the rest: one
             # coordinate redrawn at random (mostly a rotation)
-            j = np.where(self.rng.uniform(size=m) < 0.75, self.rng.integers(3, 6, size=m),
-                         self.rng.integers(0, 3, size=m))
+            rot = np.flatnonzero(self.space.is_rotation)
+            trans = np.flatnonzero(~self.space.is_rotation)
+            rot = rot if rot.size else trans
+            trans = trans if trans.size else rot
+            j = np.where(self.rng.uniform(size=m) < 0.75, self.rng.choice(rot, size=m),
+                         self.rng.choice(trans, size=m))
             quarters = self.rng.integers(1, 4, size=m)
             use_turn = np.zeros(m, dtype=bool)
-            k = min(m, 9)  # every (tube, quarter turn) pair once per batch
-            j[:k] = 3 + np.arange(k) // 3
-            quarters[:k] = 1 + np.arange(k) % 3
-            use_turn[:k] = True
+            if self.space.is_rotation.any():
+                k = min(m, 3 * rot.size)  # every (tube, quarter turn) pair once per batch
+                j[:k] = rot[np.arange(k) // 3]
+                quarters[:k] = 1 + np.arange(k) % 3
+                use_turn[:k] = True
             redrawn = self.rng.uniform(self.space.lower[j], self.space.upper[j])
             w = self.space.mm_per_rad
             turn = y[np.arange(m), j] + w * (quarters * 0.5 * np.pi + self.rng.normal(scale=0.1, size=m))
@@ -231,7 +236,7 @@ class TipGoal(ob.GoalSampleableRegion):
             self.sampler.sample_batch()
             goals = self.sampler.goals
         if not goals:
-            for i in range(6):
+            for i in range(self.space.dimension):
                 state[i] = float(self.space.upper[i] + 1.0)
             return
         q = goals[self.handed_out % len(goals)]

@@ -29,6 +29,7 @@ from ctrplan.planning.goal import GoalSampler, TipGoal
 from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate_path
 from ctrplan.planning.validity import BatchMotionValidator, ConfigurationChecker, ValidityChecker
 from ctrplan.scene import PLANNERS, Scene, planner_spec
+from ctrplan.stability import is_certified
 from ctrplan.training.evaluate import region_bounds_mm, region_margins_mm
 
 #: Names OMPL uses for the planners (for logs and benchmark databases), from the one table `PLANNERS`.
@@ -112,7 +113,7 @@ class PlanningProblem:
         self.box = self.checker.space
 
     def solution(self) -> np.ndarray | None:
-        """The current solution path as joints (K, 6), or None."""
+        """The current solution path as joints (K, 2N), or None."""
         if not self.pdef.hasSolution():
             return None
         path = self.pdef.getSolutionPath()
@@ -222,7 +223,7 @@ def _setup_planner(name: str, problem: PlanningProblem, range_mm: float | None) 
 
 
 def _simplified_path(problem: PlanningProblem, simplify: bool, timings: dict) -> np.ndarray:
-    """The solution as joints (K, 6), shortcut first if ``simplify``."""
+    """The solution as joints (K, 2N), shortcut first if ``simplify``."""
     path = problem.pdef.getSolutionPath()
     if simplify:
         simp = og.PathSimplifier(problem.si, problem.pdef.getGoal())
@@ -285,9 +286,12 @@ def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, p
                            f"{sampler.stats.closest_mm:.1f} mm to the target region after "
                            f"{sampler.stats.seeds} seeds"), checker
         if clock.remaining() <= 0:
+            reached = sampler.stats.ik_reached
+            why = f": {reached} IK solutions reached the target, all in collision" \
+                if reached and not sampler.goals else ""
             return outcome(None, "TIMEOUT", False,
                            f"time limit of {clock.limit_s:g} s reached while sampling goal "
-                           f"configurations ({len(sampler.goals)} found)"), checker
+                           f"configurations ({len(sampler.goals)} found{why})"), checker
         if spec.fixed_goal_set and region_goal:
             _fix_goal_set(problem, clock)
         pl = _setup_planner(planner, problem, s.range_mm)
@@ -488,6 +492,8 @@ def _verdict(report: Validation, repair: bool) -> str:
                    f"{report.states} states; first with {', '.join(fc.get('obstacles', []))})")
     if not report.tip_in_target:
         why.append("the exact tip misses the target")
+    if not report.stable:
+        why.append("the path passes through unstable equilibria (the robot would snap)")
     return "not solved: " + "; ".join(why) + ("" if repair else " (repair disabled)")
 
 
@@ -524,6 +530,8 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     t_compile = time.perf_counter()
     be = resolve_backend(backend, scene.robot)
     exact = exact or (be if be.exact and be.robot is scene.robot else CosseratBackend(scene.robot))
+    if not is_certified(scene.robot):  # the planner must never use a configuration that snaps
+        be, exact = be.checking_stability(), exact.checking_stability()
     compile_kernels([be] if be is exact else [be, exact], scene.start, s.points)
     compile_s = time.perf_counter() - t_compile
     planning_be, margin, margin_source = planning_backend(scene, be)

@@ -48,6 +48,7 @@ class Validation:
     tip_in_target: bool = False
     tip_angle_deg: float = 0.0
     converged: bool = False
+    stable: bool = True
     states: int = 0
     colliding_states: list[int] = field(default_factory=list)
     first_collision: dict | None = None
@@ -60,7 +61,7 @@ class Validation:
 
     @property
     def ok(self) -> bool:
-        return self.collision_free and self.tip_in_target and self.converged
+        return self.collision_free and self.tip_in_target and self.converged and self.stable
 
     def to_json(self) -> dict:
         d = asdict(self)
@@ -76,7 +77,7 @@ def _finite(x: float):
 
 @dataclass
 class ValidatedPath:
-    """A dense path (K, 6) with its exact and planning-backend backbones and the report."""
+    """A dense path (K, 2N) with its exact and planning-backend backbones and the report."""
 
     dense_q: np.ndarray
     exact: Backbone
@@ -88,7 +89,7 @@ def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | 
                   exact: Backend | None = None, resolution: float | None = None,
                   points: int | None = None, margin_mm: float | None = None,
                   world: CollisionWorld | None = None, clearance_stride: int = 1) -> ValidatedPath:
-    """Re-validate ``path_q`` (K, 6) with the exact model at ``resolution`` (planning metric, mm).
+    """Re-validate ``path_q`` (K, 2N) with the exact model at ``resolution`` (planning metric, mm).
 
     ``planning_backend`` (if given and not exact itself) is evaluated on the same states for the
     position error. ``clearance_stride`` > 1 computes distances on every n-th state only (plus the
@@ -108,6 +109,7 @@ def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | 
     report = Validation(backend=exact.name, states=len(dense), step_bound_mm=bound,
                         max_step_mm=float(np.max(backbone_steps(ebb), initial=0.0)))
     report.converged = bool(ebb.converged.all())
+    report.stable = bool(ebb.stable.all())
 
     pbb = None
     if planning_backend is not None and planning_backend is not exact:
@@ -123,14 +125,16 @@ def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | 
                                     points, margin)
     bad = []
     for i in range(len(dense)):
-        if not ebb.converged[i] or not checker.is_free(ebb.positions_mm[i], ebb.radius_mm[i]):
-            bad.append(i)
+        if not ebb.stable[i] or not checker.is_free(ebb.positions_mm[i], ebb.radius_mm[i]):
+            bad.append(i)  # unstable states fail too: the robot would snap there
     report.colliding_states = bad
     report.collision_free = not bad and report.converged
     if bad:
         i = bad[0]
         names = sorted({n for _, n in checker.contacts(ebb.positions_mm[i], ebb.radius_mm[i])}) \
             if ebb.converged[i] else ["(exact model did not converge)"]
+        if ebb.converged[i] and not ebb.stable[i]:
+            names.append("(unstable equilibrium: the robot snaps)")
         report.first_collision = {"state": i, "obstacles": names}
 
     best = np.inf
@@ -167,13 +171,13 @@ def _stack(parts: list[Backbone], order: np.ndarray) -> Backbone:
     kw = {}
     for f in fields(Backbone):
         vals = [getattr(b, f.name) for b in parts]
-        kw[f.name] = vals[0] if isinstance(vals[0], str) else np.concatenate(vals)[order]
+        kw[f.name] = vals[0] if vals[0] is None or isinstance(vals[0], str) else np.concatenate(vals)[order]
     return Backbone(**kw)
 
 
 def refine_steps(space: BoxSpace, exact: Backend, dense: np.ndarray, bb: Backbone, bound_mm: float,
                  max_split: int = 64, rounds: int = 4) -> tuple[np.ndarray, Backbone]:
-    """Insert states between consecutive rows of ``dense`` (K, 6) until no backbone point moves more
+    """Insert states between consecutive rows of ``dense`` (K, 2N) until no backbone point moves more
     than ``bound_mm`` between two of them.
 
     A point moving by at most d passes within d / 2 of one of its two checked positions, so with d

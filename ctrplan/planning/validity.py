@@ -83,7 +83,7 @@ class ConfigurationChecker:
     # ---- kinematics ------------------------------------------------------------------------------
     def forward(self, q: np.ndarray, guess: np.ndarray | None = None,
                 points: int | None = None) -> Backbone:
-        """Backbones of joints (B, 6) (no joint checks: planner states lie in the domain)."""
+        """Backbones of joints (B, 2N) (no joint checks: planner states lie in the domain)."""
         q = np.atleast_2d(q)
         t = time.perf_counter()
         bb = self.backend.forward(q, points=points or self.points, guess=guess if self.warm_start else None,
@@ -99,7 +99,8 @@ class ConfigurationChecker:
         return self.scene.to_scene(bb.tip_mm)
 
     def backbone_valid(self, bb: Backbone, i: int) -> bool:
-        """Row i of a backbone batch: converged, finite and collision-free."""
+        """Row i of a backbone batch: converged, elastically stable (where the backend checks it),
+        finite and collision-free."""
         return bool(self.backbones_valid(bb, [i])[i])
 
     def backbones_valid(self, bb: Backbone, order=None, stop_at_first: bool = False) -> np.ndarray:
@@ -110,7 +111,7 @@ class ConfigurationChecker:
         free = self.collision.free_batch(pos, bb.radius_mm, order=order, stop_at_first=stop_at_first)
         self.counters.collision_s += time.perf_counter() - t
         self.counters.collision_checks += len(bb) if order is None else len(order)
-        return free & bb.converged
+        return free & bb.stable
 
     # ---- cache ---------------------------------------------------------------------------------
     @staticmethod
@@ -138,7 +139,7 @@ class ConfigurationChecker:
 
     # ---- public checks -----------------------------------------------------------------------------
     def check(self, q: np.ndarray) -> np.ndarray:
-        """Validity of configurations (B, 6) -> (B,) bool (cached; one backend call for the misses)."""
+        """Validity of configurations (B, 2N) -> (B,) bool (cached; one backend call for the misses)."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         out = np.zeros(q.shape[0], dtype=bool)
         miss = []
