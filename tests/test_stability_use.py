@@ -50,7 +50,8 @@ def test_planning_validity_rejects_an_unstable_configuration(tmp_path, private_c
     robot_file = snapping_pair_file(tmp_path)
     scene_file = tmp_path / "scene.yaml"
     scene_file.write_text(f"name: pair\nrobot: {robot_file}\nbase_pose: {{position: [0, 0, 0]}}\n"
-                          "obstacles: []\ntarget: {point: [0.0, 30.0, 70.0], tolerance_mm: 3.0}\nstart: [0, 0, 0, 0]\n")
+                          "obstacles: []\ntarget: {point: [0.0, 30.0, 70.0], tolerance_mm: 3.0}\n"
+                          "start: [0, 0, 0, 0]\n")
     scene = load_scene(scene_file)
     assert not is_certified(scene.robot)
     plain = CosseratBackend(scene.robot)
