@@ -19,7 +19,7 @@ from ctrplan.robot import JOINT_NAMES, Robot
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "examples" / "configs.csv"
-FK_COLUMNS = (*JOINT_NAMES, *TIP_NAMES, "converged")
+FK_COLUMNS = (*JOINT_NAMES, *TIP_NAMES, "converged", "stable")
 
 
 def run(capsys, *args: str) -> tuple[int, str, str]:
@@ -52,6 +52,7 @@ def test_fk_writes_measured_data_format_matching_the_solver(tmp_path, capsys, co
     tips = table.values[:, 6:15].reshape(-1, 3, 3)
     np.testing.assert_allclose(tips, expected.tips_mm, atol=1e-6)
     np.testing.assert_array_equal(table.column("converged"), 1)
+    np.testing.assert_array_equal(table.column("stable"), 1)  # the nominal domain is snap-free
     # without -o the same CSV goes to stdout
     rc, out, _ = run(capsys, "fk", str(EXAMPLE))
     assert rc == 0 and out == out_csv.read_text()

@@ -257,8 +257,9 @@ def test_fk_cli_accepts_learned_backends(backend, tmp_path):
     out = tmp_path / "tips.csv"
     assert main(["fk", str(configs), "--backend", backend, "-o", str(out)]) == 0
     rows = out.read_text().strip().splitlines()
-    assert rows[0].endswith("converged") and len(rows) > 2
-    assert all(r.endswith(",1") for r in rows[1:])
+    assert rows[0].endswith("converged,stable") and len(rows) > 2
+    stable = "nan" if backend == "pinn" else "1"  # only the exact solver can tell stability
+    assert all(r.endswith(f",1,{stable}") for r in rows[1:])
 
 
 @pytest.mark.parametrize("setting", ["nope=1", "dense_batch"])

@@ -23,7 +23,7 @@ from ctrplan.kinematics import Backend
 from ctrplan.robot import Robot
 
 #: Distance of the warm-start neighbour, per joint: 0.5 mm (beta), 0.5 deg (alpha).
-NEIGHBOUR_STEP = np.array([0.5, 0.5, 0.5] + [math.radians(0.5)] * 3)
+NEIGHBOUR_STEP_MM, NEIGHBOUR_STEP_RAD = 0.5, math.radians(0.5)
 #: Untimed calls per case before timing (compilation, caches).
 WARMUP_CALLS = 3
 
@@ -51,10 +51,12 @@ def cases(backends: dict[str, Backend], points: Sequence[int]) -> list[Case]:
 
 
 def neighbours(robot: Robot, q: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Each configuration of q (B, 6) moved by `NEIGHBOUR_STEP` with random signs, clipped into the
+    """Each configuration of q (B, 2N) moved by 0.5 mm / 0.5 deg per joint with random signs, clipped into the
     snap-free box."""
     domain = robot.domain
-    moved = q + NEIGHBOUR_STEP * rng.choice((-1.0, 1.0), size=q.shape)
+    n = robot.n_tubes
+    step = np.array([NEIGHBOUR_STEP_MM] * n + [NEIGHBOUR_STEP_RAD] * n)
+    moved = q + step * rng.choice((-1.0, 1.0), size=q.shape)
     return domain.from_box(np.clip(domain.to_box(moved), domain.box_lower, domain.box_upper))
 
 
