@@ -23,7 +23,6 @@ from numba import njit, prange
 
 from ctrplan.kinematics._shooting import hermite, lay_nodes, rhs, segments
 
-
 # Rational approximation of tanh used by Eigen for float32 (accurate to float32 rounding on the
 # clamped range); unlike libm's tanh it vectorises.
 _CLAMP = 7.90531110763549805

@@ -129,7 +129,7 @@ class Sampler:
         return torch.rand(n, generator=g, device=self.device), self.joints(n, g)
 
 
-class TrainingDiverged(InputError):
+class TrainingDivergedError(InputError):
     """The loss became NaN or inf: the message names the step, the terms that did and the recipe
     field to change (``--set lr=...``)."""
 
@@ -305,7 +305,7 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
             continue  # host-device syncs only every 10 steps
         loss = float(total.detach())
         if not math.isfinite(loss):
-            raise TrainingDiverged(step, recipe, {k_: float(v) for k_, v in stats.items()})
+            raise TrainingDivergedError(step, recipe, {k_: float(v) for k_, v in stats.items()})
         now = time.perf_counter()
         values = {"loss": loss, **{k_: float(v) for k_, v in stats.items()}}
         if step % 50 == 0 or step == recipe.steps:
