@@ -76,6 +76,12 @@ class PinnNet(nn.Module):
             if isinstance(m, nn.Linear):
                 nn.init.xavier_normal_(m.weight)
                 nn.init.zeros_(m.bias)
+        # start near the unit quaternion (rotated by Rz(alpha1) when equivariant): the orientation
+        # about the tangent does not show in positions, so a random start is slow to unlearn
+        out, i_h = self.mlp[-1], 2 * self.n_tubes + 5
+        with torch.no_grad():
+            out.weight[i_h:] *= 0.1
+            out.bias[i_h] = 1.0
         self.hidden, self.layers = hidden, layers
         self.register_buffer("box_lower", torch.tensor(robot.domain.box_lower, dtype=torch.float32))
         self.register_buffer("box_upper", torch.tensor(robot.domain.box_upper, dtype=torch.float32))
