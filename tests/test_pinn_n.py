@@ -141,8 +141,6 @@ def test_two_tube_losses_vanish_on_exact_solutions():
     scales = torch.ones(robot.n_states, dtype=torch.float64)
 
     class ExactNet:
-        i_p = 2 * robot.n_tubes + 2
-
         def __init__(self):
             self.scales = scales
 

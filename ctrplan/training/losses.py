@@ -31,7 +31,7 @@ def ode_residual(net: PinnNet, sigma: torch.Tensor, q: torch.Tensor, tt: TubeTen
                  norm: str = "mse") -> torch.Tensor:
     """Residual of dx/ds = N(x, s, q) at collocation points sigma (B,), q (B, 2N); d/ds of all
     outputs by one jvp."""
-    ip = net.i_p
+    ip = 2 * tt.n_tubes + 2
     l1 = q[:, 0] + tt.lengths[0]
     x, dx_dsigma = torch.func.jvp(lambda sg: net(sg, q), (sigma,), (torch.ones_like(sigma),))
     dxds = dx_dsigma / l1[:, None]
@@ -45,7 +45,8 @@ def ode_residual(net: PinnNet, sigma: torch.Tensor, q: torch.Tensor, tt: TubeTen
 def boundary_residual(net: PinnNet, q: torch.Tensor, tt: TubeTensors, norm: str = "mse") -> torch.Tensor:
     """Paper eq. 16 at s = 0 and the tube ends: m_b(l1) = 0, u_iz(l_i) = 0, theta/p/h at s = 0;
     q (B, 2N)."""
-    b, n, ip = q.shape[0], tt.n_tubes, net.i_p
+    b, n = q.shape[0], tt.n_tubes
+    ip = 2 * n + 2
     ends = q[:, :n] + tt.lengths
     sig = torch.cat([torch.zeros(b, device=q.device, dtype=q.dtype),
                      *(ends[:, i] / ends[:, 0] for i in range(n - 1, 0, -1)),
@@ -65,7 +66,8 @@ def boundary_residual(net: PinnNet, q: torch.Tensor, tt: TubeTensors, norm: str 
 
 def tube_tips(net: PinnNet, q: torch.Tensor, tt: TubeTensors) -> torch.Tensor:
     """Predicted tips of tubes 1…N (B, N, 3) mm, i.e. p at s = l1 … lN, for joints q (B, 2N)."""
-    b, n, ip = q.shape[0], tt.n_tubes, net.i_p
+    b, n = q.shape[0], tt.n_tubes
+    ip = 2 * n + 2
     ends = q[:, :n] + tt.lengths
     sig = (ends / ends[:, :1]).T.reshape(-1)
     return net(sig, q.repeat(n, 1))[:, ip:ip + 3].view(n, b, 3).transpose(0, 1)
@@ -84,7 +86,7 @@ def supervised_residual(net: PinnNet, sigma: torch.Tensor, q: torch.Tensor, x_tr
                         ) -> torch.Tensor:
     """Dense supervision from exact Cosserat states x_true (B, 2N + 9), per group, mean squared and
     scaled."""
-    ip = net.i_p
+    ip = x_true.shape[1] - 7
     x = net(sigma, q)
     e = (x - x_true) / net.scales
     s = (sigma * (q[:, 0] + net.lengths[0]))[:, None]
