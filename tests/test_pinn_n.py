@@ -153,7 +153,8 @@ def test_two_tube_losses_vanish_on_exact_solutions():
     qt = torch.tensor(q)
     assert float(boundary_residual(ExactNet(), qt, tt).max()) < 1e-12
     np.testing.assert_allclose(tube_tips(ExactNet(), qt, tt).numpy(), exact.tips_mm, atol=1e-9)
-    assert float(boundary_residual(random_net(robot, 0).double(), qt, tt).sum()) > 1e-6
+    with torch.no_grad():
+        assert float(boundary_residual(random_net(robot, 0).double(), qt, tt).sum()) > 1e-6
 
 
 def test_short_two_tube_training_lowers_the_loss(tmp_path):
@@ -167,6 +168,16 @@ def test_short_two_tube_training_lowers_the_loss(tmp_path):
     assert result.steps == 60 and network["inputs"] == 5 and network["outputs"] == 13
     bb = PinnBackend.load(tmp_path / "two", robot).forward(robot.sample_joints(3, rng=1), 30)
     assert bb.state.shape == (3, 30, 13) and bb.converged.all()
+
+
+@pytest.mark.parametrize("n", [1, 4])
+def test_training_runs_for_one_and_four_tubes(n, tmp_path):
+    robot = robot_of(n, LOADS if n == 4 else None)  # (the shooting solver fails on one loaded tube)
+    recipe = get_recipe("fast", steps=20, dense_configs=100, dense_batch=64, collocation=64, boundary=16)
+    result = train(robot, recipe, tmp_path / "m", seed=0)
+    assert result.steps == 20 and all(np.isfinite(h["loss"]) for h in result.history)
+    bb = PinnBackend.load(tmp_path / "m", robot).forward(robot.sample_joints(2, rng=0), 30)
+    assert bb.state.shape == (2, 30, 2 * n + 9) and bb.tips_mm.shape == (2, n, 3)
 
 
 def test_train_cli_with_fixed_joints_and_a_tube_curved_from_its_base(tmp_path, capsys):
