@@ -8,6 +8,10 @@ is a node -- joined by cubic Hermite interpolation whose slopes are the Cosserat
 (`_shooting.rhs`) at the predicted node states ("physics-informed interpolation"; at ``s = 0`` the
 position slope is ``e3`` exactly, the boundary condition the network's positions are built with).
 Arc-length cost is then per node, not per output point.
+
+Any tube count N = 1…4: shapes follow from the arrays (``box_lo`` (2N,), ``rod`` arrays (N,)); states
+are (2N + 9)-vectors. ``rod`` holds plain arrays (`cosserat.RodArrays.arrays`): numba's parallel
+``prange`` cannot take a tuple nested in a tuple argument.
 """
 
 from __future__ import annotations
@@ -18,8 +22,6 @@ import numpy as np
 from numba import njit, prange
 
 from ctrplan.kinematics._shooting import hermite, lay_nodes, rhs, segments
-
-NSTATE, I_P = 15, 8
 
 # Rational approximation of tanh used by Eigen for float32 (accurate to float32 rounding on the
 # clamped range); unlike libm's tanh it vectorises.
@@ -43,35 +45,37 @@ def _tanh_inplace(a):
 
 @njit(cache=True, fastmath=True)
 def infer(q, frac, box_lo, box_hi, length1, scales, loaded, equivariant, W0, b0, Wh, bh, Wo, bo, out):
-    """States ``out`` (B, F, 15) at arc fractions ``frac`` (B, F) for joints ``q`` (B, 6).
+    """States ``out`` (B, F, 2N + 9) at arc fractions ``frac`` (B, F) for joints ``q`` (B, 2N).
 
     Weights are float32 and laid out for ``x @ W`` (in, out). ``equivariant`` selects the input
-    encoding (see `ctrplan.kinematics.pinn`).
+    encoding (see `ctrplan.kinematics.pinn`); a fixed box coordinate (``box_lo == box_hi``) enters as 0.
     """
     nb, nf = frac.shape
+    nt = box_lo.shape[0] // 2
+    ns = 2 * nt + 9
+    i_th, i_p = 2 + nt, 2 + 2 * nt
     nin = W0.shape[0]
     # the first layer splits into an arc-length column and a per-configuration part: one row each
     zq = np.empty((nb, nin - 1), dtype=np.float32)
-    box = np.empty(6)
-    x = np.empty(15)
+    box = np.empty(2 * nt)
+    x = np.empty(ns)
     for b in range(nb):
-        box[0] = q[b, 2]
-        box[1] = q[b, 2] - q[b, 1]
-        box[2] = q[b, 1] - q[b, 0]
-        box[3] = q[b, 3]
-        box[4] = q[b, 4]
-        box[5] = q[b, 5]
-        for i in range(6):
-            box[i] = 2.0 * (box[i] - box_lo[i]) / (box_hi[i] - box_lo[i]) - 1.0
+        box[0] = q[b, nt - 1]
+        for r in range(1, nt):  # beta_{i+1} - beta_i for i = N-1 … 1
+            box[r] = q[b, nt - r] - q[b, nt - r - 1]
+        for i in range(nt):
+            box[nt + i] = q[b, nt + i]
+        for i in range(2 * nt):
+            width = box_hi[i] - box_lo[i]
+            box[i] = 2.0 * (box[i] - box_lo[i]) / width - 1.0 if width > 0.0 else 0.0
         if equivariant:
-            for i in range(3):
+            for i in range(nt):
                 zq[b, i] = box[i]
-            zq[b, 3] = math.cos(q[b, 4] - q[b, 3])
-            zq[b, 4] = math.cos(q[b, 5] - q[b, 3])
-            zq[b, 5] = math.sin(q[b, 4] - q[b, 3])
-            zq[b, 6] = math.sin(q[b, 5] - q[b, 3])
+            for i in range(1, nt):
+                zq[b, nt + i - 1] = math.cos(q[b, nt + i] - q[b, nt])
+                zq[b, 2 * nt + i - 2] = math.sin(q[b, nt + i] - q[b, nt])
         else:
-            for i in range(6):
+            for i in range(2 * nt):
                 zq[b, i] = box[i]
     cq = zq @ W0[1:] + b0
     ws = W0[0]
@@ -89,32 +93,36 @@ def infer(q, frac, box_lo, box_hi, length1, scales, loaded, equivariant, W0, b0,
     raw = h @ Wo + bo
     for b in range(nb):
         l1 = q[b, 0] + length1
-        a1 = q[b, 3]
+        a1 = q[b, nt]
         ca, sa = math.cos(a1), math.sin(a1)
         ch, sh = math.cos(0.5 * a1), math.sin(0.5 * a1)
         for f in range(nf):
             r = b * nf + f
             o = out[b, f]
-            for i in range(15):
+            for i in range(ns):
                 x[i] = raw[r, i] * scales[i]
             s = frac[b, f] * l1
             o[0] = x[0] * loaded
             o[1] = x[1] * loaded
-            o[2], o[3], o[4] = x[2], x[3], x[4]
-            o[5], o[6], o[7] = 0.0, x[6], x[7]
-            px = s * s / 100.0 * x[8]
-            py = s * s / 100.0 * x[9]
-            pz = s + s * s / 100.0 * x[10]
-            nq = math.sqrt(x[11] ** 2 + x[12] ** 2 + x[13] ** 2 + x[14] ** 2)
+            for i in range(nt):
+                o[2 + i] = x[2 + i]
+            o[i_th] = 0.0
+            for i in range(1, nt):
+                o[i_th + i] = x[i_th + i]
+            px = s * s / 100.0 * x[i_p]
+            py = s * s / 100.0 * x[i_p + 1]
+            pz = s + s * s / 100.0 * x[i_p + 2]
+            i_q = i_p + 3
+            nq = math.sqrt(x[i_q] ** 2 + x[i_q + 1] ** 2 + x[i_q + 2] ** 2 + x[i_q + 3] ** 2)
             nq = max(nq, 1e-12)
-            w, hx, hy, hz = x[11] / nq, x[12] / nq, x[13] / nq, x[14] / nq
+            w, hx, hy, hz = x[i_q] / nq, x[i_q + 1] / nq, x[i_q + 2] / nq, x[i_q + 3] / nq
             if equivariant:
-                o[6] += q[b, 4] - a1
-                o[7] += q[b, 5] - a1
+                for i in range(1, nt):
+                    o[i_th + i] += q[b, nt + i] - a1
                 px, py = ca * px - sa * py, sa * px + ca * py
                 w, hx, hy, hz = ch * w - sh * hz, ch * hx - sh * hy, ch * hy + sh * hx, ch * hz + sh * w
-            o[8], o[9], o[10] = px, py, pz
-            o[11], o[12], o[13], o[14] = w, hx, hy, hz
+            o[i_p], o[i_p + 1], o[i_p + 2] = px, py, pz
+            o[i_q], o[i_q + 1], o[i_q + 2], o[i_q + 3] = w, hx, hy, hz
 
 
 @njit(cache=True)
@@ -133,9 +141,9 @@ def node_steps(breaks, total):
 
 @njit(cache=True)
 def node_layout(q, intervals, lengths, straight, EI):
-    """Network nodes of one configuration q (6,): ``nodes`` (intervals+1,) mm, ``seg_of`` (intervals,),
-    per-segment ``present``, ``kc``, ``bend`` (see `_shooting.segments`) and ``end_node`` (3,)."""
-    beta = q[:3].copy()
+    """Network nodes of one configuration q (2N,): ``nodes`` (intervals+1,) mm, ``seg_of`` (intervals,),
+    per-segment ``present``, ``kc``, ``bend`` (see `_shooting.segments`) and ``end_node`` (N,)."""
+    beta = q[:lengths.shape[0]].copy()
     breaks, present, kc, bend, _ = segments(beta, lengths, straight, EI)
     nodes, seg_of, end_node = lay_nodes(breaks, node_steps(breaks, intervals), beta + lengths)
     return nodes, seg_of, present, kc, bend, end_node
@@ -143,8 +151,8 @@ def node_layout(q, intervals, lengths, straight, EI):
 
 @njit(cache=True)
 def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends):
-    """States ``states`` (B, N, 15) at arc fractions ``out_frac`` (N,) of l1 for joints q (B, 6), and
-    the network's states ``at_ends`` (B, 4, 15) at the tube ends l1, l2, l3 and at s = 0.
+    """States ``states`` (B, P, 2N + 9) at arc fractions ``out_frac`` (P,) of l1 for joints q (B, 2N),
+    and the network's states ``at_ends`` (B, N + 1, 2N + 9) at the tube ends l1 … lN and at s = 0.
 
     ``intervals = 0``: the network at every point; otherwise Hermite interpolation between the
     network at ``intervals + 1`` nodes (see the module docstring). ``net`` is the weights tuple of
@@ -153,14 +161,16 @@ def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends):
     """
     lengths, straight, kappa, EI, GJ, force, weight = rod
     nb, n = q.shape[0], out_frac.shape[0]
+    nt = lengths.shape[0]
+    ns, i_p = 2 * nt + 9, 2 + 2 * nt
     if intervals == 0:
-        frac = np.empty((nb, n + 4))
+        frac = np.empty((nb, n + nt + 1))
         for b in range(nb):
             frac[b, :n] = out_frac
-            for i in range(3):
+            for i in range(nt):
                 frac[b, n + i] = (q[b, i] + lengths[i]) / (q[b, 0] + lengths[0])
-            frac[b, n + 3] = 0.0
-        y = np.empty((nb, n + 4, NSTATE))
+            frac[b, n + nt] = 0.0
+        y = np.empty((nb, n + nt + 1, ns))
         infer(q, frac, *net, y)
         states[:] = y[:, :n]
         at_ends[:] = y[:, n:]
@@ -169,13 +179,13 @@ def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends):
     for b in range(nb):
         nodes = node_layout(q[b], intervals, lengths, straight, EI)[0]
         frac[b] = nodes / nodes[-1]
-    y = np.empty((nb, intervals + 1, NSTATE))
+    y = np.empty((nb, intervals + 1, ns))
     infer(q, frac, *net, y)
-    fl = np.empty((intervals, NSTATE))
-    fr = np.empty((intervals, NSTATE))
+    fl = np.empty((intervals, ns))
+    fr = np.empty((intervals, ns))
     for b in range(nb):  # the layout again: cheaper than keeping ragged per-segment tables
         nodes, seg_of, present, kc, bend, end_node = node_layout(q[b], intervals, lengths, straight, EI)
-        ends = q[b, :3] + lengths
+        ends = q[b, :nt] + lengths
         yb = y[b]
         for j in range(intervals):
             k = seg_of[j]
@@ -183,13 +193,13 @@ def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends):
                 True, fl[j])
             rhs(nodes[j + 1], yb[j + 1], present[k], kc[k], kappa, bend[k], EI, GJ, ends, force, weight,
                 loaded, True, fr[j])
-        fl[0, I_P] = 0.0
-        fl[0, I_P + 1] = 0.0
-        fl[0, I_P + 2] = 1.0
+        fl[0, i_p] = 0.0
+        fl[0, i_p + 1] = 0.0
+        fl[0, i_p + 2] = 1.0
         hermite(nodes, seg_of, yb, fl, fr, out_frac * nodes[-1], states[b])
-        for i in range(3):
+        for i in range(nt):
             at_ends[b, i] = yb[end_node[i]]
-        at_ends[b, 3] = yb[0]
+        at_ends[b, nt] = yb[0]
 
 
 @njit(cache=True, parallel=True)

@@ -1,14 +1,20 @@
-"""PINN surrogate backend: the paper's MLP (6x100 tanh -> 15) maps (arc length, joints) to the
-15-state. Evaluation is one batched forward pass, so its cost hardly depends on the configuration.
+"""PINN surrogate backend: the paper's MLP (6x100 tanh -> 2N + 9) maps (arc length, joints) to the
+(2N + 9)-state of an N-tube robot (15 for three tubes). Evaluation is one batched forward pass, so its
+cost hardly depends on the configuration.
 
-Two input encodings (``features``):
+Two input encodings (``features``), for N = 1…4 tubes:
 
-* ``paper`` -- 7 inputs: ``2 s/l1 - 1`` and the joints' snap-free box coordinates scaled to [-1, 1].
+* ``paper`` -- 1 + 2N inputs: ``2 s/l1 - 1`` and the joints' box coordinates (`JointDomain`) scaled
+  to [-1, 1] (7 for three tubes).
 * ``equivariant`` (default) -- uses an exact symmetry of the mechanics: adding c to every alpha rotates
-  the whole robot about z by c. The network sees ``2 s/l1 - 1``, the three beta box coordinates and
-  ``cos, sin`` of ``alpha2 - alpha1`` and ``alpha3 - alpha1`` (the mechanics is 2 pi-periodic in them);
-  positions and orientation it predicts are rotated by ``Rz(alpha1)`` and the twist angles are
-  ``theta_i = alpha_i - alpha1 + (learned deviation)``. 8 inputs, one dimension fewer to learn.
+  the whole robot about z by c. The network sees ``2 s/l1 - 1``, the N translation box coordinates and
+  ``cos, sin`` of ``alpha_i - alpha1`` for i = 2…N (the mechanics is 2 pi-periodic in them), in the
+  order ``cos(alpha2 - alpha1) … cos(alphaN - alpha1), sin(alpha2 - alpha1) …``; positions and
+  orientation it predicts are rotated by ``Rz(alpha1)`` and the twist angles are
+  ``theta_i = alpha_i - alpha1 + (learned deviation)``. 3N - 1 inputs (8 for three tubes), one
+  dimension fewer to learn.
+
+A fixed joint (zero-width box interval) enters as the constant feature 0.
 
 The output transform builds the known structure in exactly (hard constraints):
 ``p = s e3 + (s^2 / L_ref) * net_p`` (so p(0) = 0 and p'(0) = e3 for every configuration),
@@ -33,7 +39,7 @@ from ctrplan.kinematics.cosserat import RodArrays
 from ctrplan.robot import Robot
 
 P_REF_MM = 100.0
-FEATURES = {"paper": 7, "equivariant": 8}
+FEATURES = ("paper", "equivariant")
 #: Network nodes per backbone (`PinnBackend`). Measured on the shipped model (1000 configurations, 64
 #: points): interpolated backbones lie within 0.06 mm of the network evaluated at every point, and the
 #: error against the exact model is unchanged (mean 0.1143 % vs 0.1142 % of arc length).
@@ -44,11 +50,16 @@ DEFAULT_NODES = 25
 CHUNK_ROWS = 512
 
 
+def n_inputs(features: str, n_tubes: int) -> int:
+    """Network inputs of an encoding for N tubes: 1 + 2N (``paper``) or 3N - 1 (``equivariant``)."""
+    return 1 + 2 * n_tubes if features == "paper" else 3 * n_tubes - 1
+
+
 class PinnNet(nn.Module):
     """The MLP with its input normalisation and output transform. Works in float32 or float64.
 
-    ``forward(sigma (B,), q (B, 6)) -> state (B, 15)`` with ``sigma = s / l1`` in [0, 1] and q in
-    mm/rad (offsets already applied). ``scales`` (15,) sets the size of each raw output.
+    ``forward(sigma (B,), q (B, 2N)) -> state (B, 2N + 9)`` with ``sigma = s / l1`` in [0, 1] and q in
+    mm/rad (offsets already applied). ``scales`` (2N + 9,) sets the size of each raw output.
     """
 
     def __init__(self, robot: Robot, hidden: int = 100, layers: int = 6,
@@ -57,49 +68,72 @@ class PinnNet(nn.Module):
         if features not in FEATURES:
             raise ValueError(f"features must be one of {sorted(FEATURES)}, got {features!r}")
         self.features_mode = features
-        dims = [FEATURES[features]] + [hidden] * layers
+        self.n_tubes, self.n_states = robot.n_tubes, robot.n_states
+        self.n_inputs = n_inputs(features, robot.n_tubes)
+        dims = [self.n_inputs] + [hidden] * layers
         mods: list[nn.Module] = []
         for a, b in zip(dims[:-1], dims[1:], strict=True):
             mods += [nn.Linear(a, b), nn.Tanh()]
-        mods.append(nn.Linear(hidden, 15))
+        mods.append(nn.Linear(hidden, self.n_states))
         self.mlp = nn.Sequential(*mods)
         for m in self.mlp:
             if isinstance(m, nn.Linear):
                 nn.init.xavier_normal_(m.weight)
                 nn.init.zeros_(m.bias)
+        # start near the unit quaternion (rotated by Rz(alpha1) when equivariant): the orientation
+        # about the tangent does not show in positions, so a random start is slow to unlearn
+        out, i_h = self.mlp[-1], 2 * self.n_tubes + 5
+        with torch.no_grad():
+            out.weight[i_h:] *= 0.1
+            out.bias[i_h] = 1.0
         self.hidden, self.layers = hidden, layers
         self.register_buffer("box_lower", torch.tensor(robot.domain.box_lower, dtype=torch.float32))
         self.register_buffer("box_upper", torch.tensor(robot.domain.box_upper, dtype=torch.float32))
         self.register_buffer("lengths", torch.tensor(robot.lengths_mm, dtype=torch.float32))
-        self.register_buffer("scales", torch.ones(15) if scales is None
+        self.register_buffer("scales", torch.ones(self.n_states) if scales is None
                              else torch.tensor(scales, dtype=torch.float32))
         self.register_buffer("loaded", torch.tensor(float(not robot.loads.is_free)))
 
+    @property
+    def i_p(self) -> int:
+        """Offset of the position p (3,) in the state: 2N + 2."""
+        return 2 * self.n_tubes + 2
+
+    def box(self, q: torch.Tensor) -> torch.Tensor:
+        """Box coordinates (B, 2N) ``(betaN, betaN - betaN-1, …, beta2 - beta1, alpha1 … alphaN)`` of
+        joints q (B, 2N), mm and rad."""
+        n = self.n_tubes
+        beta = q[:, :n]
+        return torch.cat([beta[:, n - 1:], (beta[:, 1:] - beta[:, :-1]).flip(-1), q[:, n:]], -1)
+
     def features(self, sigma: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
-        """Normalised network input (B, 7 | 8)."""
-        b1, b2, b3 = q[:, 0], q[:, 1], q[:, 2]
-        box = torch.stack([b3, b3 - b2, b2 - b1, q[:, 3], q[:, 4], q[:, 5]], -1)
-        zq = 2 * (box - self.box_lower) / (self.box_upper - self.box_lower) - 1
+        """Normalised network input (B, 1 + 2N | 3N - 1); fixed box coordinates give 0."""
+        n = self.n_tubes
+        width = self.box_upper - self.box_lower
+        fixed = width <= 0
+        zq = 2 * (self.box(q) - self.box_lower) / torch.where(fixed, torch.ones_like(width), width) - 1
+        zq = torch.where(fixed, torch.zeros_like(zq), zq)
         zs = 2 * sigma[:, None] - 1
         if self.features_mode == "paper":
             return torch.cat([zs, zq], -1)
-        dalpha = q[:, 4:6] - q[:, 3:4]
-        return torch.cat([zs, zq[:, :3], torch.cos(dalpha), torch.sin(dalpha)], -1)
+        dalpha = q[:, n + 1:] - q[:, n:n + 1]
+        return torch.cat([zs, zq[:, :n], torch.cos(dalpha), torch.sin(dalpha)], -1)
 
     def forward(self, sigma: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        n, ip = self.n_tubes, self.i_p
         raw = self.mlp(self.features(sigma, q)) * self.scales
         s = (sigma * (q[:, 0] + self.lengths[0]))[:, None]
         mb = raw[:, 0:2] * self.loaded
-        uz = raw[:, 2:5]
-        theta = torch.cat([torch.zeros_like(raw[:, 5:6]), raw[:, 6:8]], -1)
-        e3 = torch.zeros_like(raw[:, 8:11])
+        uz = raw[:, 2:2 + n]
+        theta = torch.cat([torch.zeros_like(raw[:, 2 + n:3 + n]), raw[:, 3 + n:ip]], -1)
+        e3 = torch.zeros_like(raw[:, ip:ip + 3])
         e3[:, 2] = 1.0
-        p = s * e3 + (s * s / P_REF_MM) * raw[:, 8:11]
-        h = raw[:, 11:15]
+        p = s * e3 + (s * s / P_REF_MM) * raw[:, ip:ip + 3]
+        h = raw[:, ip + 3:ip + 7]
         h = h / h.norm(dim=-1, keepdim=True).clamp(min=1e-12)
         if self.features_mode == "equivariant":
-            a1 = q[:, 3:4]
-            theta = theta + torch.cat([torch.zeros_like(a1), q[:, 4:6] - a1], -1)
+            a1 = q[:, n:n + 1]
+            theta = theta + torch.cat([torch.zeros_like(a1), q[:, n + 1:] - a1], -1)
             c, sn = torch.cos(a1), torch.sin(a1)
             p = torch.cat([c * p[:, 0:1] - sn * p[:, 1:2], sn * p[:, 0:1] + c * p[:, 1:2], p[:, 2:3]], -1)
             cw, sz = torch.cos(0.5 * a1), torch.sin(0.5 * a1)    # h <- qz(alpha1) (x) h
@@ -130,8 +164,9 @@ class PinnBackend(Backend):
     def __init__(self, robot: Robot, net: PinnNet, card: dict | None = None, *,
                  nodes: int | None = DEFAULT_NODES):
         super().__init__(robot)
-        if nodes is not None and nodes < 7:  # a backbone has up to 6 segments between transitions
-            raise ValueError(f"nodes must be None or at least 7, got {nodes}")
+        n, ns = robot.n_tubes, robot.n_states
+        if nodes is not None and nodes < 2 * n + 1:  # up to 2N segments between transition points
+            raise ValueError(f"nodes must be None or at least {2 * n + 1}, got {nodes}")
         self.nodes = nodes
         self.net = net.eval().float()
         self.card = card or {}
@@ -140,15 +175,15 @@ class PinnBackend(Backend):
         self._compiled = self._export(self.net)
         self._rod = RodArrays.of(robot).arrays()
         # distal residual, as moment over tube-1 stiffness in 1/m, is max |weights * at_ends| with
-        # at_ends the (4, 15) states at l1, l2, l3 and s = 0: u_iz(l_i) GJ_i / GJ_1, m_b(l1) / EI_1
+        # at_ends the (N + 1, 2N + 9) states at l1 … lN and s = 0: u_iz(l_i) GJ_i / GJ_1, m_b(l1) / EI_1
         gj = np.array([t.torsional_stiffness_nmm2 for t in robot.tubes])
-        self._residual_weights = np.zeros((4, 15))
-        self._residual_weights[[0, 1, 2], [2, 3, 4]] = gj / gj[0] * 1e3
+        self._residual_weights = np.zeros((n + 1, ns))
+        self._residual_weights[np.arange(n), 2 + np.arange(n)] = gj / gj[0] * 1e3
         self._residual_weights[0, 0:2] = 1e3 / robot.tubes[0].bending_stiffness_nmm2
         self._blas = ThreadpoolController().select(user_api="blas").lib_controllers
         # compile (or load from numba's cache) the kernels now, not inside a caller's timed loop
-        q0 = np.zeros((CHUNK_ROWS + 1, 6))
-        q0[:, :3] = -1.0
+        q0 = np.zeros((CHUNK_ROWS + 1, 2 * n))
+        q0[:, :n] = -1.0
         self._evaluate(q0[:1], np.zeros((1, 1)))
         self.forward(q0, 2, check=False)                  # more than one chunk: the parallel kernel
         self.forward(q0[:1], DEFAULT_POINTS, check=False)
@@ -202,9 +237,9 @@ class PinnBackend(Backend):
                 lib.set_num_threads(n)
 
     def _evaluate(self, q: np.ndarray, frac: np.ndarray) -> np.ndarray:
-        """The network's states (B, F, 15) at arc fractions frac (B, F) for joints q (B, 6) with
+        """The network's states (B, F, 2N + 9) at arc fractions frac (B, F) for joints q (B, 2N) with
         offsets applied."""
-        out = np.empty((frac.shape[0], frac.shape[1], 15))
+        out = np.empty((frac.shape[0], frac.shape[1], self.robot.n_states))
         with self._one_blas_thread():
             infer(np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(frac, dtype=float),
                   *self._compiled, out)
@@ -216,12 +251,13 @@ class PinnBackend(Backend):
         qm = np.ascontiguousarray(self.robot.apply_offset(q), dtype=float)
         frac = arc_fractions(points).copy()  # always writable: one compiled kernel type
         n = frac.size
-        # network rows per backbone: the nodes, or every point plus the tube ends and s = 0
-        interpolate = self.nodes is not None and n + 4 > self.nodes
-        rows = self.nodes if interpolate else n + 4
+        nt, ns = self.robot.n_tubes, self.robot.n_states
+        # network rows per backbone: the nodes, or every point plus the N tube ends and s = 0
+        interpolate = self.nodes is not None and n + nt + 1 > self.nodes
+        rows = self.nodes if interpolate else n + nt + 1
         intervals = self.nodes - 1 if interpolate else 0
-        states = np.empty((len(qm), n, 15))
-        at_ends = np.empty((len(qm), 4, 15))
+        states = np.empty((len(qm), n, ns))
+        at_ends = np.empty((len(qm), nt + 1, ns))
         chunk = max(1, CHUNK_ROWS // rows)
         loaded = not self.robot.loads.is_free
         with self._one_blas_thread():
@@ -230,19 +266,20 @@ class PinnBackend(Backend):
             else:
                 backbones_chunked(qm, frac, intervals, self._compiled, self._rod, loaded, states,
                                   at_ends, chunk)
-        ends = qm[:, :3] + self.robot.lengths_mm
+        ends = qm[:, :nt] + self.robot.lengths_mm
         s_mm = frac[None, :] * ends[:, :1]
+        ip = self.net.i_p
         return Backbone(
             q=q, s_mm=s_mm, state=states, tube_ends_mm=ends,
-            tips_mm=at_ends[:, :3, 8:11].copy(),
+            tips_mm=at_ends[:, :nt, ip:ip + 3].copy(),
             radius_mm=outer_radius_along(self.robot, s_mm, ends),
             converged=np.isfinite(states).all(axis=(1, 2)),
-            initial_state=at_ends[:, 3].copy(), iterations=np.zeros(len(qm), dtype=np.int64),
+            initial_state=at_ends[:, nt].copy(), iterations=np.zeros(len(qm), dtype=np.int64),
             residual=np.abs(at_ends * self._residual_weights).max(axis=(1, 2)), backend=self.name,
         )
 
     def initial_states(self, q: np.ndarray) -> np.ndarray:
-        """Predicted 15-state at s = 0 (B, 15) for joints q (B, 6): a warm start for shooting."""
+        """Predicted state at s = 0 (B, 2N + 9) for joints q (B, 2N): a warm start for shooting."""
         qm = self.robot.apply_offset(np.atleast_2d(q))
         return self._evaluate(qm, np.zeros((len(qm), 1)))[:, 0]
 
@@ -252,13 +289,14 @@ class PinnBackend(Backend):
         on a CPU, so ``analytic_tip_jacobian`` stays False.)"""
         qm = torch.from_numpy(self.robot.apply_offset(np.atleast_2d(q)).astype(np.float32))
         one = torch.ones(len(qm))
+        ip = self.net.i_p
 
         def tip(qq: torch.Tensor) -> torch.Tensor:
-            return self.net(one[:1], qq[None])[0, 8:11]
+            return self.net(one[:1], qq[None])[0, ip:ip + 3]
 
         with torch.enable_grad():
             jac = torch.func.vmap(torch.func.jacrev(tip))(qm)
         with torch.inference_mode():
-            tips = self.net(one, qm)[:, 8:11]
+            tips = self.net(one, qm)[:, ip:ip + 3]
         tips = tips.numpy().astype(float)
         return tips, jac.detach().numpy().astype(float), np.isfinite(tips).all(axis=1)

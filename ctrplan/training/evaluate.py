@@ -58,8 +58,11 @@ class Comparison:
         return 100.0 * d[:, 1:] / self.exact.s_mm[:, 1:]
 
     def metrics(self) -> dict:
+        """Backbone error (% of arc length), tip errors of tubes 1…N (mm), u_z RMSE (1/m), RMSE of
+        the twists theta_2…N (rad; 0 for one tube), orientation error (deg)."""
+        n = self.exact.n_tubes
         e = self.normalised_error_pct
-        tip = np.linalg.norm(self.predicted.tips_mm - self.exact.tips_mm, axis=-1)  # (B, 3)
+        tip = np.linalg.norm(self.predicted.tips_mm - self.exact.tips_mm, axis=-1)  # (B, N)
         pq, eq = self.predicted.quaternions, self.exact.quaternions
         angle = np.degrees(2 * np.arccos(np.clip(np.abs((pq * eq).sum(-1)), 0, 1)))
         ps, es = self.predicted.state, self.exact.state
@@ -67,9 +70,10 @@ class Comparison:
             "configurations": len(self.exact),
             "backbone_error_pct": {"mean": float(e.mean()), "max": float(e.max()),
                                    "p95": float(np.percentile(e, 95))},
-            "tip_error_mm": {f"tube{i + 1}": _tail(tip[:, i]) for i in range(tip.shape[1])},
-            "u_z_rmse_1_per_m": float(np.sqrt(((ps[..., 2:5] - es[..., 2:5]) ** 2).mean()) * 1e3),
-            "theta_rmse_rad": float(np.sqrt(((ps[..., 6:8] - es[..., 6:8]) ** 2).mean())),
+            "tip_error_mm": {f"tube{i + 1}": _tail(tip[:, i]) for i in range(n)},
+            "u_z_rmse_1_per_m": float(np.sqrt(((ps[..., 2:2 + n] - es[..., 2:2 + n]) ** 2).mean()) * 1e3),
+            "theta_rmse_rad": float(np.sqrt(((ps[..., 3 + n:2 + 2 * n] - es[..., 3 + n:2 + 2 * n]) ** 2
+                                             ).mean())) if n > 1 else 0.0,
             "orientation_error_deg": _tail(angle),
         }
 

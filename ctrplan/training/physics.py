@@ -1,25 +1,26 @@
 """The Cosserat-rod equations (paper eq. 9-13) in torch, batched, for the PINN losses.
 
-Same state layout and units as the shooting solver (`ctrplan.kinematics.backbone.STATE_NAMES`):
-mm, N, 1/mm, rad, scalar-first quaternion. Every function takes per-sample arc length ``s`` (B,) in mm
-and joints ``q`` (B, 6) with the robot's joint offset already applied.
+Same state layout and units as the shooting solver (`ctrplan.kinematics.backbone.state_names`):
+mm, N, 1/mm, rad, scalar-first quaternion; (2N + 9) states for N = 1…4 tubes. Every function takes
+per-sample arc length ``s`` (B,) in mm and joints ``q`` (B, 2N) with the robot's joint offset already
+applied. Tube parameters come from `ctrplan.kinematics.cosserat.RodArrays`, as for the shooting solver.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 import torch
 
+from ctrplan.kinematics.cosserat import RodArrays
 from ctrplan.robot import Robot
-
-G_TO_N_PER_MM = 1e-9
 
 
 @dataclass(frozen=True)
 class TubeTensors:
-    """Robot parameters as tensors (3,) on one device/dtype; ``weight`` (3, 3) N/mm, ``force`` (3,) N."""
+    """`RodArrays` as tensors on one device/dtype: per tube (N,) lengths and straight lengths (mm),
+    kappa (1/mm), EI and GJ (N*mm^2); ``weight`` (N, 3) N/mm, ``force`` (3,) N."""
 
     lengths: torch.Tensor
     straight: torch.Tensor
@@ -29,29 +30,21 @@ class TubeTensors:
     weight: torch.Tensor
     force: torch.Tensor
 
+    @property
+    def n_tubes(self) -> int:
+        return self.lengths.shape[0]
+
     @classmethod
     def from_robot(cls, robot: Robot, device: torch.device | str = "cpu",
                    dtype: torch.dtype = torch.float32) -> TubeTensors:
-        tubes = robot.tubes
-
-        def t(values) -> torch.Tensor:
-            return torch.as_tensor(np.asarray(values, dtype=float), dtype=dtype, device=device)
-
-        mass = np.array([tb.density_kg_m3 * tb.area_mm2 for tb in tubes]) * G_TO_N_PER_MM
-        return cls(
-            lengths=t([tb.length_mm for tb in tubes]),
-            straight=t([tb.straight_length_mm for tb in tubes]),
-            kappa=t([tb.curvature_per_mm for tb in tubes]),
-            EI=t([tb.bending_stiffness_nmm2 for tb in tubes]),
-            GJ=t([tb.torsional_stiffness_nmm2 for tb in tubes]),
-            weight=t(mass[:, None] * np.asarray(robot.loads.gravity_m_s2, dtype=float)[None, :]),
-            force=t(robot.loads.tip_force_n),
-        )
+        rod = RodArrays.of(robot)
+        return cls(**{f.name: torch.as_tensor(np.asarray(getattr(rod, f.name), dtype=float), dtype=dtype,
+                                              device=device) for f in fields(cls)})
 
 
 def segment_flags(s: torch.Tensor, q: torch.Tensor, tt: TubeTensors) -> tuple[torch.Tensor, torch.Tensor]:
-    """Which tubes are present (s < l_i) and curved at each arc length: two (B, 3) float masks."""
-    beta = q[:, :3]
+    """Which tubes are present (s < l_i) and curved at each arc length: two (B, N) float masks."""
+    beta = q[:, :tt.n_tubes]
     ends = beta + tt.lengths
     present = (s[:, None] < ends).to(s.dtype)
     curved = present * (s[:, None] > beta + tt.straight).to(s.dtype)
@@ -69,14 +62,15 @@ def quat_to_matrix(h: torch.Tensor) -> torch.Tensor:
 
 
 def rhs(x: torch.Tensor, s: torch.Tensor, q: torch.Tensor, tt: TubeTensors) -> torch.Tensor:
-    """dx/ds (B, 15) of the 15-state x (B, 15) at arc lengths s (B,) for joints q (B, 6)."""
+    """dx/ds (B, 2N + 9) of the state x (B, 2N + 9) at arc lengths s (B,) mm for joints q (B, 2N)."""
+    n = tt.n_tubes
     present, curved = segment_flags(s, q, tt)
     mb = x[:, 0:2]
-    uz = x[:, 2:5]
-    th = x[:, 5:8]
-    h = x[:, 11:15]
+    uz = x[:, 2:2 + n]
+    th = x[:, 2 + n:2 + 2 * n]
+    h = x[:, 5 + 2 * n:9 + 2 * n]
     c, sn = torch.cos(th), torch.sin(th)
-    ek = tt.EI * tt.kappa * curved                       # (B, 3) N*mm
+    ek = tt.EI * tt.kappa * curved                       # (B, N) N*mm
     bend = (tt.EI * present).sum(-1, keepdim=True)       # (B, 1)
     ux = (mb[:, 0:1] + (ek * c).sum(-1, keepdim=True)) / bend
     uy = (mb[:, 1:2] + (ek * sn).sum(-1, keepdim=True)) / bend
@@ -93,9 +87,9 @@ def rhs(x: torch.Tensor, s: torch.Tensor, q: torch.Tensor, tt: TubeTensors) -> t
     ], -1)
     R = quat_to_matrix(h)
     dp = R[:, :, 2]
-    ends = q[:, :3] + tt.lengths
-    n = tt.force + ((ends - s[:, None]).clamp(min=0)[:, :, None] * tt.weight).sum(1)  # robot frame, N
-    nb = torch.einsum("bji,bj->bi", R, n)                                              # body frame
+    ends = q[:, :n] + tt.lengths
+    force = tt.force + ((ends - s[:, None]).clamp(min=0)[:, :, None] * tt.weight).sum(1)  # robot frame, N
+    nb = torch.einsum("bji,bj->bi", R, force)                                              # body frame
     mz = (present * tt.GJ * uz).sum(-1)
     # m_b' = -u x m_b - e3 x R^T n
     dmx = -(uy1 * mz - uz1 * mb[:, 1]) + nb[:, 1]
@@ -105,8 +99,9 @@ def rhs(x: torch.Tensor, s: torch.Tensor, q: torch.Tensor, tt: TubeTensors) -> t
 
 
 def initial_theta_and_quat(u0: torch.Tensor, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Paper eq. 10 and 12 from u_z(0) (B, 3): theta(0) (B, 3) and h(0) (B, 4)."""
-    beta, alpha = q[:, :3], q[:, 3:]
+    """Paper eq. 10 and 12 from u_z(0) (B, N): theta(0) (B, N) and h(0) (B, 4)."""
+    n = u0.shape[1]
+    beta, alpha = q[:, :n], q[:, n:]
     phi = alpha - beta * u0
     theta0 = phi - phi[:, 0:1]
     half = 0.5 * phi[:, 0]

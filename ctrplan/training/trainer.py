@@ -109,7 +109,7 @@ class Sampler:
     def __init__(self, robot: Robot, seed: int, device: torch.device):
         self.lo = torch.tensor(robot.domain.box_lower, dtype=torch.float32, device=device)
         self.hi = torch.tensor(robot.domain.box_upper, dtype=torch.float32, device=device)
-        self.seed, self.device = seed, device
+        self.seed, self.device, self.n_tubes = seed, device, robot.n_tubes
 
     def generator(self, step: int, stream: int) -> torch.Generator:
         g = torch.Generator(device=self.device)
@@ -117,13 +117,28 @@ class Sampler:
         return g
 
     def joints(self, n: int, g: torch.Generator) -> torch.Tensor:
-        x = self.lo + (self.hi - self.lo) * torch.rand(n, 6, generator=g, device=self.device)
-        b3 = x[:, 0]
-        b2 = b3 - x[:, 1]
-        return torch.stack([b2 - x[:, 2], b2, b3, x[:, 3], x[:, 4], x[:, 5]], -1)
+        """``n`` joints (n, 2N) uniform in the domain box (`JointDomain`)."""
+        nt = self.n_tubes
+        x = self.lo + (self.hi - self.lo) * torch.rand(n, 2 * nt, generator=g, device=self.device)
+        beta = [x[:, 0]]  # beta_N, then beta_i = beta_{i+1} - (beta_{i+1} - beta_i)
+        for r in range(1, nt):
+            beta.append(beta[-1] - x[:, r])
+        return torch.cat([torch.stack(beta[::-1], -1), x[:, nt:]], -1)
 
     def collocation(self, n: int, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         return torch.rand(n, generator=g, device=self.device), self.joints(n, g)
+
+
+class TrainingDivergedError(InputError):
+    """The loss became NaN or inf: the message names the step, the terms that did and the recipe
+    field to change (``--set lr=...``)."""
+
+    def __init__(self, step: int, recipe: Recipe, terms: dict[str, float]):
+        bad = [k for k, v in terms.items() if not math.isfinite(v)] or ["total"]
+        super().__init__(
+            f"training diverged at step {step}: loss term(s) {', '.join(bad)} became NaN/inf with "
+            f"learning rate {recipe.lr:g} (recipe {recipe.name}); retry with a smaller one, e.g. "
+            f"--set lr={recipe.lr / 10:g}")
 
 
 @dataclass
@@ -349,7 +364,8 @@ class Trainer:
                 continue  # host-device syncs only every 10 steps
             loss = float(total.detach())
             if not math.isfinite(loss):
-                raise RuntimeError(f"training diverged at step {self.step} (loss {loss}); lower --lr")
+                raise TrainingDivergedError(self.step, self.recipe,
+                                            {k: float(v) for k, v in self._stats.items()})
             now = time.perf_counter()
             values = {"loss": loss, **{k: float(v) for k, v in self._stats.items()}}
             if self.step % 50 == 0 or self.step == steps:
@@ -408,7 +424,7 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
     ``init_from`` continues from an existing network (its input encoding and output scales are kept).
     ``progress(step, total, stats)`` is called every few steps; ``evaluate(net) -> metrics`` at the
     end (metrics go into the model card). Stops at ``recipe.steps`` or ``time_limit_s``.
-    ``observations`` = (q (B, 6) with offsets applied, tips (B, 3, 3) mm in the robot frame, NaN where
+    ``observations`` = (q (B, 2N) with offsets applied, tips (B, N, 3) mm in the robot frame, NaN where
     not measured) replaces the Cosserat tip observations (measured data, paper stage b); ``extra_card``
     holds extra model-card fields. The card's ``stages`` lists the training stages that made the model:
     ``extra_card["stages"]`` (those of the ``init_from`` model) followed by this one.

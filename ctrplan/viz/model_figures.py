@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ctrplan.kinematics.backbone import STATE_NAMES  # noqa: E402
+from ctrplan.kinematics.backbone import state_names  # noqa: E402
 from ctrplan.training.evaluate import Comparison  # noqa: E402
 
 
@@ -59,14 +59,18 @@ def states_figure(cmp: Comparison, path: Path, index: int = 0) -> Path:
     """All state groups along s for one configuration: exact (solid) vs PINN (dashed)."""
     s = cmp.exact.s_mm[index]
     ex, pr = cmp.exact.state[index], cmp.predicted.state[index]
-    groups = [("bending moment m_b [N mm]", (0, 1), 1.0), ("torsional curvature u_z [1/m]", (2, 3, 4), 1e3),
-              ("twist theta [rad]", (5, 6, 7), 1.0), ("position p [mm]", (8, 9, 10), 1.0),
-              ("orientation h", (11, 12, 13, 14), 1.0)]
+    n = cmp.exact.n_tubes
+    names = state_names(n)
+    groups = [("bending moment m_b [N mm]", range(0, 2), 1.0),
+              ("torsional curvature u_z [1/m]", range(2, 2 + n), 1e3),
+              ("twist theta [rad]", range(2 + n, 2 + 2 * n), 1.0),
+              ("position p [mm]", range(2 + 2 * n, 5 + 2 * n), 1.0),
+              ("orientation h", range(5 + 2 * n, 9 + 2 * n), 1.0)]
     fig, axes = plt.subplots(len(groups), 1, figsize=(7, 11), sharex=True)
     for ax, (title, idx, scale) in zip(axes, groups, strict=True):
         for k, i in enumerate(idx):
             color = f"C{k}"
-            ax.plot(s, ex[:, i] * scale, "-", color=color, lw=1.5, label=STATE_NAMES[i])
+            ax.plot(s, ex[:, i] * scale, "-", color=color, lw=1.5, label=names[i])
             ax.plot(s, pr[:, i] * scale, "--", color=color, lw=1.5)
         ax.set_ylabel(title, fontsize=8)
         ax.legend(fontsize=7, ncol=4, loc="best")
