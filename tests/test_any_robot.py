@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import math
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,7 +13,7 @@ import pytest
 from ctrplan.errors import InputError
 from ctrplan.kinematics import CosseratBackend, SolverSettings
 from ctrplan.planning.space import BoxSpace
-from ctrplan.robot import JointDomain, Robot, Tube
+from ctrplan.robot import JointDomain, Loads, Robot, Tube
 from ctrplan.stability import check_domain, critical_length_mm
 
 NU = 0.3
@@ -251,3 +253,27 @@ def test_loader_messages(tmp_path, text, fragment):
     path.write_text(text)
     with pytest.raises(InputError, match=fragment):
         Robot.load(path)
+
+
+def test_one_tube_under_load_solves_single_and_batched():
+    r = Robot(tubes=(tube(0.4, 0.6, 30.0, 50.0, 25.0),),
+              domain=JointDomain(((-20.0, 0.0), (-math.pi, math.pi))),
+              loads=Loads(gravity_m_s2=(0.0, -9.81, 0.0)))
+    be = CosseratBackend(r, SolverSettings(stability=True))
+    q = r.sample_joints(6, rng=2)
+    one, many = be.forward(q[0], points=5), be.forward(q, points=5)
+    assert many.converged.all() and (many.stability > 0).all()
+    np.testing.assert_allclose(one.tip_mm[0], many.tip_mm[0], atol=1e-9)
+    assert many.tip_mm[0, 1] < 0  # it sags along gravity
+
+
+def test_two_tube_scene_plans_with_its_own_pinn_by_default(capsys):
+    """`ctrplan plan scenes/two_tube.yaml` picks the shipped PINN trained for that robot."""
+    from ctrplan.cli import main
+
+    repo = Path(__file__).resolve().parents[1]
+    assert main(["plan", str(repo / "scenes" / "two_tube.yaml"), "--json", "--seed", "0"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["backend"] == "pinn" and doc["model"].startswith("pinn_two_tube")
+    assert doc["solved"] and doc["validated"]["collision_free"]
+    assert all(len(q) == 4 for q in doc["path"])

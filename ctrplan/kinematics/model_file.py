@@ -57,6 +57,22 @@ def resolve_model(model: str | Path | None) -> Path:
     return MODELS_DIR / weights
 
 
+def default_model_for(robot: Robot) -> Path:
+    """The PINN used when none is named: `DEFAULT_MODEL` if it was trained for ``robot``, else the
+    first model in ``models/`` or among the shipped ones whose card carries this robot's fingerprint;
+    `DEFAULT_MODEL` when none does (loading it then says why it does not fit)."""
+    default = resolve_model(None)
+    candidates = [default, *sorted(MODELS_DIR.glob("*.safetensors")),
+                  *sorted(shipped_models_dir().glob("*.safetensors"))]
+    for weights in candidates:
+        try:
+            if weights.exists() and read_card(weights).get("robot_fingerprint") == robot.fingerprint:
+                return weights
+        except InputError:  # an unreadable card elsewhere does not stop the search
+            continue
+    return default
+
+
 def file_sha256(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as fh:
@@ -117,8 +133,9 @@ def write_card_field(weights: Path, key: str, value: Any) -> None:
 
 
 def load_model(model: str | Path | None, robot: Robot) -> tuple[PinnNet, dict[str, Any]]:
-    """Load and verify a model for ``robot``; `InputError` naming the file on any mismatch."""
-    weights = resolve_model(model)
+    """Load and verify a model for ``robot`` (``model=None``: `default_model_for` the robot);
+    `InputError` naming the file on any mismatch."""
+    weights = resolve_model(model) if model is not None else default_model_for(robot)
     if not weights.exists():
         raise InputError(f"{weights}: PINN model not found (shipped models: {', '.join(shipped_models())}; "
                          "train one with `ctrplan train`)")
