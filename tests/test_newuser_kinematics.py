@@ -35,10 +35,10 @@ def write_configs(path: Path, robot, n: int, seed: int = 3) -> np.ndarray:
 def test_shipped_model_lives_in_the_package_and_is_found_from_anywhere(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # no models/ here
     package = Path(ctrplan.__file__).resolve().parent
-    for name in (None, "pinn_nominal", "pinn_nominal_cpu"):
+    for name in (None, "pinn_nominal", "pinn_nominal_cpu", "pinn_two_tube"):
         weights = resolve_model(name)
         assert weights.exists() and package in weights.resolve().parents
-    assert shipped_models() == ["pinn_nominal", "pinn_nominal_cpu"]
+    assert shipped_models() == ["pinn_nominal", "pinn_nominal_cpu", "pinn_two_tube"]
 
 
 def test_users_models_dir_comes_first(tmp_path, monkeypatch):
