@@ -9,12 +9,15 @@ Python is slow, boolean checks are cheap, distances are for final paths only).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import fcl
 import numpy as np
+from numba import njit
 
+from ctrplan.broadphase import DistanceGrid, grid_for, primitive_bounds
 from ctrplan.scene import Obstacle, Scene, transform_points
 
 
@@ -22,11 +25,11 @@ def _fcl_transform(pose: np.ndarray) -> fcl.Transform:
     return fcl.Transform(np.ascontiguousarray(pose[:3, :3]), np.ascontiguousarray(pose[:3, 3]))
 
 
-def segment_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Centres (..., M, 3), rotations (..., M, 3, 3) taking z onto each segment, and lengths (..., M)
-    for the M = N - 1 segments of polylines (..., N, 3)."""
-    p = np.asarray(points, dtype=float)
-    d = p[..., 1:, :] - p[..., :-1, :]
+def capsule_frames(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centres (..., 3), rotations (..., 3, 3) taking z onto each segment, and lengths (...) (mm) of
+    the segments from ``a`` to ``b`` (..., 3)."""
+    a = np.asarray(a, dtype=float)
+    d = np.asarray(b, dtype=float) - a
     length = np.linalg.norm(d, axis=-1)
     safe = np.where(length > 1e-12, length, 1.0)
     u = d / safe[..., None]
@@ -46,8 +49,57 @@ def segment_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     R[..., 2, 2] = z
     if np.any(flip):
         R[flip] = np.diag([1.0, -1.0, -1.0])
-    centres = 0.5 * (p[..., 1:, :] + p[..., :-1, :])
-    return centres, R, length
+    return a + 0.5 * d, R, length
+
+
+@njit(cache=True)
+def _frames_and_boxes(a, b, radii, aabb_lo, aabb_hi):
+    """Compiled hot path of `segments_collide`: `capsule_frames` of K segments a -> b (K, 3), their
+    bounding boxes grown by ``radii`` (K,), and the (capsule, object) pairs (P, 2) whose boxes overlap
+    the objects' boxes ``aabb_lo/hi`` (O, 3), capsule-major."""
+    k = a.shape[0]
+    centres = np.empty((k, 3))
+    R = np.empty((k, 3, 3))
+    length = np.empty(k)
+    lo = np.empty((k, 3))
+    hi = np.empty((k, 3))
+    pairs = np.empty((k * aabb_lo.shape[0], 2), dtype=np.int64)
+    n = 0
+    for i in range(k):
+        d = b[i] - a[i]
+        ln = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        length[i] = ln
+        if ln > 1e-12:
+            x, y, z = d[0] / ln, d[1] / ln, d[2] / ln
+        else:
+            x, y, z = 0.0, 0.0, 1.0
+        if z < -1.0 + 1e-9:
+            R[i] = 0.0
+            R[i, 0, 0], R[i, 1, 1], R[i, 2, 2] = 1.0, -1.0, -1.0
+        else:
+            c = 1.0 / (1.0 + z)
+            R[i, 0, 0], R[i, 0, 1], R[i, 0, 2] = 1 - x * x * c, -x * y * c, x
+            R[i, 1, 0], R[i, 1, 1], R[i, 1, 2] = -x * y * c, 1 - y * y * c, y
+            R[i, 2, 0], R[i, 2, 1], R[i, 2, 2] = -x, -y, z
+        for j in range(3):
+            centres[i, j] = a[i, j] + 0.5 * d[j]
+            lo[i, j] = min(a[i, j], b[i, j]) - radii[i]
+            hi[i, j] = max(a[i, j], b[i, j]) + radii[i]
+        for o in range(aabb_lo.shape[0]):
+            if (lo[i, 0] <= aabb_hi[o, 0] + 1e-6 and hi[i, 0] >= aabb_lo[o, 0] - 1e-6
+                    and lo[i, 1] <= aabb_hi[o, 1] + 1e-6 and hi[i, 1] >= aabb_lo[o, 1] - 1e-6
+                    and lo[i, 2] <= aabb_hi[o, 2] + 1e-6 and hi[i, 2] >= aabb_lo[o, 2] - 1e-6):
+                pairs[n, 0] = i
+                pairs[n, 1] = o
+                n += 1
+    return centres, R, length, lo, hi, pairs[:n]
+
+
+def segment_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centres (..., M, 3), rotations (..., M, 3, 3) taking z onto each segment, and lengths (..., M)
+    for the M = N - 1 segments of polylines (..., N, 3)."""
+    p = np.asarray(points, dtype=float)
+    return capsule_frames(p[..., :-1, :], p[..., 1:, :])
 
 
 def segment_radii(radius_mm: np.ndarray, margin_mm: float = 0.0) -> np.ndarray:
@@ -76,15 +128,19 @@ def _split_mesh(V: np.ndarray, F: np.ndarray, max_faces: int) -> list[np.ndarray
 
 
 class CollisionWorld:
-    """The scene's obstacles as FCL objects, built once.
+    """The scene's obstacles as FCL objects, built once, and their distance-grid broadphase.
 
     Meshes are split into spatially compact chunks (one BVH each) so that an axis-aligned
-    bounding-box prefilter, vectorised over all capsules, sends only nearby capsule/chunk pairs to
-    FCL's narrow phase. ``max_faces`` bounds the chunk size.
+    bounding-box prefilter sends only nearby capsule/chunk pairs to FCL's narrow phase. ``max_faces``
+    bounds the chunk size. With ``broadphase`` a `DistanceGrid` (built or loaded on first use, see
+    `ctrplan.broadphase`) first clears the capsules certainly far from every obstacle; FCL judges
+    the rest.
     """
 
-    def __init__(self, obstacles: Sequence[Obstacle], max_faces: int = 256):
+    def __init__(self, obstacles: Sequence[Obstacle], max_faces: int = 256, broadphase: bool = True):
         self.obstacles = tuple(obstacles)
+        self.broadphase = bool(broadphase)
+        self._grid: DistanceGrid | None = None
         self._objects: list[fcl.CollisionObject] = []
         self._geoms: list = []  # keep FCL geometry alive
         self.names: list[str] = []
@@ -114,7 +170,7 @@ class CollisionWorld:
                 g = fcl.Capsule(o.radius, o.length)
             else:  # pragma: no cover - the loader only makes these kinds
                 raise ValueError(f"unknown obstacle kind {o.kind!r}")
-            b = _primitive_bounds(o)
+            b = primitive_bounds(o)
             self._add(g, _fcl_transform(o.pose), o.name, b[0], b[1], lo, hi)
         self.aabb_lo = np.array(lo).reshape(-1, 3)
         self.aabb_hi = np.array(hi).reshape(-1, 3)
@@ -128,8 +184,34 @@ class CollisionWorld:
         hi.append(hi_)
 
     @classmethod
-    def from_scene(cls, scene: Scene) -> CollisionWorld:
-        return cls(scene.obstacles)
+    def from_scene(cls, scene: Scene, broadphase: bool = True) -> CollisionWorld:
+        return cls(scene.obstacles, broadphase=broadphase)
+
+    @property
+    def grid(self) -> DistanceGrid | None:
+        """The broadphase grid (None when disabled or without obstacles)."""
+        if self._grid is None and self.broadphase and self.obstacles:
+            self._grid = grid_for(self.obstacles)
+        return self._grid
+
+    def near(self, points: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Capsules the broadphase cannot clear, (B, M) bool, and a priority (B, M) to test them in
+        (lowest first), for polylines (B, N, 3) (scene frame, mm) with capsule radii (B, M) (mm).
+
+        With the grid: a capsule is near unless its clearance lower bound exceeds its radius;
+        priority = that bound (likeliest contact first). Without: near = bounding box overlaps
+        some object; priority = distal first."""
+        p = np.asarray(points, dtype=float)
+        if len(self) == 0:
+            return np.zeros(radii.shape, dtype=bool), np.zeros(radii.shape)
+        grid = self.grid
+        if grid is not None:
+            lower = grid.segment_lower_bounds(p)
+            return lower <= radii + 1e-9, lower
+        lo = np.minimum(p[:, :-1], p[:, 1:]) - radii[..., None]
+        hi = np.maximum(p[:, :-1], p[:, 1:]) + radii[..., None]
+        m = radii.shape[-1]
+        return self.overlaps(lo, hi).any(axis=-1), np.broadcast_to(-np.arange(m, dtype=float), radii.shape)
 
     def __len__(self) -> int:
         return len(self._objects)
@@ -146,21 +228,6 @@ class CollisionWorld:
         pairs = np.argwhere(self.overlaps(seg_lo, seg_hi)[::-1])
         pairs[:, 0] = len(seg_lo) - 1 - pairs[:, 0]
         return pairs
-
-
-def _primitive_bounds(o: Obstacle) -> np.ndarray:
-    """Axis-aligned bounds (2, 3) of a primitive in the scene frame."""
-    R, c = o.pose[:3, :3], o.pose[:3, 3]
-    if o.kind == "sphere":
-        e = np.full(3, o.radius)
-    elif o.kind == "box":
-        e = np.abs(R) @ (0.5 * np.asarray(o.size))
-    elif o.kind == "cylinder":  # disc of radius r swept along the axis a: |a_k| h + r sqrt(1 - a_k^2)
-        a = R[:, 2]
-        e = np.abs(a) * 0.5 * o.length + o.radius * np.sqrt(np.clip(1.0 - a**2, 0.0, 1.0))
-    else:  # capsule: segment along the axis plus a ball
-        e = np.abs(R[:, 2]) * 0.5 * o.length + o.radius
-    return np.stack([c - e - 1e-9, c + e + 1e-9])
 
 
 class CapsuleChain:
@@ -214,6 +281,16 @@ class CapsuleChain:
         if pairs is None:
             pairs = world.candidates(self.seg_lo, self.seg_hi)
         return any(fcl.collide(self._object(i), objs[j], req, fcl.CollisionResult()) for i, j in pairs)
+
+    def segments_collide(self, world: CollisionWorld, a: np.ndarray, b: np.ndarray,
+                         radii: np.ndarray) -> bool:
+        """Whether any of the K capsules from ``a`` to ``b`` (K, 3) (world frame, mm) with ``radii``
+        (K,) touches an obstacle, tested in the given order (replaces the chain's configuration)."""
+        centres, R, length, lo, hi, pairs = _frames_and_boxes(
+            np.ascontiguousarray(a), np.ascontiguousarray(b), np.ascontiguousarray(radii, dtype=float),
+            world.aabb_lo, world.aabb_hi)
+        self.load(centres, R, length, radii, lo, hi)
+        return self.collides(world, pairs)
 
     def contacts(self, world: CollisionWorld) -> list[tuple[int, str]]:
         """Every (capsule index, obstacle name) pair in contact."""
@@ -300,9 +377,10 @@ class RobotCollisionChecker:
 
     def free_batch(self, positions: np.ndarray, radius: np.ndarray,
                    order: Sequence[int] | None = None, stop_at_first: bool = False) -> np.ndarray:
-        """Boolean checks of B backbones (B, N, 3) robot frame / radii (B, N); NaN rows are not free.
-        Frames and bounding-box candidates are computed for the whole batch at once. With
-        ``stop_at_first``, rows after the first collision (in ``order``) are left not free."""
+        """Boolean checks of B backbones (B, N, 3) robot frame / radii (B, N) mm; NaN rows are not free.
+        The broadphase runs on the whole batch at once; FCL then tests each row's remaining capsules,
+        likeliest contact first. With ``stop_at_first``, rows after the first collision (in
+        ``order``) are left not free."""
         positions = np.asarray(positions, dtype=float)
         b = positions.shape[0]
         free = np.zeros(b, dtype=bool)
@@ -310,26 +388,17 @@ class RobotCollisionChecker:
         p = transform_points(self.base_pose, np.where(finite[:, None, None], positions, 0.0))
         radii = segment_radii(radius, self.margin_mm)
         radii = np.where(np.isfinite(radii), radii, 0.0)
-        centres, R, length = segment_frames(p)
-        lo = np.minimum(p[:, :-1], p[:, 1:]) - radii[..., None]
-        hi = np.maximum(p[:, :-1], p[:, 1:]) + radii[..., None]
-        if len(self.world):
-            ov = self.world.overlaps(lo, hi)[:, ::-1]  # distal capsules first
-            has = ov.any(axis=(1, 2))
-        else:
-            has = np.zeros(b, dtype=bool)
-        m = p.shape[1] - 1
+        near, priority = self.world.near(p, radii)
         for i in (range(b) if order is None else order):
             self.checks += 1
             if not finite[i]:
                 ok = False
-            elif not has[i]:
+            elif not near[i].any():
                 ok = True
             else:
-                pairs = np.argwhere(ov[i])
-                pairs[:, 0] = m - 1 - pairs[:, 0]
-                self.chain.load(centres[i], R[i], length[i], radii[i], lo[i], hi[i])
-                ok = not self.chain.collides(self.world, pairs)
+                caps = np.flatnonzero(near[i])
+                caps = caps[np.argsort(priority[i, caps], kind="stable")]
+                ok = not self.chain.segments_collide(self.world, p[i, caps], p[i, caps + 1], radii[i, caps])
             free[i] = ok
             if stop_at_first and not ok:
                 break
