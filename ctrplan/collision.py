@@ -132,15 +132,14 @@ class CollisionWorld:
 
     Meshes are split into spatially compact chunks (one BVH each) so that an axis-aligned
     bounding-box prefilter sends only nearby capsule/chunk pairs to FCL's narrow phase. ``max_faces``
-    bounds the chunk size. With ``broadphase`` a `DistanceGrid` (built or loaded on first use, see
-    `ctrplan.broadphase`) first clears the capsules certainly far from every obstacle; FCL judges
+    bounds the chunk size. With ``broadphase`` a `DistanceGrid` (from memory, the disk cache or built
+    here, see `ctrplan.broadphase`) first clears the capsules certainly far from every obstacle; FCL judges
     the rest.
     """
 
     def __init__(self, obstacles: Sequence[Obstacle], max_faces: int = 256, broadphase: bool = True):
         self.obstacles = tuple(obstacles)
         self.broadphase = bool(broadphase)
-        self._grid: DistanceGrid | None = None
         self._objects: list[fcl.CollisionObject] = []
         self._geoms: list = []  # keep FCL geometry alive
         self.names: list[str] = []
@@ -175,6 +174,8 @@ class CollisionWorld:
         self.aabb_lo = np.array(lo).reshape(-1, 3)
         self.aabb_hi = np.array(hi).reshape(-1, 3)
         self._request = fcl.CollisionRequest()
+        #: the broadphase grid (None when disabled or without obstacles)
+        self.grid: DistanceGrid | None = grid_for(self.obstacles) if self.broadphase else None
 
     def _add(self, geom, tf, name, lo_, hi_, lo, hi) -> None:
         self._geoms.append(geom)
@@ -187,12 +188,6 @@ class CollisionWorld:
     def from_scene(cls, scene: Scene, broadphase: bool = True) -> CollisionWorld:
         return cls(scene.obstacles, broadphase=broadphase)
 
-    @property
-    def grid(self) -> DistanceGrid | None:
-        """The broadphase grid (None when disabled or without obstacles)."""
-        if self._grid is None and self.broadphase and self.obstacles:
-            self._grid = grid_for(self.obstacles)
-        return self._grid
 
     def near(self, points: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Capsules the broadphase cannot clear, (B, M) bool, and a priority (B, M) to test them in

@@ -169,13 +169,16 @@ def prepare(scene_files: list[Path], backends: list[str], time_limit_s: float | 
     """(scene file, time budget s) per scene: ``time_limit_s`` or the scene's own setting.
 
     Loads every scene and builds every backend for its robot once here, so that a bad scene file or
-    a missing or mismatched model is reported before any run starts (not from inside a worker)."""
+    a missing or mismatched model is reported before any run starts (not from inside a worker), and
+    each scene's broadphase grid, so that workers load it from the disk cache."""
+    from ctrplan.broadphase import grid_for
     from ctrplan.kinematics import make_backend
     from ctrplan.scene import load_scene
 
     out = []
     for f in scene_files:
         scene = load_scene(f)
+        grid_for(scene.obstacles)
         for name in dict.fromkeys(backends):
             make_backend(name, scene.robot)
         out.append((str(Path(f).resolve()), float(time_limit_s or scene.settings.time_limit_s)))
