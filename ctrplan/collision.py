@@ -95,6 +95,30 @@ def _frames_and_boxes(a, b, radii, aabb_lo, aabb_hi):
     return centres, R, length, lo, hi, pairs[:n]
 
 
+@njit(cache=True)
+def _to_world(positions, radius, T, margin):
+    """Backbones (B, N, 3) robot frame -> points (B, N, 3) in T's frame (non-finite rows -> 0), capsule
+    radii (B, N-1) = larger end radius + margin (non-finite -> 0), and which rows are finite (B,)."""
+    nb, n = positions.shape[0], positions.shape[1]
+    p = np.zeros((nb, n, 3))
+    radii = np.zeros((nb, n - 1))
+    finite = np.ones(nb, dtype=np.bool_)
+    for b in range(nb):
+        for i in range(n):
+            x, y, z = positions[b, i, 0], positions[b, i, 1], positions[b, i, 2]
+            if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+                finite[b] = False
+        if finite[b]:
+            for i in range(n):
+                x, y, z = positions[b, i, 0], positions[b, i, 1], positions[b, i, 2]
+                for k in range(3):
+                    p[b, i, k] = T[k, 0] * x + T[k, 1] * y + T[k, 2] * z + T[k, 3]
+        for i in range(n - 1):
+            r = max(radius[b, i], radius[b, i + 1]) + margin
+            radii[b, i] = r if math.isfinite(r) else 0.0
+    return p, radii, finite
+
+
 def segment_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Centres (..., M, 3), rotations (..., M, 3, 3) taking z onto each segment, and lengths (..., M)
     for the M = N - 1 segments of polylines (..., N, 3)."""
@@ -350,7 +374,7 @@ class RobotCollisionChecker:
     def __init__(self, world: CollisionWorld, base_pose: np.ndarray, points: int,
                  margin_mm: float = 0.0):
         self.world = world
-        self.base_pose = np.asarray(base_pose, dtype=float)
+        self.base_pose = np.ascontiguousarray(base_pose, dtype=float)
         self.points = int(points)
         self.margin_mm = float(margin_mm)
         self.chain = CapsuleChain(self.points - 1)
@@ -376,20 +400,19 @@ class RobotCollisionChecker:
         The broadphase runs on the whole batch at once; FCL then tests each row's remaining capsules,
         likeliest contact first. With ``stop_at_first``, rows after the first collision (in
         ``order``) are left not free."""
-        positions = np.asarray(positions, dtype=float)
-        b = positions.shape[0]
-        free = np.zeros(b, dtype=bool)
-        finite = np.all(np.isfinite(positions), axis=(1, 2))
-        p = transform_points(self.base_pose, np.where(finite[:, None, None], positions, 0.0))
-        radii = segment_radii(radius, self.margin_mm)
-        radii = np.where(np.isfinite(radii), radii, 0.0)
+        p, radii, finite = _to_world(np.ascontiguousarray(positions, dtype=float),
+                                     np.ascontiguousarray(radius, dtype=float), self.base_pose,
+                                     self.margin_mm)
         near, priority = self.world.near(p, radii)
-        for i in (range(b) if order is None else order):
+        cleared = finite & ~near.any(axis=1)
+        if order is None and not stop_at_first and cleared.all():
+            self.checks += len(cleared)
+            return cleared
+        free = np.zeros(len(finite), dtype=bool)
+        for i in (range(len(finite)) if order is None else order):
             self.checks += 1
-            if not finite[i]:
-                ok = False
-            elif not near[i].any():
-                ok = True
+            if cleared[i] or not finite[i]:
+                ok = bool(cleared[i])
             else:
                 caps = np.flatnonzero(near[i])
                 caps = caps[np.argsort(priority[i, caps], kind="stable")]
