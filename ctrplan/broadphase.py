@@ -14,7 +14,7 @@ a lower bound of the clearance of the axis. A capsule of radius r (margin includ
 when that bound exceeds r; only the other capsules go to FCL, which stays the judge of every contact.
 
 The grid is built once per set of obstacles (compiled; seconds for the skull-base anatomy) and cached
-in memory and on disk in the user cache directory (``$CTRPLAN_CACHE_DIR``, else
+in memory and, when it took long to build, on disk in the user cache directory (``$CTRPLAN_CACHE_DIR``, else
 ``$XDG_CACHE_HOME/ctrplan`` or ``~/.cache/ctrplan``), keyed by a hash of the obstacles' geometry and
 the grid parameters; an unwritable cache directory only costs the rebuild.
 """
@@ -24,6 +24,7 @@ from __future__ import annotations
 import hashlib
 import math
 import os
+import time
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -42,6 +43,8 @@ BAND_MM = 4.0
 #: Largest grid (cells); a larger obstacle box gets coarser cells.
 MAX_CELLS = 48_000_000
 _LEVELS = 255
+#: Grids that build faster than this (s) are not written to the disk cache.
+SAVE_AFTER_S = 0.5
 
 
 def primitive_bounds(o: Obstacle) -> np.ndarray:
@@ -153,11 +156,23 @@ def _rasterise_triangles(V, F, lo, cell, band, step, values):
 
 
 @njit(cache=True)
-def _capsule_lower_bounds(points, lo, cell, step, band, values, spacing, out):
+def _point_bound(x, y, z, lo, cell, step, band, values):
+    """Lower bound (mm) of the distance from point (x, y, z) to the obstacles."""
+    fx, fy, fz = (x - lo[0]) / cell, (y - lo[1]) / cell, (z - lo[2]) / cell
+    ix, iy, iz = int(math.floor(fx)), int(math.floor(fy)), int(math.floor(fz))
+    if ix < 0 or iy < 0 or iz < 0 or ix >= values.shape[0] or iy >= values.shape[1] or iz >= values.shape[2]:
+        return band  # outside the grid: at least band from every obstacle
+    ex, ey, ez = (fx - ix - 0.5) * cell, (fy - iy - 0.5) * cell, (fz - iz - 0.5) * cell
+    return values[ix, iy, iz] * step - math.sqrt(ex * ex + ey * ey + ez * ez)
+
+
+@njit(cache=True)
+def _capsule_lower_bounds(points, radii, lo, cell, step, band, values, spacing, out):
     """Lower bounds ``out`` (B, N-1) of the distance (mm) from each segment of the polylines
-    ``points`` (B, N, 3) to the obstacles; -inf for segments with non-finite points."""
+    ``points`` (B, N, 3) to the obstacles; -inf for segments with non-finite points. A segment is
+    first bounded from its ends and midpoint; only where that bound does not exceed its capsule
+    radius ``radii`` (B, N-1) is it sampled at ``spacing`` for a tighter one."""
     nb, n = points.shape[0], points.shape[1]
-    shape = values.shape
     for b in range(nb):
         for i in range(n - 1):
             ax, ay, az = points[b, i, 0], points[b, i, 1], points[b, i, 2]
@@ -166,21 +181,17 @@ def _capsule_lower_bounds(points, lo, cell, step, band, values, spacing, out):
             if not (math.isfinite(length) and math.isfinite(ax + ay + az)):
                 out[b, i] = -np.inf
                 continue
-            k = max(1, int(math.ceil(length / spacing)))
-            best = np.inf
-            for j in range(k + 1):
-                t = j / k
-                x, y, z = ax + t * dx, ay + t * dy, az + t * dz
-                fx, fy, fz = (x - lo[0]) / cell, (y - lo[1]) / cell, (z - lo[2]) / cell
-                ix, iy, iz = int(math.floor(fx)), int(math.floor(fy)), int(math.floor(fz))
-                if ix < 0 or iy < 0 or iz < 0 or ix >= shape[0] or iy >= shape[1] or iz >= shape[2]:
-                    v = band  # outside the grid: at least band from every obstacle
-                else:
-                    ex, ey, ez = (fx - ix - 0.5) * cell, (fy - iy - 0.5) * cell, (fz - iz - 0.5) * cell
-                    v = values[ix, iy, iz] * step - math.sqrt(ex * ex + ey * ey + ez * ez)
-                if v < best:
-                    best = v
-            out[b, i] = best - 0.5 * length / k
+            k = 2
+            while True:
+                best = np.inf
+                for j in range(k + 1):
+                    t = j / k
+                    v = _point_bound(ax + t * dx, ay + t * dy, az + t * dz, lo, cell, step, band, values)
+                    best = min(best, v)
+                out[b, i] = best - 0.5 * length / k
+                if out[b, i] > radii[b, i] or length / k <= spacing:
+                    break
+                k = max(k + 1, int(math.ceil(length / spacing)))
 
 
 # ---- primitives (vectorised numpy) ---------------------------------------------------------------
@@ -254,12 +265,16 @@ class DistanceGrid:
             values[sl] = np.minimum(values[sl], q)
         return cls(lo, float(cell_mm), float(band_mm), values)
 
-    def segment_lower_bounds(self, points: np.ndarray) -> np.ndarray:
+    def segment_lower_bounds(self, points: np.ndarray, radii: np.ndarray | None = None) -> np.ndarray:
         """Lower bounds (B, N-1) of the distance (mm) from each segment of polylines (B, N, 3)
-        (scene frame, mm) to the obstacles; -inf where a point is not finite."""
+        (scene frame, mm) to the obstacles; -inf where a point is not finite. With capsule
+        ``radii`` (B, N-1) (mm), a bound that already exceeds the radius is not tightened further
+        (enough to clear the capsule); without, every bound is the tight one."""
         p = np.ascontiguousarray(points, dtype=float)
-        out = np.empty((p.shape[0], p.shape[1] - 1))
-        _capsule_lower_bounds(p, self.lo, self.cell_mm, self.step_mm, self.band_mm, self.values,
+        shape = (p.shape[0], p.shape[1] - 1)
+        r = np.full(shape, np.inf) if radii is None else np.ascontiguousarray(radii, dtype=float)
+        out = np.empty(shape)
+        _capsule_lower_bounds(p, r, self.lo, self.cell_mm, self.step_mm, self.band_mm, self.values,
                               self.spacing_mm, out)
         return out
 
@@ -313,7 +328,7 @@ def _save(grid: DistanceGrid, path: Path) -> None:
 def grid_for(obstacles: Sequence[Obstacle], cell_mm: float = CELL_MM, band_mm: float = BAND_MM,
              use_disk: bool = True) -> DistanceGrid | None:
     """The `DistanceGrid` of ``obstacles``: from memory, from the disk cache, or built (and
-    cached). None without obstacles."""
+    cached on disk when building took at least `SAVE_AFTER_S`). None without obstacles."""
     if not obstacles:
         return None
     key = geometry_key(obstacles, cell_mm, band_mm)
@@ -322,8 +337,9 @@ def grid_for(obstacles: Sequence[Obstacle], cell_mm: float = CELL_MM, band_mm: f
     if grid is None and use_disk and path.is_file():
         grid = _load(path)
     if grid is None:
+        t = time.perf_counter()
         grid = DistanceGrid.build(obstacles, cell_mm, band_mm)
-        if use_disk:
+        if use_disk and time.perf_counter() - t >= SAVE_AFTER_S:
             _save(grid, path)
     _MEMORY[key] = grid
     _MEMORY.move_to_end(key)

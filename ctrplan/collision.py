@@ -2,9 +2,14 @@
 
 The robot is a chain of capsules between consecutive backbone points; each capsule's radius is the
 outer radius of the outermost tube present on that segment plus a configurable margin. The scene is
-built once (all meshes merged into one BVH, primitives as FCL shapes); the capsules are FCL objects
+built once (meshes as BVHs of compact chunks, primitives as FCL shapes); the capsules are FCL objects
 whose radius, length and pose are updated in place for every configuration (DESIGN §4: building from
 Python is slow, boolean checks are cheap, distances are for final paths only).
+
+Boolean checks first ask the scene's conservative distance grid (`ctrplan.broadphase`) which capsules
+are certainly clear of every obstacle -- for a whole batch of backbones in one compiled call -- and
+send only the others to FCL, likeliest contact first: FCL judges every contact, so the answers are
+those of FCL alone.
 """
 
 from __future__ import annotations
@@ -225,7 +230,7 @@ class CollisionWorld:
             return np.zeros(radii.shape, dtype=bool), np.zeros(radii.shape)
         grid = self.grid
         if grid is not None:
-            lower = grid.segment_lower_bounds(p)
+            lower = grid.segment_lower_bounds(p, radii)
             return lower <= radii + 1e-9, lower
         lo = np.minimum(p[:, :-1], p[:, 1:]) - radii[..., None]
         hi = np.maximum(p[:, :-1], p[:, 1:]) + radii[..., None]

@@ -151,7 +151,8 @@ def test_non_finite_backbones_are_never_cleared():
     assert not near[0, 0] and near[0, 1] and lower[0, 1] == -np.inf
 
 
-def test_grid_is_cached_on_disk_by_geometry(tmp_path):
+def test_grid_is_cached_on_disk_by_geometry(tmp_path, monkeypatch):
+    monkeypatch.setattr(broadphase, "SAVE_AFTER_S", 0.0)
     obstacles = skull_parts()
     grid = grid_for(obstacles)
     files = list((tmp_path / "cache" / "broadphase").glob("*.npz"))
