@@ -108,6 +108,8 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
         "validation_s": _round(result.details.get("validation_time_s", 0.0)),
         "kinematics_calls": calls,
         "collision_checks": int(counters.get("collision_checks", 0)),
+        "narrow_checks": int(counters.get("narrow_checks", 0)),
+        "fcl_tests": int(counters.get("fcl_tests", 0)),
         "checks_per_s": _round(calls / total if total > 0 else 0.0, 1),
         "path_states": int(len(result.path)),
         "path_length_mm": None if path_length is None else round(path_length, 3),
@@ -155,6 +157,10 @@ def summarize(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
             "time_share": {k.removesuffix("_s"): round(v / total, 3) for k, v in mean.items()},
             "validation_s": _stats([r["validation_s"] for r in rs]),
             "checks_per_s": _stats([r["checks_per_s"] for r in rs]),
+            "narrow_share": _stats([r["narrow_checks"] / r["collision_checks"] for r in rs
+                                    if r.get("collision_checks") and "narrow_checks" in r]),
+            "fcl_tests_per_check": _stats([r["fcl_tests"] / r["collision_checks"] for r in rs
+                                           if r.get("collision_checks") and "fcl_tests" in r]),
             "kinematics_calls": _stats([r["kinematics_calls"] for r in rs]),
             "path_length_mm": _stats([r["path_length_mm"] for r in solved]),
             "tip_travel_mm": _stats([r["tip_travel_mm"] for r in solved]),

@@ -27,11 +27,14 @@ from ctrplan.scene import Scene
 
 @dataclass
 class Counters:
-    """Work done so far: configurations sent to the backend, backend calls, collision checks."""
+    """Work done so far: configurations sent to the backend, backend calls, collision checks (and of
+    those, the ones the broadphase could not decide alone; FCL narrow-phase tests)."""
 
     kinematics_calls: int = 0
     kinematics_batches: int = 0
     collision_checks: int = 0
+    narrow_checks: int = 0
+    fcl_tests: int = 0
     motions: int = 0
     valid_motions: int = 0
     kinematics_s: float = 0.0
@@ -117,6 +120,8 @@ class ConfigurationChecker:
         free = self.collision.free_batch(pos, bb.radius_mm, order=order, stop_at_first=stop_at_first)
         self.counters.collision_s += time.perf_counter() - t
         self.counters.collision_checks += len(bb) if order is None else len(order)
+        self.counters.narrow_checks = self.collision.narrow_checks
+        self.counters.fcl_tests = self.collision.chain.tests
         return free & bb.converged
 
     # ---- cache ---------------------------------------------------------------------------------
