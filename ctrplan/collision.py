@@ -372,6 +372,23 @@ class Clearance:
     obstacle_point: np.ndarray
 
 
+_WARM = False
+
+
+def warm_kernels() -> None:
+    """Compile (or load from numba's cache) the boolean-check kernels once per process, so that no
+    timed planning run pays for it."""
+    global _WARM
+    if _WARM:
+        return
+    a = np.zeros((1, 2, 3))
+    a[0, 1, 2] = 1.0
+    _to_world(a, np.ones((1, 2)), np.eye(4), 0.0)
+    _frames_and_boxes(a[0, :1], a[0, 1:], np.ones(1), np.zeros((1, 3)), np.ones((1, 3)))
+    DistanceGrid(np.zeros(3), 1.0, 1.0, np.zeros((1, 1, 1), dtype=np.uint8)).segment_lower_bounds(a)
+    _WARM = True
+
+
 class RobotCollisionChecker:
     """Backbones (robot frame) against a scene: boolean checks for planning, distances for paths.
 
@@ -389,6 +406,7 @@ class RobotCollisionChecker:
         self.points = int(points)
         self.margin_mm = float(margin_mm)
         self.chain = CapsuleChain(self.points - 1)
+        warm_kernels()
         #: backbones checked, and how many of them the broadphase could not clear alone (went to FCL)
         self.checks = 0
         self.narrow_checks = 0
