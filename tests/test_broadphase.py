@@ -202,3 +202,21 @@ def test_fcl_contact_for_every_state_the_broadphase_cannot_clear(cosserat):
     free = rc.free_batch(bb.positions_mm, bb.radius_mm)
     for i in range(len(q)):
         assert free[i] == (not rc.contacts(bb.positions_mm[i], bb.radius_mm[i]))
+
+
+def test_compiled_capsule_frames_match_numpy_frames():
+    from ctrplan.collision import _frames_and_boxes, capsule_frames
+
+    rng = np.random.default_rng(4)
+    a = rng.normal(size=(50, 3)) * 10
+    b = a + rng.normal(size=(50, 3))
+    b[3] = a[3] + [0.0, 0.0, -2.0]  # antiparallel to z
+    b[4] = a[4]  # zero length
+    r = rng.uniform(0.1, 1.0, 50)
+    lo_o, hi_o = np.array([[-5.0, -5, -5]]), np.array([[5.0, 5, 5]])
+    c, R, length, lo, hi, pairs = _frames_and_boxes(a, b, r, lo_o, hi_o)
+    c2, R2, length2 = capsule_frames(a, b)
+    assert np.allclose(c, c2) and np.allclose(R, R2) and np.allclose(length, length2)
+    assert np.allclose(lo, np.minimum(a, b) - r[:, None]) and np.allclose(hi, np.maximum(a, b) + r[:, None])
+    overlap = np.all((lo <= hi_o + 1e-6) & (hi >= lo_o - 1e-6), axis=1)
+    assert pairs[:, 0].tolist() == np.flatnonzero(overlap).tolist() and 0 < len(pairs) < 50
