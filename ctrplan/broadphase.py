@@ -36,7 +36,7 @@ from numba import njit
 from ctrplan.scene import Obstacle
 
 #: Bump when the grid's content or file layout changes (old cache files are then ignored).
-GRID_VERSION = 1
+GRID_VERSION = 2
 #: Default cell edge (mm) and distance cap (mm).
 CELL_MM = 0.5
 BAND_MM = 4.0
@@ -120,6 +120,17 @@ def _point_triangle_distance(px, py, pz, a, b, c):
 
 
 @njit(cache=True)
+def _point_segment_distance(px, py, pz, a, b):
+    """Distance (mm) from point p to the segment ab."""
+    dx, dy, dz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    dd = dx * dx + dy * dy + dz * dz
+    t = 0.0 if dd <= 0.0 else ((px - a[0]) * dx + (py - a[1]) * dy + (pz - a[2]) * dz) / dd
+    t = min(1.0, max(0.0, t))
+    qx, qy, qz = a[0] + t * dx - px, a[1] + t * dy - py, a[2] + t * dz - pz
+    return math.sqrt(qx * qx + qy * qy + qz * qz)
+
+
+@njit(cache=True)
 def _rasterise_triangles(V, F, lo, cell, band, step, values):
     """Lower ``values`` (uint8 cells) to floor(min(d, band) / step) of the cell centres' distance d
     (mm) to the triangles F (T, 3) of vertices V (n, 3), for centres within ``band`` of a triangle."""
@@ -128,7 +139,9 @@ def _rasterise_triangles(V, F, lo, cell, band, step, values):
         a, b, c = V[F[t, 0]], V[F[t, 1]], V[F[t, 2]]
         nrm = np.cross(b - a, c - a)
         nn = math.sqrt(nrm[0] ** 2 + nrm[1] ** 2 + nrm[2] ** 2)
-        if nn > 0.0:
+        scale = max(np.sum((b - a) ** 2), np.sum((c - a) ** 2), np.sum((c - b) ** 2))
+        flat = nn <= 1e-9 * scale  # degenerate (collinear or coincident vertices): its three edges
+        if not flat:
             nrm = nrm / nn
         i0 = np.empty(3, dtype=np.int64)
         i1 = np.empty(3, dtype=np.int64)
@@ -143,11 +156,15 @@ def _rasterise_triangles(V, F, lo, cell, band, step, values):
                 y = lo[1] + (iy + 0.5) * cell
                 for iz in range(i0[2], i1[2] + 1):
                     z = lo[2] + (iz + 0.5) * cell
-                    if nn > 0.0:  # the plane distance bounds the triangle distance from below
+                    if flat:
+                        d = min(_point_segment_distance(x, y, z, a, b),
+                                _point_segment_distance(x, y, z, b, c),
+                                _point_segment_distance(x, y, z, a, c))
+                    else:  # the plane distance bounds the triangle distance from below
                         pd = abs((x - a[0]) * nrm[0] + (y - a[1]) * nrm[1] + (z - a[2]) * nrm[2])
                         if pd >= band or int(pd / step) >= values[ix, iy, iz]:
                             continue
-                    d = _point_triangle_distance(x, y, z, a, b, c)
+                        d = _point_triangle_distance(x, y, z, a, b, c)
                     if d < band:
                         q = int(d / step)
                         if q < values[ix, iy, iz]:
@@ -245,7 +262,9 @@ class DistanceGrid:
         extent = hi - lo
         cells = float(np.prod(np.ceil(extent / cell_mm)))
         if cells > MAX_CELLS:
-            cell_mm = float(cell_mm * (cells / MAX_CELLS) ** (1.0 / 3.0) * 1.001)
+            cell_mm = float(cell_mm * (cells / MAX_CELLS) ** (1.0 / 3.0))
+            while np.prod(np.ceil(extent / cell_mm)) > MAX_CELLS:  # rounding up added cells
+                cell_mm *= 1.02
         shape = tuple(int(s) for s in np.ceil(extent / cell_mm))
         values = np.full(shape, _LEVELS, dtype=np.uint8)
         step = band_mm / _LEVELS

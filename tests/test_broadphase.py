@@ -220,3 +220,23 @@ def test_compiled_capsule_frames_match_numpy_frames():
     assert np.allclose(lo, np.minimum(a, b) - r[:, None]) and np.allclose(hi, np.maximum(a, b) + r[:, None])
     overlap = np.all((lo <= hi_o + 1e-6) & (hi >= lo_o - 1e-6), axis=1)
     assert pairs[:, 0].tolist() == np.flatnonzero(overlap).tolist() and 0 < len(pairs) < 50
+
+
+def test_degenerate_triangles_and_coarsened_grids_stay_conservative(monkeypatch):
+    """A zero-area triangle (a segment) still bounds the distance; a grid too large for
+    `MAX_CELLS` gets coarser cells and stays a lower bound."""
+    v = np.array([[0.0, 0, 0], [10.0, 0, 0], [5.0, 0, 0], [0.0, 40, 0]])
+    sliver = Obstacle("sliver", "mesh", vertices=v[:3], faces=np.array([[0, 1, 2]]))
+    far = Obstacle("far", "sphere", pose=make_pose(np.eye(3), np.array([0.0, 40, 0])), radius=1.0)
+    monkeypatch.setattr(broadphase, "MAX_CELLS", 20_000)  # the 0.5 mm grid would have ~95,000
+    grid = DistanceGrid.build([sliver, far])
+    assert grid.cell_mm > broadphase.CELL_MM and grid.values.size <= broadphase.MAX_CELLS
+    rng = np.random.default_rng(6)
+    x = np.concatenate([rng.uniform([-3, -3, -3], [13, 3, 3], size=(500, 3)),
+                        rng.uniform([-3, 37, -3], [3, 43, 3], size=(200, 3))])
+    t = np.clip(x[:, 0] / 10.0, 0.0, 1.0)
+    to_segment = np.linalg.norm(x - np.column_stack([10.0 * t, 0 * t, 0 * t]), axis=1)
+    d = np.minimum(to_segment, broadphase._solid_distance(far, x))
+    bound = grid.segment_lower_bounds(np.stack([x, x], axis=1))[:, 0]
+    assert (bound <= d + 1e-9).all()
+    assert (bound >= np.minimum(d, grid.band_mm) - math.sqrt(3) * grid.cell_mm - grid.step_mm).all()
