@@ -2,19 +2,27 @@
 
 The robot is a chain of capsules between consecutive backbone points; each capsule's radius is the
 outer radius of the outermost tube present on that segment plus a configurable margin. The scene is
-built once (all meshes merged into one BVH, primitives as FCL shapes); the capsules are FCL objects
+built once (meshes as BVHs of compact chunks, primitives as FCL shapes); the capsules are FCL objects
 whose radius, length and pose are updated in place for every configuration (DESIGN §4: building from
 Python is slow, boolean checks are cheap, distances are for final paths only).
+
+Boolean checks first ask the scene's conservative distance grid (`ctrplan.broadphase`) which capsules
+are certainly clear of every obstacle -- for a whole batch of backbones in one compiled call -- and
+send only the others to FCL, likeliest contact first: FCL judges every contact, so the answers are
+those of FCL alone.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import fcl
 import numpy as np
+from numba import njit
 
+from ctrplan.broadphase import DistanceGrid, grid_for, primitive_bounds
 from ctrplan.scene import Obstacle, Scene, transform_points
 
 
@@ -22,11 +30,11 @@ def _fcl_transform(pose: np.ndarray) -> fcl.Transform:
     return fcl.Transform(np.ascontiguousarray(pose[:3, :3]), np.ascontiguousarray(pose[:3, 3]))
 
 
-def segment_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Centres (..., M, 3), rotations (..., M, 3, 3) taking z onto each segment, and lengths (..., M)
-    for the M = N - 1 segments of polylines (..., N, 3)."""
-    p = np.asarray(points, dtype=float)
-    d = p[..., 1:, :] - p[..., :-1, :]
+def capsule_frames(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centres (..., 3), rotations (..., 3, 3) taking z onto each segment, and lengths (...) (mm) of
+    the segments from ``a`` to ``b`` (..., 3)."""
+    a = np.asarray(a, dtype=float)
+    d = np.asarray(b, dtype=float) - a
     length = np.linalg.norm(d, axis=-1)
     safe = np.where(length > 1e-12, length, 1.0)
     u = d / safe[..., None]
@@ -46,8 +54,81 @@ def segment_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     R[..., 2, 2] = z
     if np.any(flip):
         R[flip] = np.diag([1.0, -1.0, -1.0])
-    centres = 0.5 * (p[..., 1:, :] + p[..., :-1, :])
-    return centres, R, length
+    return a + 0.5 * d, R, length
+
+
+@njit(cache=True)
+def _frames_and_boxes(a, b, radii, aabb_lo, aabb_hi):
+    """Compiled hot path of `segments_collide`: `capsule_frames` of K segments a -> b (K, 3), their
+    bounding boxes grown by ``radii`` (K,), and the (capsule, object) pairs (P, 2) whose boxes overlap
+    the objects' boxes ``aabb_lo/hi`` (O, 3), capsule-major."""
+    k = a.shape[0]
+    centres = np.empty((k, 3))
+    R = np.empty((k, 3, 3))
+    length = np.empty(k)
+    lo = np.empty((k, 3))
+    hi = np.empty((k, 3))
+    pairs = np.empty((k * aabb_lo.shape[0], 2), dtype=np.int64)
+    n = 0
+    for i in range(k):
+        d = b[i] - a[i]
+        ln = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        length[i] = ln
+        if ln > 1e-12:
+            x, y, z = d[0] / ln, d[1] / ln, d[2] / ln
+        else:
+            x, y, z = 0.0, 0.0, 1.0
+        if z < -1.0 + 1e-9:
+            R[i] = 0.0
+            R[i, 0, 0], R[i, 1, 1], R[i, 2, 2] = 1.0, -1.0, -1.0
+        else:
+            c = 1.0 / (1.0 + z)
+            R[i, 0, 0], R[i, 0, 1], R[i, 0, 2] = 1 - x * x * c, -x * y * c, x
+            R[i, 1, 0], R[i, 1, 1], R[i, 1, 2] = -x * y * c, 1 - y * y * c, y
+            R[i, 2, 0], R[i, 2, 1], R[i, 2, 2] = -x, -y, z
+        for j in range(3):
+            centres[i, j] = a[i, j] + 0.5 * d[j]
+            lo[i, j] = min(a[i, j], b[i, j]) - radii[i]
+            hi[i, j] = max(a[i, j], b[i, j]) + radii[i]
+        for o in range(aabb_lo.shape[0]):
+            if (lo[i, 0] <= aabb_hi[o, 0] + 1e-6 and hi[i, 0] >= aabb_lo[o, 0] - 1e-6
+                    and lo[i, 1] <= aabb_hi[o, 1] + 1e-6 and hi[i, 1] >= aabb_lo[o, 1] - 1e-6
+                    and lo[i, 2] <= aabb_hi[o, 2] + 1e-6 and hi[i, 2] >= aabb_lo[o, 2] - 1e-6):
+                pairs[n, 0] = i
+                pairs[n, 1] = o
+                n += 1
+    return centres, R, length, lo, hi, pairs[:n]
+
+
+@njit(cache=True)
+def _to_world(positions, radius, T, margin):
+    """Backbones (B, N, 3) robot frame -> points (B, N, 3) in T's frame (non-finite rows -> 0), capsule
+    radii (B, N-1) = larger end radius + margin (non-finite -> 0), and which rows are finite (B,)."""
+    nb, n = positions.shape[0], positions.shape[1]
+    p = np.zeros((nb, n, 3))
+    radii = np.zeros((nb, n - 1))
+    finite = np.ones(nb, dtype=np.bool_)
+    for b in range(nb):
+        for i in range(n):
+            x, y, z = positions[b, i, 0], positions[b, i, 1], positions[b, i, 2]
+            if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+                finite[b] = False
+        if finite[b]:
+            for i in range(n):
+                x, y, z = positions[b, i, 0], positions[b, i, 1], positions[b, i, 2]
+                for k in range(3):
+                    p[b, i, k] = T[k, 0] * x + T[k, 1] * y + T[k, 2] * z + T[k, 3]
+        for i in range(n - 1):
+            r = max(radius[b, i], radius[b, i + 1]) + margin
+            radii[b, i] = r if math.isfinite(r) else 0.0
+    return p, radii, finite
+
+
+def segment_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centres (..., M, 3), rotations (..., M, 3, 3) taking z onto each segment, and lengths (..., M)
+    for the M = N - 1 segments of polylines (..., N, 3)."""
+    p = np.asarray(points, dtype=float)
+    return capsule_frames(p[..., :-1, :], p[..., 1:, :])
 
 
 def segment_radii(radius_mm: np.ndarray, margin_mm: float = 0.0) -> np.ndarray:
@@ -76,15 +157,18 @@ def _split_mesh(V: np.ndarray, F: np.ndarray, max_faces: int) -> list[np.ndarray
 
 
 class CollisionWorld:
-    """The scene's obstacles as FCL objects, built once.
+    """The scene's obstacles as FCL objects, built once, and their distance-grid broadphase.
 
     Meshes are split into spatially compact chunks (one BVH each) so that an axis-aligned
-    bounding-box prefilter, vectorised over all capsules, sends only nearby capsule/chunk pairs to
-    FCL's narrow phase. ``max_faces`` bounds the chunk size.
+    bounding-box prefilter sends only nearby capsule/chunk pairs to FCL's narrow phase. ``max_faces``
+    bounds the chunk size. With ``broadphase`` a `DistanceGrid` (from memory, the disk cache or built
+    here, see `ctrplan.broadphase`) first clears the capsules certainly far from every obstacle; FCL judges
+    the rest.
     """
 
-    def __init__(self, obstacles: Sequence[Obstacle], max_faces: int = 256):
+    def __init__(self, obstacles: Sequence[Obstacle], max_faces: int = 256, broadphase: bool = True):
         self.obstacles = tuple(obstacles)
+        self.broadphase = bool(broadphase)
         self._objects: list[fcl.CollisionObject] = []
         self._geoms: list = []  # keep FCL geometry alive
         self.names: list[str] = []
@@ -114,11 +198,13 @@ class CollisionWorld:
                 g = fcl.Capsule(o.radius, o.length)
             else:  # pragma: no cover - the loader only makes these kinds
                 raise ValueError(f"unknown obstacle kind {o.kind!r}")
-            b = _primitive_bounds(o)
+            b = primitive_bounds(o)
             self._add(g, _fcl_transform(o.pose), o.name, b[0], b[1], lo, hi)
         self.aabb_lo = np.array(lo).reshape(-1, 3)
         self.aabb_hi = np.array(hi).reshape(-1, 3)
         self._request = fcl.CollisionRequest()
+        #: the broadphase grid (None when disabled or without obstacles)
+        self.grid: DistanceGrid | None = grid_for(self.obstacles) if self.broadphase else None
 
     def _add(self, geom, tf, name, lo_, hi_, lo, hi) -> None:
         self._geoms.append(geom)
@@ -128,8 +214,28 @@ class CollisionWorld:
         hi.append(hi_)
 
     @classmethod
-    def from_scene(cls, scene: Scene) -> CollisionWorld:
-        return cls(scene.obstacles)
+    def from_scene(cls, scene: Scene, broadphase: bool = True) -> CollisionWorld:
+        return cls(scene.obstacles, broadphase=broadphase)
+
+
+    def near(self, points: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Capsules the broadphase cannot clear, (B, M) bool, and a priority (B, M) to test them in
+        (lowest first), for polylines (B, N, 3) (scene frame, mm) with capsule radii (B, M) (mm).
+
+        With the grid: a capsule is near unless its clearance lower bound exceeds its radius;
+        priority = that bound (likeliest contact first). Without: near = bounding box overlaps
+        some object; priority = distal first."""
+        p = np.asarray(points, dtype=float)
+        if len(self) == 0:
+            return np.zeros(radii.shape, dtype=bool), np.zeros(radii.shape)
+        grid = self.grid
+        if grid is not None:
+            lower = grid.segment_lower_bounds(p, radii)
+            return lower <= radii + 1e-9, lower
+        lo = np.minimum(p[:, :-1], p[:, 1:]) - radii[..., None]
+        hi = np.maximum(p[:, :-1], p[:, 1:]) + radii[..., None]
+        m = radii.shape[-1]
+        return self.overlaps(lo, hi).any(axis=-1), np.broadcast_to(-np.arange(m, dtype=float), radii.shape)
 
     def __len__(self) -> int:
         return len(self._objects)
@@ -148,21 +254,6 @@ class CollisionWorld:
         return pairs
 
 
-def _primitive_bounds(o: Obstacle) -> np.ndarray:
-    """Axis-aligned bounds (2, 3) of a primitive in the scene frame."""
-    R, c = o.pose[:3, :3], o.pose[:3, 3]
-    if o.kind == "sphere":
-        e = np.full(3, o.radius)
-    elif o.kind == "box":
-        e = np.abs(R) @ (0.5 * np.asarray(o.size))
-    elif o.kind == "cylinder":  # disc of radius r swept along the axis a: |a_k| h + r sqrt(1 - a_k^2)
-        a = R[:, 2]
-        e = np.abs(a) * 0.5 * o.length + o.radius * np.sqrt(np.clip(1.0 - a**2, 0.0, 1.0))
-    else:  # capsule: segment along the axis plus a ball
-        e = np.abs(R[:, 2]) * 0.5 * o.length + o.radius
-    return np.stack([c - e - 1e-9, c + e + 1e-9])
-
-
 class CapsuleChain:
     """A chain of ``n_segments`` FCL capsules, placed lazily and updated in place.
 
@@ -177,6 +268,8 @@ class CapsuleChain:
         self._active = 0
         self._placed = np.zeros(self.n_segments, dtype=bool)
         self.points = np.zeros((0, 3))
+        #: FCL narrow-phase tests (capsule, object pairs) run by `collides`
+        self.tests = 0
 
     def set(self, points: np.ndarray, radii: np.ndarray) -> None:
         """New configuration: points (N, 3) with per-segment radii (N-1,) (the world's frame)."""
@@ -213,7 +306,21 @@ class CapsuleChain:
         objs = world._objects
         if pairs is None:
             pairs = world.candidates(self.seg_lo, self.seg_hi)
-        return any(fcl.collide(self._object(i), objs[j], req, fcl.CollisionResult()) for i, j in pairs)
+        for i, j in pairs:
+            self.tests += 1
+            if fcl.collide(self._object(i), objs[j], req, fcl.CollisionResult()):
+                return True
+        return False
+
+    def segments_collide(self, world: CollisionWorld, a: np.ndarray, b: np.ndarray,
+                         radii: np.ndarray) -> bool:
+        """Whether any of the K capsules from ``a`` to ``b`` (K, 3) (world frame, mm) with ``radii``
+        (K,) touches an obstacle, tested in the given order (replaces the chain's configuration)."""
+        centres, R, length, lo, hi, pairs = _frames_and_boxes(
+            np.ascontiguousarray(a), np.ascontiguousarray(b), np.ascontiguousarray(radii, dtype=float),
+            world.aabb_lo, world.aabb_hi)
+        self.load(centres, R, length, radii, lo, hi)
+        return self.collides(world, pairs)
 
     def contacts(self, world: CollisionWorld) -> list[tuple[int, str]]:
         """Every (capsule index, obstacle name) pair in contact."""
@@ -265,6 +372,23 @@ class Clearance:
     obstacle_point: np.ndarray
 
 
+_WARM = False
+
+
+def warm_kernels() -> None:
+    """Compile (or load from numba's cache) the boolean-check kernels once per process, so that no
+    timed planning run pays for it."""
+    global _WARM
+    if _WARM:
+        return
+    a = np.zeros((1, 2, 3))
+    a[0, 1, 2] = 1.0
+    _to_world(a, np.ones((1, 2)), np.eye(4), 0.0)
+    _frames_and_boxes(a[0, :1], a[0, 1:], np.ones(1), np.zeros((1, 3)), np.ones((1, 3)))
+    DistanceGrid(np.zeros(3), 1.0, 1.0, np.zeros((1, 1, 1), dtype=np.uint8)).segment_lower_bounds(a)
+    _WARM = True
+
+
 class RobotCollisionChecker:
     """Backbones (robot frame) against a scene: boolean checks for planning, distances for paths.
 
@@ -278,11 +402,14 @@ class RobotCollisionChecker:
     def __init__(self, world: CollisionWorld, base_pose: np.ndarray, points: int,
                  margin_mm: float = 0.0):
         self.world = world
-        self.base_pose = np.asarray(base_pose, dtype=float)
+        self.base_pose = np.ascontiguousarray(base_pose, dtype=float)
         self.points = int(points)
         self.margin_mm = float(margin_mm)
         self.chain = CapsuleChain(self.points - 1)
+        warm_kernels()
+        #: backbones checked, and how many of them the broadphase could not clear alone (went to FCL)
         self.checks = 0
+        self.narrow_checks = 0
 
     @classmethod
     def for_scene(cls, scene: Scene, points: int | None = None, margin_mm: float | None = None,
@@ -300,36 +427,28 @@ class RobotCollisionChecker:
 
     def free_batch(self, positions: np.ndarray, radius: np.ndarray,
                    order: Sequence[int] | None = None, stop_at_first: bool = False) -> np.ndarray:
-        """Boolean checks of B backbones (B, N, 3) robot frame / radii (B, N); NaN rows are not free.
-        Frames and bounding-box candidates are computed for the whole batch at once. With
-        ``stop_at_first``, rows after the first collision (in ``order``) are left not free."""
-        positions = np.asarray(positions, dtype=float)
-        b = positions.shape[0]
-        free = np.zeros(b, dtype=bool)
-        finite = np.all(np.isfinite(positions), axis=(1, 2))
-        p = transform_points(self.base_pose, np.where(finite[:, None, None], positions, 0.0))
-        radii = segment_radii(radius, self.margin_mm)
-        radii = np.where(np.isfinite(radii), radii, 0.0)
-        centres, R, length = segment_frames(p)
-        lo = np.minimum(p[:, :-1], p[:, 1:]) - radii[..., None]
-        hi = np.maximum(p[:, :-1], p[:, 1:]) + radii[..., None]
-        if len(self.world):
-            ov = self.world.overlaps(lo, hi)[:, ::-1]  # distal capsules first
-            has = ov.any(axis=(1, 2))
-        else:
-            has = np.zeros(b, dtype=bool)
-        m = p.shape[1] - 1
-        for i in (range(b) if order is None else order):
+        """Boolean checks of B backbones (B, N, 3) robot frame / radii (B, N) mm; NaN rows are not free.
+        The broadphase runs on the whole batch at once; FCL then tests each row's remaining capsules,
+        likeliest contact first. With ``stop_at_first``, rows after the first collision (in
+        ``order``) are left not free."""
+        p, radii, finite = _to_world(np.ascontiguousarray(positions, dtype=float),
+                                     np.ascontiguousarray(radius, dtype=float), self.base_pose,
+                                     self.margin_mm)
+        near, priority = self.world.near(p, radii)
+        cleared = finite & ~near.any(axis=1)
+        if order is None and not stop_at_first and cleared.all():
+            self.checks += len(cleared)
+            return cleared
+        free = np.zeros(len(finite), dtype=bool)
+        for i in (range(len(finite)) if order is None else order):
             self.checks += 1
-            if not finite[i]:
-                ok = False
-            elif not has[i]:
-                ok = True
+            if cleared[i] or not finite[i]:
+                ok = bool(cleared[i])
             else:
-                pairs = np.argwhere(ov[i])
-                pairs[:, 0] = m - 1 - pairs[:, 0]
-                self.chain.load(centres[i], R[i], length[i], radii[i], lo[i], hi[i])
-                ok = not self.chain.collides(self.world, pairs)
+                self.narrow_checks += 1
+                caps = np.flatnonzero(near[i])
+                caps = caps[np.argsort(priority[i, caps], kind="stable")]
+                ok = not self.chain.segments_collide(self.world, p[i, caps], p[i, caps + 1], radii[i, caps])
             free[i] = ok
             if stop_at_first and not ok:
                 break

@@ -48,11 +48,14 @@ def test_records_and_summary(bench_run):
         assert split == pytest.approx(r["planning_time_s"], abs=1e-3)
         assert r["kinematics_s"] > 0 and r["collision_s"] > 0 and r["kinematics_calls"] > 0
         assert r["checks_per_s"] == pytest.approx(r["kinematics_calls"] / r["planning_time_s"], rel=1e-3)
+        # the open scene is mostly empty space: the broadphase decides most checks without FCL
+        assert r["narrow_checks"] < 0.5 * r["collision_checks"]
         if r["solved"]:  # solved means: the exact model confirms the whole path
             assert r["found"] and r["exact_collision_free"] and r["exact_tip_in_target"]
             assert r["path_length_mm"] > 0 and r["tip_travel_mm"] > 0 and r["min_clearance_mm"] > 0
         if r["backend"] == "cosserat" and r["found"]:
             assert r["max_position_error_mm"] == 0.0
+    assert sum(r["narrow_checks"] for r in runs) > 0 and sum(r["fcl_tests"] for r in runs) > 0
     for s in summary:
         mine = [r for r in runs if (r["backend"], r["planner"]) == (s["backend"], s["planner"])]
         assert s["runs"] == 2 and s["solved"] == sum(r["solved"] for r in mine)

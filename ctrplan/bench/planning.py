@@ -108,6 +108,8 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
         "validation_s": _round(result.details.get("validation_time_s", 0.0)),
         "kinematics_calls": calls,
         "collision_checks": int(counters.get("collision_checks", 0)),
+        "narrow_checks": int(counters.get("narrow_checks", 0)),
+        "fcl_tests": int(counters.get("fcl_tests", 0)),
         "checks_per_s": _round(calls / total if total > 0 else 0.0, 1),
         "path_states": int(len(result.path)),
         "path_length_mm": None if path_length is None else round(path_length, 3),
@@ -155,6 +157,10 @@ def summarize(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
             "time_share": {k.removesuffix("_s"): round(v / total, 3) for k, v in mean.items()},
             "validation_s": _stats([r["validation_s"] for r in rs]),
             "checks_per_s": _stats([r["checks_per_s"] for r in rs]),
+            "narrow_share": _stats([r["narrow_checks"] / r["collision_checks"] for r in rs
+                                    if r.get("collision_checks") and "narrow_checks" in r]),
+            "fcl_tests_per_check": _stats([r["fcl_tests"] / r["collision_checks"] for r in rs
+                                           if r.get("collision_checks") and "fcl_tests" in r]),
             "kinematics_calls": _stats([r["kinematics_calls"] for r in rs]),
             "path_length_mm": _stats([r["path_length_mm"] for r in solved]),
             "tip_travel_mm": _stats([r["tip_travel_mm"] for r in solved]),
@@ -169,13 +175,16 @@ def prepare(scene_files: list[Path], backends: list[str], time_limit_s: float | 
     """(scene file, time budget s) per scene: ``time_limit_s`` or the scene's own setting.
 
     Loads every scene and builds every backend for its robot once here, so that a bad scene file or
-    a missing or mismatched model is reported before any run starts (not from inside a worker)."""
+    a missing or mismatched model is reported before any run starts (not from inside a worker), and
+    each scene's broadphase grid, so that workers load it from the disk cache."""
+    from ctrplan.broadphase import grid_for
     from ctrplan.kinematics import make_backend
     from ctrplan.scene import load_scene
 
     out = []
     for f in scene_files:
         scene = load_scene(f)
+        grid_for(scene.obstacles)
         for name in dict.fromkeys(backends):
             make_backend(name, scene.robot)
         out.append((str(Path(f).resolve()), float(time_limit_s or scene.settings.time_limit_s)))

@@ -26,11 +26,14 @@ from ctrplan.scene import Scene
 
 @dataclass
 class Counters:
-    """Work done so far: configurations sent to the backend, backend calls, collision checks."""
+    """Work done so far: configurations sent to the backend, backend calls, collision checks (and of
+    those, the ones the broadphase could not decide alone; FCL narrow-phase tests)."""
 
     kinematics_calls: int = 0
     kinematics_batches: int = 0
     collision_checks: int = 0
+    narrow_checks: int = 0
+    fcl_tests: int = 0
     motions: int = 0
     valid_motions: int = 0
     kinematics_s: float = 0.0
@@ -111,6 +114,8 @@ class ConfigurationChecker:
         free = self.collision.free_batch(pos, bb.radius_mm, order=order, stop_at_first=stop_at_first)
         self.counters.collision_s += time.perf_counter() - t
         self.counters.collision_checks += len(bb) if order is None else len(order)
+        self.counters.narrow_checks = self.collision.narrow_checks
+        self.counters.fcl_tests = self.collision.chain.tests
         return free & bb.stable
 
     # ---- cache ---------------------------------------------------------------------------------
@@ -171,9 +176,10 @@ class ConfigurationChecker:
     def check_motion(self, q1: np.ndarray, q2: np.ndarray, resolution: float) -> bool:
         """Whether the straight coordinate line q1 -> q2 is valid at ``resolution`` (mm in the
         planning metric); q1 is assumed valid. The end state is checked alone first (cached) --
-        most failing edges fail there, and every backend here pays per configuration -- then all
-        interior states go to the backend in one batched call and are collision-checked in
-        bisection order, stopping at the first invalid one."""
+        most failing edges fail there, and every backend here pays per configuration -- then the
+        interior states in bisection order, in batched backend calls of `EDGE_BATCHES` states
+        (a short edge in one call; a long one, e.g. a path shortcut, stops computing kinematics at
+        the first batch with an invalid state), stopping at the first invalid one."""
         self.counters.motions += 1
         e2 = self.lookup(q2)
         if e2 is not None and not e2.valid:
@@ -186,14 +192,27 @@ class ConfigurationChecker:
             self.check(q2)
             if not self.lookup(q2).valid:
                 return False
-        if n > 1:
-            qs = self.space.interpolate(q1, q2, np.arange(1, n) / n)
-            bb = self.forward(qs, guess=guess)
-            order = [i - 1 for i in bisection_order(n)]
-            if not self.backbones_valid(bb, order, stop_at_first=True).all():
+        order = np.asarray(bisection_order(n), dtype=float)
+        for a, b in edge_batches(len(order)):
+            bb = self.forward(self.space.interpolate(q1, q2, order[a:b] / n), guess=guess)
+            if not self.backbones_valid(bb, range(b - a), stop_at_first=True).all():
                 return False
         self.counters.valid_motions += 1
         return True
+
+
+#: Sizes of the successive backend calls for an edge's interior states (the last one repeats).
+EDGE_BATCHES = (15, 16, 32, 64)
+
+
+def edge_batches(k: int) -> list[tuple[int, int]]:
+    """Index ranges [a, b) splitting k interior states into batches of `EDGE_BATCHES` sizes."""
+    out, a, i = [], 0, 0
+    while a < k:
+        b = min(k, a + EDGE_BATCHES[min(i, len(EDGE_BATCHES) - 1)])
+        out.append((a, b))
+        a, i = b, i + 1
+    return out
 
 
 def bisection_order(n: int) -> list[int]:
