@@ -42,10 +42,10 @@ def available_cores() -> list[int]:
 def check_workers(workers: int, ray_address: str | None = None) -> None:
     """`InputError` unless ``workers`` is 1 .. the number of cores (any number >= 1 on Ray)."""
     if workers < 1:
-        raise InputError(f"--workers: need at least 1, got {workers}")
+        raise InputError(f"workers: need at least 1, got {workers}")
     cores = len(available_cores())
     if not ray_address and workers > cores:
-        raise InputError(f"--workers: {workers} workers but only {cores} cores available "
+        raise InputError(f"workers: {workers} workers but only {cores} cores available "
                          f"(one run per core keeps the timings honest)")
 
 
@@ -83,7 +83,7 @@ def run_ray(fn: Callable[[Spec], dict], specs: Sequence[Spec], address: str, wor
     try:
         import ray
     except ImportError:
-        raise InputError("--ray: Ray is not installed (pip install -e \".[ray]\")") from None
+        raise InputError("ray: Ray is not installed (pip install -e \".[ray]\")") from None
     started = not ray.is_initialized()
     if started:
         kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
@@ -95,7 +95,7 @@ def run_ray(fn: Callable[[Spec], dict], specs: Sequence[Spec], address: str, wor
         try:
             ray.init(**kwargs)
         except (ConnectionError, RuntimeError, ValueError) as exc:
-            raise InputError(f"--ray {address}: cannot connect to a Ray cluster ({exc})") from None
+            raise InputError(f"ray: cannot connect to the Ray cluster {address!r} ({exc})") from None
     try:
         task = ray.remote(num_cpus=1)(_ray_call)
         refs = [task.remote(fn, spec) for spec in specs]

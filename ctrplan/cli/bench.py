@@ -19,7 +19,7 @@ from ctrplan.bench import planning as planning_bench
 from ctrplan.bench.fanout import check_workers, run_jobs
 from ctrplan.bench.plots import planning_plots, timing_boxplot
 from ctrplan.cli import HELP_SETTINGS, app
-from ctrplan.cli.kinematics import RobotOpt, load_backend
+from ctrplan.cli.kinematics import RobotOpt, as_option, load_backend
 from ctrplan.dataio import atomic_write, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS
@@ -182,21 +182,27 @@ def plan(
     Arena database (benchmark.db), plots and results.json.
     """
     from ctrplan.bench.ompl_log import write_database, write_logs
-    from ctrplan.scene import PLANNERS
+    from ctrplan.scene import planner_spec
 
     backends = parse_list(backend, "--backend")
     planners = parse_list(planner, "--planner")
     for name in backends:
         if name not in BACKENDS:
             raise InputError(f"--backend: unknown backend {name!r} (choose from {', '.join(BACKENDS)})")
+    flags = {"planner": "--planner", "workers": "--workers", "ray": "--ray"}
     for name in planners:
-        if name not in PLANNERS:
-            raise InputError(f"--planner: unknown planner {name!r} (choose from {', '.join(PLANNERS)})")
+        try:
+            planner_spec(name)
+        except InputError as exc:
+            raise as_option(exc, flags) from None
     if runs < 1:
         raise InputError(f"--runs: need at least 1 run, got {runs}")
     if time_limit is not None and not time_limit > 0:
         raise InputError(f"--time-limit: must be > 0 s, got {time_limit}")
-    check_workers(workers, ray)
+    try:
+        check_workers(workers, ray)
+    except InputError as exc:
+        raise as_option(exc, flags) from None
     limits = planning_bench.prepare(scenes, backends, time_limit)
     specs = planning_bench.make_specs(limits, backends, planners, runs, seed)
     out = output_dir(out)
@@ -208,7 +214,10 @@ def plan(
             bar.update(task, completed=done)
             bar.refresh()
 
-        records = run_jobs(planning_bench.run_one, specs, workers=workers, ray_address=ray, tick=tick)
+        try:
+            records = run_jobs(planning_bench.run_one, specs, workers=workers, ray_address=ray, tick=tick)
+        except InputError as exc:
+            raise as_option(exc, flags) from None
     summary = planning_bench.summarize(records)
     machine = machine_info()
     settings = {"backends": backends, "planners": planners, "runs": runs, "first_seed": seed,
