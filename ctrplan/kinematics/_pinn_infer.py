@@ -44,7 +44,7 @@ def _tanh_inplace(a):
 
 
 @njit(cache=True, fastmath=True)
-def infer(q, frac, box_lo, box_hi, length1, scales, loaded, equivariant, W0, b0, Wh, bh, Wo, bo, out):
+def infer(q, frac, box_M, box_lo, box_hi, length1, scales, loaded, equivariant, W0, b0, Wh, bh, Wo, bo, out):
     """States ``out`` (B, F, 2N + 9) at arc fractions ``frac`` (B, F) for joints ``q`` (B, 2N).
 
     Weights are float32 and laid out for ``x @ W`` (in, out). ``equivariant`` selects the input
@@ -60,11 +60,11 @@ def infer(q, frac, box_lo, box_hi, length1, scales, loaded, equivariant, W0, b0,
     box = np.empty(2 * nt)
     x = np.empty(ns)
     for b in range(nb):
-        box[0] = q[b, nt - 1]
-        for r in range(1, nt):  # beta_{i+1} - beta_i for i = N-1 … 1
-            box[r] = q[b, nt - r] - q[b, nt - r - 1]
-        for i in range(nt):
-            box[nt + i] = q[b, nt + i]
+        for i in range(2 * nt):  # box = M q (`JointDomain.box_from_joints`)
+            v = 0.0
+            for j in range(2 * nt):
+                v += box_M[i, j] * q[b, j]
+            box[i] = v
         for i in range(2 * nt):
             width = box_hi[i] - box_lo[i]
             box[i] = 2.0 * (box[i] - box_lo[i]) / width - 1.0 if width > 0.0 else 0.0

@@ -89,6 +89,9 @@ class PinnNet(nn.Module):
         self.hidden, self.layers = hidden, layers
         self.register_buffer("box_lower", torch.tensor(robot.domain.box_lower, dtype=torch.float32))
         self.register_buffer("box_upper", torch.tensor(robot.domain.box_upper, dtype=torch.float32))
+        # the robot's box transform (`JointDomain.box_from_joints`); not stored with the weights
+        box_matrix = torch.tensor(robot.domain.box_from_joints, dtype=torch.float32)
+        self.register_buffer("box_from_joints", box_matrix, persistent=False)
         self.register_buffer("lengths", torch.tensor(robot.lengths_mm, dtype=torch.float32))
         self.register_buffer("scales", torch.ones(self.n_states) if scales is None
                              else torch.tensor(scales, dtype=torch.float32))
@@ -102,9 +105,7 @@ class PinnNet(nn.Module):
     def box(self, q: torch.Tensor) -> torch.Tensor:
         """Box coordinates (B, 2N) ``(betaN, betaN - betaN-1, …, beta2 - beta1, alpha1 … alphaN)`` of
         joints q (B, 2N), mm and rad."""
-        n = self.n_tubes
-        beta = q[:, :n]
-        return torch.cat([beta[:, n - 1:], (beta[:, 1:] - beta[:, :-1]).flip(-1), q[:, n:]], -1)
+        return q @ self.box_from_joints.T
 
     def features(self, sigma: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
         """Normalised network input (B, 1 + 2N | 3N - 1); fixed box coordinates give 0."""
@@ -200,7 +201,8 @@ class PinnBackend(Backend):
             return m.bias.detach().numpy().astype(np.float32)
 
         hidden = linear[1:-1]
-        return (net.box_lower.numpy().astype(float), net.box_upper.numpy().astype(float),
+        return (net.box_from_joints.numpy().astype(float),
+                net.box_lower.numpy().astype(float), net.box_upper.numpy().astype(float),
                 float(net.lengths[0]), net.scales.numpy().astype(float), float(net.loaded),
                 net.features_mode == "equivariant", w(linear[0]), b(linear[0]),
                 np.ascontiguousarray(np.stack([w(m) for m in hidden])), np.stack([b(m) for m in hidden]),
