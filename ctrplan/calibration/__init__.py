@@ -39,7 +39,8 @@ def __getattr__(name: str) -> Any:
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'ctrplan.calibration' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module if "." in module else f"ctrplan.calibration.{module}"), name)
+    path = module if "." in module else f"ctrplan.calibration.{module}"
+    value = getattr(importlib.import_module(path), name)
     globals()[name] = value
     return value
 

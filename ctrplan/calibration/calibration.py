@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ctrplan.measurement import CALIBRATION_KEY, Calibration
 from ctrplan.dataio import atomic_write
+from ctrplan.measurement import CALIBRATION_KEY, Calibration
 from ctrplan.robot import Robot
 
 __all__ = ["CALIBRATION_KEY", "Calibration", "extended_robot_dict", "load_extended_robot",

@@ -9,11 +9,15 @@ cause              k     parameters
 =================  ====  =====================================================================
 curvature          3     pre-curvature kappa_i of each tube (1/m)
 stiffness_ratio    1     Poisson's ratio nu; G_i = E_i / (2 (1 + nu)) (torsion vs bending)
-joint_offset       6     zero offsets of beta_i (mm) and alpha_i (rad), added to q
+bending_stiffness  N-1   stiffness of tube i relative to its file value (E_i and G_i scaled together:
+                         wall thickness, heat treatment), i = 2..N; tube 1 is the reference (in free
+                         space only stiffness ratios shape the robot; all N with a load)
+joint_offset       2N    zero offsets of beta_i (mm) and alpha_i (rad), added to q
 gravity            3     gravity vector (m/s^2) with the file's density and E: only rho*g/E matters
 tip_force          3     point force at the tip of tube 1 (N), robot frame
 registration       6     rotation vector (rad) and translation (mm), robot -> measurement frame
-backlash           3     lag of alpha_i (rad) in the direction of its latest motion
+backlash           N     lag of alpha_i (rad) in the direction of its latest motion
+sensor_offset      3     tracked point relative to the tip of tube 1, in its tip frame R(l1) (mm)
 =================  ====  =====================================================================
 """
 
@@ -26,15 +30,17 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ctrplan.measurement import Calibration
 from ctrplan.errors import InputError
+from ctrplan.measurement import Calibration
 from ctrplan.robot import Loads, Robot
 
 MAX_GRAVITY = 30.0     # m/s^2 per component
 MAX_TIP_FORCE = 0.05   # N per component (50 mN bends tube 1 by tens of mm)
 
-CAUSES = ("curvature", "stiffness_ratio", "joint_offset", "gravity", "tip_force", "registration",
-          "backlash")
+CAUSES = ("curvature", "stiffness_ratio", "bending_stiffness", "joint_offset", "gravity", "tip_force",
+          "registration", "sensor_offset", "backlash")
+MAX_SENSOR_OFFSET_MM = 20.0
+STIFFNESS_FACTOR_RANGE = (0.3, 3.0)
 
 
 @dataclass(frozen=True)
@@ -138,11 +144,13 @@ class JointOffset(Effect):
     kind = "joints"
 
     def derived(self, robot, calib, x):
-        return {f"alpha{i + 1}_offset_deg": float(np.degrees(x[3 + i])) for i in range(3)}
+        n = len(robot.tubes)
+        return {f"alpha{i + 1}_offset_deg": float(np.degrees(x[n + i])) for i in range(n)}
 
     def params(self, robot, calib):
-        return [Param(f"beta{i}_offset_mm", "mm", 1.0) for i in (1, 2, 3)] + \
-               [Param(f"alpha{i}_offset_rad", "rad", 0.05) for i in (1, 2, 3)]
+        n = len(robot.tubes)
+        return [Param(f"beta{i + 1}_offset_mm", "mm", 1.0) for i in range(n)] + \
+               [Param(f"alpha{i + 1}_offset_rad", "rad", 0.05) for i in range(n)]
 
     def x0(self, robot, calib):
         return np.asarray(robot.joint_offset, dtype=float)
@@ -227,7 +235,7 @@ class Backlash(Effect):
     kind = "joints"
 
     def params(self, robot, calib):
-        return [Param(f"backlash{i}_rad", "rad", 0.03) for i in (1, 2, 3)]
+        return [Param(f"backlash{i + 1}_rad", "rad", 0.03, 0.0, 0.5) for i in range(len(robot.tubes))]
 
     def x0(self, robot, calib):
         return np.asarray(calib.backlash_rad, dtype=float)
@@ -237,6 +245,53 @@ class Backlash(Effect):
 
     def apply(self, robot, calib, x):
         return robot, replace(calib, backlash_rad=tuple(float(v) for v in x))
+
+
+class BendingStiffness(Effect):
+    name = "bending_stiffness"
+    description = "stiffness of each tube relative to tube 1 (E*I and G*J: wall thickness, heat treatment)"
+
+    def _tubes(self, robot: Robot) -> range:
+        # without a load only stiffness ratios shape the robot: tube 1 is the reference
+        return range(0 if not robot.loads.is_free else 1, len(robot.tubes))
+
+    def params(self, robot, calib):
+        lo, hi = STIFFNESS_FACTOR_RANGE
+        return [Param(f"stiffness{i + 1}_rel", "1", 0.1, lo, hi) for i in self._tubes(robot)]
+
+    def x0(self, robot, calib):
+        return np.ones(len(self._tubes(robot)))
+
+    def derived(self, robot, calib, x):
+        return {f"tube{i + 1}_EI_change_pct": 100.0 * (float(v) - 1.0)
+                for i, v in zip(self._tubes(robot), x, strict=True)}
+
+    def apply(self, robot, calib, x):
+        tubes = list(robot.tubes)
+        for i, v in zip(self._tubes(robot), x, strict=True):
+            t = tubes[i]
+            tubes[i] = replace(t, youngs_modulus_mpa=t.youngs_modulus_mpa * float(v),
+                               shear_modulus_mpa=t.shear_modulus_mpa * float(v))
+        return robot.with_changes(tubes=tuple(tubes)), calib
+
+
+class SensorOffset(Effect):
+    name = "sensor_offset"
+    description = "tracked point offset from the tip of tube 1, fixed in its tip frame"
+    kind = "frame"
+
+    def params(self, robot, calib):
+        m = MAX_SENSOR_OFFSET_MM
+        return [Param(f"sensor_offset_{a}_mm", "mm", 1.0, -m, m) for a in "xyz"]
+
+    def x0(self, robot, calib):
+        return np.asarray(calib.sensor_offset_mm, dtype=float)
+
+    def derived(self, robot, calib, x):
+        return {"sensor_offset_mm": float(np.linalg.norm(x))}
+
+    def apply(self, robot, calib, x):
+        return robot, replace(calib, sensor_offset_mm=tuple(float(v) for v in x))
 
 
 class Combined(Effect):
@@ -277,8 +332,8 @@ class Combined(Effect):
         return robot, calib
 
 
-_LIBRARY = {c.name: c for c in (Curvature, StiffnessRatio, JointOffset, Gravity, TipForce, Registration,
-                                Backlash)}
+_LIBRARY = {c.name: c for c in (Curvature, StiffnessRatio, BendingStiffness, JointOffset, Gravity,
+                                TipForce, Registration, SensorOffset, Backlash)}
 
 
 def make_effect(name: str) -> Effect:

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ctrplan.calibration.data import MeasuredData
-from ctrplan.measurement import Calibration, motion_direction
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.measurement import Calibration, motion_direction
 from ctrplan.robot import Loads, Robot
 
 HIDDEN_CAUSES = ("curvature", "stiffness_ratio", "joint_offset", "gravity", "tip_force", "registration",
