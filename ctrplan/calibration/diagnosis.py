@@ -475,11 +475,14 @@ def diagnose(data: MeasuredData, robot: Robot | None = None, calibration: Calibr
         outliers = _outliers(data, extended, unsolved, opt.outlier_mads)
     # stability: the selection on other contiguous splits (fits warm-started from these) and on
     # bootstrap draws of the held-out rows
+    # (only candidates that lowered the training BIC on the main split can be chosen on another)
     warm = {c.cause: c.fit.x for c in sel["singles"] + sel["pairs"]}
+    contenders = tuple(c.cause for c in sel["singles"] if c.delta_bic < 0)
     picks = [_pick_name(sel["chosen"])]
     for r in range(1, opt.resamples + 1):
         tr, he = split(opt.seed + r, outliers if refit else unsolved)
-        picks.append(_pick_name(state.run(tr, he, warm=warm, max_nfev=opt.resample_nfev)["chosen"]))
+        picks.append(_pick_name(state.run(tr, he, warm=warm, max_nfev=opt.resample_nfev,
+                                          only=contenders)["chosen"]))
     boot = state.bootstrap(sel, opt.bootstrap)
     stability = _stability(picks, boot, opt)
     chosen, ties = _stable_choice(sel, stability, opt)
@@ -633,7 +636,8 @@ class _Selection:
         c.significant = beats and c.delta_bic_ref < -opt.bic_margin and not c.off_limits()
 
     def run(self, train: np.ndarray, heldout: np.ndarray, warm: dict[str, np.ndarray] | None = None,
-            max_nfev: int | None = None) -> dict:
+            max_nfev: int | None = None, only: tuple[str, ...] | None = None) -> dict:
+        """Fit the candidates (``only`` these, if given) on ``train``, judge them on ``heldout``."""
         opt, d = self.opt, self.data
         warm = warm or {}
         ev = Evaluator(d.q[train], self.direction[train])
@@ -643,7 +647,7 @@ class _Selection:
         bic0 = bic(float(r0 @ r0), r0.size, 0)
         nom_held_err = np.linalg.norm(d.tips_mm[heldout] - self.nominal.tips_mm[heldout], axis=-1)
         singles, not_fitted = [], {}
-        for name in opt.candidates:
+        for name in opt.candidates if only is None else [c for c in opt.candidates if c in only]:
             eff = make_effect(name)
             names = [p.name for p in eff.params(self.robot, self.calibration)]
             if all(n in self.fixed for n in names):
