@@ -277,6 +277,7 @@ class Diagnosis:
             "format": d.format,
             "rows": int(self.rows_in_file),
             "rows_used": int(len(d)),
+            "rows_dropped": int(self.rows_in_file - len(d)),
             "train_rows": int(len(self.train)),
             "heldout_rows": int(len(self.heldout)),
             "tubes_measured": [t + 1 for t in d.tubes],
@@ -319,7 +320,8 @@ class Diagnosis:
         """A human-readable report (the CLI prints it without --json)."""
         j = self.to_json()
         nom, ext = j["nominal"], j["extended"]
-        used = "" if j["rows_used"] == j["rows"] else f", {j['rows_used']} used (contiguous runs)"
+        used = "" if j["rows_used"] == j["rows"] else (
+            f", {j['rows_used']} used in contiguous runs ({j['rows_dropped']} dropped by max_rows)")
         lines = [f"{self.data.source}: {j['rows']} rows{used} ({j['train_rows']} train, "
                  f"{j['heldout_rows']} held out in contiguous blocks), tubes measured: {j['tubes_measured']}"]
         if j["outside_domain_rows"]:

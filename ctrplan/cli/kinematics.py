@@ -44,7 +44,11 @@ def _solve(configs: Path, backend: str, robot: str | None, allow_outside_domain:
         table = read_joints(configs, model, allow_outside_domain=allow_outside_domain)
     for w in caught:
         typer.echo(f"ctrplan: warning: {w.message}", err=True)
-    backbone = kinematics.forward(table.joints, points=points, check=False)
+    # the robot file's calibration (an extended robot of `ctrplan diagnose`): backlash on the rows in
+    # their order, then sensor offset and registration on the solved backbone
+    calib = model.calibration
+    backbone = calib.apply(kinematics.forward(calib.effective_joints(table.joints), points=points,
+                                              check=False))
     failed = table.lines[~backbone.converged]
     if failed.size:
         listed = ", ".join(map(str, failed[:10])) + (", ..." if failed.size > 10 else "")
@@ -64,7 +68,8 @@ def fk(configs: Configs, backend: BackendOpt = "cosserat", robot: RobotOpt = Non
        output: OutputOpt = None, allow_outside_domain: OutsideOpt = False) -> None:
     """Tip positions of tubes 1-3 for every configuration (measured-data CSV format).
 
-    Output columns: beta1..alpha3, tip1_x..tip3_z (mm, robot frame), converged (1/0).
+    Output columns: beta1..alpha3, tip1_x..tip3_z (mm, robot frame; the measurement frame of an
+    extended robot with a calibration), converged (1/0).
     Rows that do not converge get NaN tips, converged = 0 and a note on stderr.
     """
 
