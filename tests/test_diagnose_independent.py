@@ -8,7 +8,6 @@ is tuned to one draw. Noise: 0.1 mm per coordinate.
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from ctrplan.calibration import diagnose, read_measured
 from tests.independent.cosserat import Tubes, solve

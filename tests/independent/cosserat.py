@@ -48,11 +48,11 @@ class Tubes:
         return Tubes(**d)
 
     @property
-    def EI(self) -> np.ndarray:
+    def ei(self) -> np.ndarray:
         return self.E * np.pi / 64 * (self.outer_mm ** 4 - self.inner_mm ** 4)
 
     @property
-    def GJ(self) -> np.ndarray:
+    def gj(self) -> np.ndarray:
         return self.G * np.pi / 32 * (self.outer_mm ** 4 - self.inner_mm ** 4)
 
     @property
@@ -75,12 +75,12 @@ def _hat(u: np.ndarray) -> np.ndarray:
 def _rhs(y, present, curved, t: Tubes):
     """Derivatives of (uz (B,N), theta (B,N), p (B,3), R (B,3,3)); masks (B,N) for this piece."""
     uz, th, p, R = y
-    K = t.EI * present
+    K = t.ei * present
     kap = t.kappa_per_mm * curved
     ux = (K * np.cos(th) * kap).sum(1) / K.sum(1)
     uy = (K * np.sin(th) * kap).sum(1) / K.sum(1)
     uiy = -np.sin(th) * ux[:, None] + np.cos(th) * uy[:, None]
-    duz = np.where(present, -(t.EI / t.GJ) * kap * uiy, 0.0)
+    duz = np.where(present, -(t.ei / t.gj) * kap * uiy, 0.0)
     dth = uz - uz[:, :1]
     dp = R[:, :, 2]
     dR = R @ _hat(np.stack([ux, uy, uz[:, 0]], -1))
@@ -116,7 +116,7 @@ def integrate(q: np.ndarray, uz0: np.ndarray, t: Tubes, steps: int = 24) -> tupl
             k3 = _rhs(_axpy(y, k2, h / 2), present, curved, t)
             k4 = _rhs(_axpy(y, k3, h), present, curved, t)
             y = tuple(yi + _bc(h, yi) / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
-                      for yi, a1, a2, a3, a4 in zip(y, k1, k2, k3, k4))
+                      for yi, a1, a2, a3, a4 in zip(y, k1, k2, k3, k4, strict=True))
         hit = np.isclose(b[:, None], ends)            # a tube ends here: record its tip
         tips[hit] = np.repeat(y[2][:, None, :], N, axis=1)[hit]
     return y, tips
@@ -127,7 +127,7 @@ def _bc(h: np.ndarray, like: np.ndarray) -> np.ndarray:
 
 
 def _axpy(y, k, h):
-    return tuple(yi + _bc(h, yi) * ki for yi, ki in zip(y, k))
+    return tuple(yi + _bc(h, yi) * ki for yi, ki in zip(y, k, strict=True))
 
 
 def solve(q: np.ndarray, t: Tubes, tol: float = 1e-11, iters: int = 30) -> dict:

@@ -64,7 +64,7 @@ class LabData:
         head = [f"beta{i + 1}" for i in range(N)] + [f"alpha{i + 1}" for i in range(N)]
         head += [f"tip{t + 1}_{a}" for t in tubes for a in "xyz"]
         lines = [",".join(head)]
-        for qr, tr in zip(self.q, self.tips_mm):
+        for qr, tr in zip(self.q, self.tips_mm, strict=True):
             lines.append(",".join(f"{v:.9g}" for v in list(qr) + [tr[t, a] for t in tubes for a in range(3)]))
         with open(path, "w") as fh:
             fh.write("\n".join(lines) + "\n")
