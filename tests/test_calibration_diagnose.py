@@ -69,7 +69,8 @@ def test_no_effect_gives_none():
     assert j["parameters"] == {} and j["gain_pct"] == 0.0
     assert j["extended"]["mean_mm"] == j["nominal"]["mean_mm"]
     assert not any(c["significant"] for c in j["candidates"])
-    assert len(j["candidates"]) == 7
+    assert len(j["candidates"]) == 9
+    assert j["explained"] is True and j["noise_mm"] > 0
     assert j["nominal"]["mean_mm"] <= NOISE_FACTOR * _noise_level(syn, diag.heldout)
 
 

@@ -21,6 +21,7 @@ Procedure (`diagnose`):
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,6 +40,7 @@ from ctrplan.calibration.fit import (
     residual_vector,
 )
 from ctrplan.calibration.noise import estimate_noise
+from ctrplan.errors import InputError
 from ctrplan.measurement import Calibration, motion_direction
 from ctrplan.robot import Robot
 
@@ -448,7 +450,8 @@ def diagnose(data: MeasuredData, robot: Robot | None = None, calibration: Calibr
         direction = motion_direction(data.q)   # from the full sequence, before any subsampling
     # what the data cannot see, and the joint offsets that keep every row of the file physical
     fixed = unseen_parameters(data.q, direction, robot)
-    limits = offset_limits(data.q, robot)
+    limits = (offset_limits(data.q, robot, share=1.0), offset_limits(data.q, robot, share=0.5))
+    q_file = data.q
     if len(data) > opt.max_rows:
         keep = contiguous_subsample(len(data), opt.max_rows)
         data, direction = data.subset(keep), direction[keep]
@@ -459,7 +462,7 @@ def diagnose(data: MeasuredData, robot: Robot | None = None, calibration: Calibr
     solved = np.setdiff1d(np.arange(n), unsolved)
     noise = estimate_noise(data.q[solved], direction[solved], (data.tips_mm - nominal.tips_mm)[solved],
                            data.tubes)
-    state = _Selection(data, robot, calibration, opt, direction, nominal, fixed, limits)
+    state = _Selection(data, robot, calibration, opt, direction, nominal, fixed, limits, q_file)
 
     def split(seed: int, drop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         tr, he = split_blocks(n, opt.heldout_fraction, opt.blocks, seed)
@@ -522,10 +525,12 @@ def unseen_parameters(q: np.ndarray, direction: np.ndarray, robot: Robot) -> dic
     return out
 
 
-def offset_limits(q: np.ndarray, robot: Robot, margin_mm: float = 1e-6) -> dict[str, tuple[float, float]]:
-    """Bounds on the beta zero offsets (mm, absolute) that keep every row of ``q`` physically valid
-    (tube order, bases behind the plate, inner tubes reaching furthest; `Robot.check_joints`). The
-    slack of each pairwise constraint is shared half and half by the two tubes it couples."""
+def offset_limits(q: np.ndarray, robot: Robot, share: float = 0.5,
+                  margin_mm: float = 1e-6) -> dict[str, tuple[float, float]]:
+    """Bounds on the beta zero offsets (mm, absolute) under which every row of ``q`` stays physically
+    valid (tube order, bases behind the plate, inner tubes reaching furthest; `Robot.check_joints`).
+    Each tube may use ``share`` of the slack of a pairwise constraint: 0.5 guarantees validity for
+    any offsets in the box, 1.0 is each tube's own limit (check the fitted robot)."""
     n = q.shape[-1] // 2
     base = np.asarray(robot.joint_offset, dtype=float)[:n]
     b = np.asarray(q, dtype=float)[:, :n] + base
@@ -533,9 +538,9 @@ def offset_limits(q: np.ndarray, robot: Robot, margin_mm: float = 1e-6) -> dict[
     lo, hi = np.full(n, -np.inf), np.full(n, np.inf)
     for i in range(n - 1):
         gap = max(float((b[:, i + 1] - b[:, i]).min()) - margin_mm, 0.0)      # beta_i <= beta_i+1
-        hi[i], lo[i + 1] = min(hi[i], base[i] + gap / 2), max(lo[i + 1], base[i + 1] - gap / 2)
+        hi[i], lo[i + 1] = min(hi[i], base[i] + share * gap), max(lo[i + 1], base[i + 1] - share * gap)
         gap = max(float((ends[:, i] - ends[:, i + 1]).min()) - margin_mm, 0.0)  # l_i >= l_i+1
-        lo[i], hi[i + 1] = max(lo[i], base[i] - gap / 2), min(hi[i + 1], base[i + 1] + gap / 2)
+        lo[i], hi[i + 1] = max(lo[i], base[i] - share * gap), min(hi[i + 1], base[i + 1] + share * gap)
     hi[n - 1] = min(hi[n - 1], base[n - 1] + max(float(-b[:, n - 1].max()) - margin_mm, 0.0))
     lo[n - 1] = max(lo[n - 1], base[n - 1] - max(float(ends[:, n - 1].min()) - 1e-3, 0.0))
     return {f"beta{i + 1}_offset_mm": (float(lo[i]), float(hi[i])) for i in range(n)}
@@ -611,17 +616,28 @@ def _outliers(data: MeasuredData, pred: Prediction, unsolved: np.ndarray, mads: 
 class _Selection:
     """Fits and selects candidates for given training and held-out rows."""
 
-    def __init__(self, data, robot, calibration, opt, direction, nominal, fixed, limits):
+    def __init__(self, data, robot, calibration, opt, direction, nominal, fixed, limits, q_file):
         self.data, self.robot, self.calibration, self.opt = data, robot, calibration, opt
         self.direction, self.nominal = direction, nominal
-        self.fixed, self.limits = fixed, limits
+        self.fixed, self.limits, self.q_file = fixed, limits, q_file
         self.solves = 0
 
     def _candidate(self, effect: Effect, ev: Evaluator, measured, nom_train, heldout, x_start=None,
                    max_nfev=None) -> Candidate:
-        fit = fit_effect(effect, self.robot, self.calibration, ev, measured, self.data.tubes, nom_train,
-                         x_start=x_start, max_nfev=max_nfev or self.opt.max_nfev, fixed=self.fixed,
-                         limits=self.limits)
+        wide, safe = self.limits
+
+        def fit_within(limits, x_start):
+            return fit_effect(effect, self.robot, self.calibration, ev, measured, self.data.tubes,
+                              nom_train, x_start=x_start, max_nfev=max_nfev or self.opt.max_nfev,
+                              fixed=self.fixed, limits=limits)
+
+        fit = fit_within(wide, x_start)
+        try:   # every row of the file must stay physical under the fitted robot
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                fit.robot.check_joints(self.q_file, allow_outside_domain=True)
+        except InputError:
+            fit = fit_within(safe, None if x_start is None else np.asarray(x_start))
         nom_held = self.nominal.subset(heldout)
         ev_held = Evaluator(self.data.q[heldout], self.direction[heldout])
         held = ev_held.predict([(fit.robot, fit.calibration)], guess=nom_held.initial_state)[0]

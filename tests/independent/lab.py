@@ -72,27 +72,34 @@ class LabData:
 
 def sweep(n: int, rng: np.random.Generator, moving=(1, 3, 4), step: float = 0.25) -> np.ndarray:
     """``n`` configurations of a three-tube robot: the ``moving`` joints (indices into q) sweep
-    back and forth between random turning points in small steps; the others stay fixed. Domain:
+    back and forth between random turning points in small steps; the others never move. Domain:
     -10 <= beta3 <= 0, beta3 - 55 <= beta2 <= beta3, beta2 - 15 <= beta1 <= beta2, |alpha| <= pi,
-    kept 3 mm / 0.3 rad inside."""
-    lo = np.array([-7.0, -52.0, -12.0, -2.8, -2.8, -2.8])     # box: beta3, beta3-beta2, beta2-beta1, alphas
-    hi = np.array([-3.0, -3.0, -3.0, 2.8, 2.8, 2.8])
-    box_of = {2: 0, 1: 1, 0: 2, 3: 3, 4: 4, 5: 5}             # joint index -> box coordinate
-    x = rng.uniform(lo, hi)
-    target = x.copy()
-    speed = np.array([0.3, 2.0, 0.6, 0.06, 0.06, 0.06]) * step / 0.25
-    move = np.zeros(6, dtype=bool)
-    move[[box_of[j] for j in moving]] = True
+    kept 1 mm / 0.3 rad inside (and beta3 <= -3 mm)."""
+    m = 1.0
+
+    def interval(q: np.ndarray, j: int) -> tuple[float, float]:
+        b1, b2, b3 = q[:3]
+        if j == 0:
+            return b2 - 15 + m, b2 - m
+        if j == 1:
+            return max(b3 - 55, b1) + m, min(b3, b1 + 15) - m
+        if j == 2:
+            return max(-10.0, b2) + m, min(-3.0, b2 + 55) - m
+        return -2.8, 2.8
+
+    b3 = rng.uniform(-8.0, -4.0)
+    b2 = b3 - rng.uniform(10.0, 45.0)
+    q = np.array([b2 - rng.uniform(4.0, 11.0), b2, b3, *rng.uniform(-2.5, 2.5, 3)])
+    speed = np.array([0.6, 2.0, 0.3, 0.06, 0.06, 0.06]) * step / 0.25
+    target = q.copy()
     out = np.empty((n, 6))
     for r in range(n):
-        for c in np.flatnonzero(move):
-            if abs(target[c] - x[c]) < speed[c]:
-                target[c] = rng.uniform(lo[c], hi[c])
-            x[c] += np.sign(target[c] - x[c]) * speed[c] * rng.uniform(0.5, 1.5)
-        b3 = x[0]
-        b2 = b3 - abs(x[1])
-        b1 = b2 - abs(x[2])
-        out[r] = [b1, b2, b3, x[3], x[4], x[5]]
+        for j in moving:
+            lo, hi = interval(q, j)
+            if abs(target[j] - q[j]) < speed[j] or not lo <= target[j] <= hi:
+                target[j] = rng.uniform(lo, hi)
+            q[j] = np.clip(q[j] + np.sign(target[j] - q[j]) * speed[j] * rng.uniform(0.5, 1.5), lo, hi)
+        out[r] = q
     return out
 
 
