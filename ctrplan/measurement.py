@@ -9,6 +9,9 @@ data are not mechanics:
 * backlash -- a direction-dependent lag of the rotation joints: the tube turns to
   ``alpha_i - backlash_i * d_i``, with ``d_i`` in {-1, 0, +1} the direction of the latest motion of
   alpha_i (from consecutive rows, `motion_direction`);
+* torsional windup -- friction torque tau_i on tube i twists the length behind the front plate
+  (-beta_i, mm) against the motion: a further lag ``windup_i * (-beta_i) * d_i`` with
+  ``windup_i = tau_i / (G J_i)`` (rad/mm);
 * sensor offset -- the tracked point sits ``d`` (mm) from the tip of tube 1, fixed in the tip frame
   ``R(l1)`` of the Cosserat state: ``p_tracked = p(l1) + R(l1) d``.
 
@@ -22,6 +25,7 @@ measured data. In a robot file it is the top-level mapping::
       registration: {rotation_vector_rad: [rx, ry, rz], translation_mm: [tx, ty, tz]}
       backlash_rad: [b1, b2, b3]
       sensor_offset_mm: [dx, dy, dz]
+      windup_rad_per_mm: [w1, w2, w3]
 """
 
 from __future__ import annotations
@@ -50,17 +54,20 @@ class Calibration:
         translation_mm: registration translation t (mm).
         backlash_rad: lag of alpha_1..N behind the command in the direction of motion (rad).
         sensor_offset_mm: tracked point relative to the tip of tube 1, in the tip frame R(l1) (mm).
+        windup_rad_per_mm: torsional windup of alpha_1..N per mm of tube behind the plate (rad/mm).
     """
 
     rotation_vector_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
     translation_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     backlash_rad: tuple[float, ...] = (0.0, 0.0, 0.0)
     sensor_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    windup_rad_per_mm: tuple[float, ...] = (0.0, 0.0, 0.0)
 
     @property
     def is_identity(self) -> bool:
         return not any(self.rotation_vector_rad) and not any(self.translation_mm) \
-            and not any(self.backlash_rad) and not any(self.sensor_offset_mm)
+            and not any(self.backlash_rad) and not any(self.sensor_offset_mm) \
+            and not any(self.windup_rad_per_mm)
 
     @property
     def has_registration(self) -> bool:
@@ -96,12 +103,13 @@ class Calibration:
         ``direction`` (B, 2N) is the direction of the latest motion (`motion_direction(q)` if None).
         """
         q = np.asarray(q, dtype=float)
-        if not any(self.backlash_rad):
+        if not any(self.backlash_rad) and not any(self.windup_rad_per_mm):
             return q
         d = motion_direction(np.atleast_2d(q)) if direction is None else np.asarray(direction)
         n = q.shape[-1] // 2
+        lag = np.asarray(self.backlash_rad)[:n] + np.asarray(self.windup_rad_per_mm)[:n] * -q[..., :n]
         out = np.array(q, dtype=float, copy=True)
-        out[..., n:] -= np.asarray(self.backlash_rad)[:n] * d[..., n:]
+        out[..., n:] -= lag * d[..., n:]
         return out
 
     def tracked_tips(self, robot_tips_mm: np.ndarray, tip_rotation: np.ndarray | None) -> np.ndarray:
@@ -140,8 +148,11 @@ class Calibration:
         out = {"registration": {"rotation_vector_rad": [float(v) for v in self.rotation_vector_rad],
                                 "translation_mm": [float(v) for v in self.translation_mm]},
                "backlash_rad": [float(v) for v in self.backlash_rad]}
-        if any(self.sensor_offset_mm):  # absent when unused: older files and fingerprints unchanged
+        # absent when unused: older files and fingerprints unchanged
+        if any(self.sensor_offset_mm):
             out["sensor_offset_mm"] = [float(v) for v in self.sensor_offset_mm]
+        if any(self.windup_rad_per_mm):
+            out["windup_rad_per_mm"] = [float(v) for v in self.windup_rad_per_mm]
         return out
 
     @classmethod
@@ -153,9 +164,9 @@ class Calibration:
         if not isinstance(raw, dict):
             raise doc.error(keys, "expected a mapping with 'registration' and/or 'backlash_rad'")
         for k in raw:
-            if k not in ("registration", "backlash_rad", "sensor_offset_mm"):
+            if k not in ("registration", "backlash_rad", "sensor_offset_mm", "windup_rad_per_mm"):
                 raise doc.error(keys + (k,), "unknown key (allowed: backlash_rad, registration, "
-                                             "sensor_offset_mm)")
+                                             "sensor_offset_mm, windup_rad_per_mm)")
         kw: dict[str, tuple] = {}
         reg = raw.get("registration")
         if reg is not None:
@@ -171,6 +182,8 @@ class Calibration:
                     kw[k] = _vector3(doc, keys + ("registration", k), reg[k])
         if "backlash_rad" in raw:
             kw["backlash_rad"] = _vector3(doc, keys + ("backlash_rad",), raw["backlash_rad"])
+        if "windup_rad_per_mm" in raw:
+            kw["windup_rad_per_mm"] = _vector3(doc, keys + ("windup_rad_per_mm",), raw["windup_rad_per_mm"])
         if "sensor_offset_mm" in raw:
             kw["sensor_offset_mm"] = _vector3(doc, keys + ("sensor_offset_mm",), raw["sensor_offset_mm"])
         return cls(**kw)

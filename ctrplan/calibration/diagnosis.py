@@ -522,6 +522,9 @@ def unseen_parameters(q: np.ndarray, direction: np.ndarray, robot: Robot) -> dic
             d = direction[:, j]
             if not ((d > 0).any() and (d < 0).any()):
                 out[f"backlash{i}_rad"] = f"alpha{i} never reverses its direction of motion"
+                out[f"windup{i}_rad_per_mm"] = out[f"backlash{i}_rad"]
+            elif np.ptp(q[:, i - 1]) <= 1e-9:
+                out[f"windup{i}_rad_per_mm"] = f"beta{i} never moves: windup is backlash there"
     return out
 
 
@@ -682,7 +685,8 @@ class _Selection:
         pairs = []
         if chosen is not None and opt.pairs > 0:
             # rank the partners by a score test at the chosen fit, fit the best few fully
-            others = [c for c in ranked if c is not chosen]
+            mine = {p.name for p in chosen.fit.params}
+            others = [c for c in ranked if c is not chosen and not mine & {p.name for p in c.fit.params}]
             scores = partner_scores(chosen.fit, [o.fit.effect for o in others], ev, measured,
                                     d.tubes, nom_train)
             others = [o for _, o in sorted(zip(scores, others, strict=True), key=lambda t: t[0])][:opt.pairs]

@@ -18,6 +18,8 @@ tip_force          3     point force at the tip of tube 1 (N), robot frame
 registration       6     rotation vector (rad) and translation (mm), robot -> measurement frame
 backlash           N     lag of alpha_i (rad) in the direction of its latest motion
 sensor_offset      3     tracked point relative to the tip of tube 1, in its tip frame R(l1) (mm)
+torsional_windup   N     friction twists the tube behind the plate: a lag of alpha_i growing with
+                         -beta_i, windup_i (rad/mm) = friction torque / (G J_i), plus backlash_i
 =================  ====  =====================================================================
 """
 
@@ -38,7 +40,7 @@ MAX_GRAVITY = 30.0     # m/s^2 per component
 MAX_TIP_FORCE = 0.05   # N per component (50 mN bends tube 1 by tens of mm)
 
 CAUSES = ("curvature", "stiffness_ratio", "bending_stiffness", "joint_offset", "gravity", "tip_force",
-          "registration", "sensor_offset", "backlash")
+          "registration", "sensor_offset", "backlash", "torsional_windup")
 MAX_SENSOR_OFFSET_MM = 20.0
 STIFFNESS_FACTOR_RANGE = (0.3, 3.0)
 
@@ -247,6 +249,32 @@ class Backlash(Effect):
         return robot, replace(calib, backlash_rad=tuple(float(v) for v in x))
 
 
+class TorsionalWindup(Effect):
+    name = "torsional_windup"
+    description = ("friction torque twisting each tube behind the plate: a lag of alpha_i in the "
+                   "direction of motion growing with -beta_i (with a constant backlash part)")
+    kind = "joints"
+
+    def params(self, robot, calib):
+        n = len(robot.tubes)
+        return [Param(f"windup{i + 1}_rad_per_mm", "rad/mm", 3e-4, 0.0, 0.02) for i in range(n)] + \
+            Backlash().params(robot, calib)
+
+    def x0(self, robot, calib):
+        return np.concatenate([np.asarray(calib.windup_rad_per_mm, dtype=float)[:len(robot.tubes)],
+                               Backlash().x0(robot, calib)])
+
+    def derived(self, robot, calib, x):
+        n = len(robot.tubes)
+        return {f"friction_torque{i + 1}_nmm": float(x[i]) * t.torsional_stiffness_nmm2
+                for i, t in enumerate(robot.tubes)} | Backlash().derived(robot, calib, x[n:])
+
+    def apply(self, robot, calib, x):
+        n = len(robot.tubes)
+        return robot, replace(calib, windup_rad_per_mm=tuple(float(v) for v in x[:n]),
+                              backlash_rad=tuple(float(v) for v in x[n:]))
+
+
 class BendingStiffness(Effect):
     name = "bending_stiffness"
     description = "stiffness of each tube relative to tube 1 (E*I and G*J: wall thickness, heat treatment)"
@@ -333,7 +361,7 @@ class Combined(Effect):
 
 
 _LIBRARY = {c.name: c for c in (Curvature, StiffnessRatio, BendingStiffness, JointOffset, Gravity,
-                                TipForce, Registration, SensorOffset, Backlash)}
+                                TipForce, Registration, SensorOffset, Backlash, TorsionalWindup)}
 
 
 def make_effect(name: str) -> Effect:

@@ -39,7 +39,7 @@ PairsOpt = Annotated[int, typer.Option(
 @app.command()
 def diagnose(data: Data, robot: RobotOpt = None, out: OutOpt = None, json_: JsonOpt = False,
              candidates: CandidatesOpt = "curvature,stiffness_ratio,bending_stiffness,joint_offset,gravity,"
-                                         "tip_force,registration,sensor_offset,backlash",
+                                         "tip_force,registration,sensor_offset,backlash,torsional_windup",
              heldout: HeldoutOpt = 0.25, seed: SeedOpt = 0, pairs: PairsOpt = 3,
              max_rows: MaxRowsOpt = 1000) -> None:
     """Show what the model gets wrong on measured tips, name the physical cause, extend the model.

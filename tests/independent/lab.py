@@ -13,6 +13,8 @@ bending_stiffness   tube 2 wall thicker: E and G of tube 2 x 1.3                
 curvature           pre-curvatures x (1 +- 5..12 %)                                     yes
 backlash            alpha_i lags 1.5-3 deg behind the command in its direction of motion yes
 joint_offset        zero offsets of the moving joints                                   yes
+torsional_windup    friction torque 0.02-0.06 N mm twists tube 1..3 behind the plate:  yes
+                    alpha_i lags tau / GJ_i * (-beta_i) in its direction of motion
 alpha_scale         rotation transmission ratio off by 4-6 % (alpha_true = s alpha)     no
 encoder_wobble      eccentric rotation encoder: alpha_true = alpha + a sin(alpha)       no
 ==================  ==================================================================  ==========
@@ -30,7 +32,7 @@ import numpy as np
 from tests.independent.cosserat import Tubes, solve
 
 IN_LIBRARY = ("registration", "sensor_offset", "bending_stiffness", "curvature", "backlash",
-              "joint_offset")
+              "joint_offset", "torsional_windup")
 OUTSIDE = ("alpha_scale", "encoder_wobble")
 
 
@@ -103,6 +105,14 @@ def sweep(n: int, rng: np.random.Generator, moving=(1, 3, 4), step: float = 0.25
     return out
 
 
+def _physical(q: np.ndarray, t: Tubes) -> bool:
+    """Tube order, bases behind the plate, inner tubes reaching furthest (written apart)."""
+    b = q[:, :3]
+    e = b + t.length_mm
+    return bool((b[:, 0] <= b[:, 1]).all() and (b[:, 1] <= b[:, 2]).all() and (b[:, 2] <= 0).all()
+                and (e[:, 0] >= e[:, 1]).all() and (e[:, 1] >= e[:, 2]).all())
+
+
 def _rodrigues(rv: np.ndarray) -> np.ndarray:
     th = np.linalg.norm(rv)
     if th == 0:
@@ -147,8 +157,10 @@ def make(n: int, effects: dict[str, float], seed: int, sigma_mm: float = 0.1, mo
             for j in moving:
                 off[j] = mag * (rng.uniform(1.0, 2.0) if j < N else math.radians(rng.uniform(2, 4))) \
                     * rng.choice([-1, 1])
-            if off[:3].any():     # keep the tubes physical: never push a base in front of the plate
-                off[:3] = np.minimum(off[:3], 0.0)
+            for _ in range(8):    # the true joints must be physical: else flip, then shrink
+                if _physical(qt + off, tubes):
+                    break
+                off[:N] = -off[:N] if _physical(qt + np.r_[-off[:N], off[N:]], tubes) else off[:N] / 2
             qt = qt + off
             truth[name] = {"offset": off.tolist()}
     d = _directions(q)
@@ -157,6 +169,10 @@ def make(n: int, effects: dict[str, float], seed: int, sigma_mm: float = 0.1, mo
             b = np.radians(rng.uniform(1.5, 3.0, N)) * mag
             qt[:, N:] -= b * d[:, N:]
             truth[name] = {"backlash_rad": b.tolist()}
+        elif name == "torsional_windup":
+            tau = rng.uniform(0.02, 0.06) * mag * np.array([1.0, 8.0, 40.0])   # N mm, ~ tube stiffness
+            qt[:, N:] -= (tau / tubes.gj) * (-q[:, :N]) * d[:, N:]
+            truth[name] = {"friction_torque_nmm": tau.tolist()}
         elif name == "alpha_scale":
             s = 1.0 + mag * rng.uniform(0.04, 0.06) * rng.choice([-1, 1])
             qt[:, N:] *= s

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ctrplan.calibration import diagnose, read_measured
-from tests.independent.lab import make
+from tests.independent.lab import IN_LIBRARY, make
 
 CASES = {
     "none": {},
@@ -29,6 +29,7 @@ CASES = {
     "curvature": {"curvature": 1.0},
     "backlash": {"backlash": 1.0},
     "joint_offset": {"joint_offset": 1.0},
+    "torsional_windup": {"torsional_windup": 1.0},
     "alpha_scale (outside)": {"alpha_scale": 1.0},
     "encoder_wobble (outside)": {"encoder_wobble": 1.0},
     "registration (near noise)": {"registration": 0.12},
@@ -37,7 +38,7 @@ CASES = {
     "registration+bending_stiffness": {"registration": 1.0, "bending_stiffness": 1.0},
 }
 NAMED = ("none", "unexplained", "curvature", "stiffness_ratio", "bending_stiffness", "joint_offset",
-         "gravity", "tip_force", "registration", "sensor_offset", "backlash")
+         "gravity", "tip_force", "registration", "sensor_offset", "backlash", "torsional_windup")
 
 
 def run(draws: int, rows: int, seed: int, cases=CASES) -> dict:
@@ -51,8 +52,7 @@ def run(draws: int, rows: int, seed: int, cases=CASES) -> dict:
                 lab.write_csv(path)
                 t0 = time.perf_counter()
                 j = diagnose(read_measured(path)).to_json()
-                hidden = set(eff) & {"registration", "sensor_offset", "bending_stiffness", "curvature",
-                                     "backlash", "joint_offset"}
+                hidden = set(eff) & set(IN_LIBRARY)
                 named = set(j["causes"])
                 noise = 0.1 * np.sqrt(8 / np.pi)
                 rec = {"case": label, "seed": s, "named": j["cause"], "causes": j["causes"],
