@@ -141,6 +141,7 @@ class Diagnosis:
     noise: dict = field(default_factory=dict)          # `noise.estimate_noise`
     stability: dict = field(default_factory=dict)      # how often each cause was selected
     ties: list[str] = field(default_factory=list)      # causes the data cannot tell apart
+    unstable: list[str] = field(default_factory=list)  # chosen on some splits only: not named
     not_fitted: dict = field(default_factory=dict)     # candidate -> why the data cannot see it
 
     # ---- derived ----------------------------------------------------------------------------------
@@ -292,6 +293,7 @@ class Diagnosis:
             "noise": noise,
             "stability": self.stability,
             "ties": list(self.ties),
+            "unstable": list(self.unstable),
             "not_fitted": self.not_fitted,
             "remaining": self.remaining(),
             "parameters": {} if chosen is None else chosen.fit.parameters(),
@@ -370,6 +372,8 @@ class Diagnosis:
             if self.ties:
                 lines.append(f"  tie: the data do not tell apart {', '.join(self.ties)} (each chosen on "
                              "some splits, or as good on the held-out rows); treat the naming as tentative")
+            if self.unstable:
+                lines.append("  not named (chosen on some splits only): " + ", ".join(self.unstable))
             for name, p in j["parameters"].items():
                 if p.get("fitted") is False:
                     lines.append(f"  {name} not fitted: {p['reason']}")
@@ -490,7 +494,7 @@ def diagnose(data: MeasuredData, robot: Robot | None = None, calibration: Calibr
                                           only=contenders)["chosen"]))
     boot = state.bootstrap(sel, opt.bootstrap)
     stability = _stability(picks, boot, opt)
-    chosen, ties = _stable_choice(sel, stability, opt)
+    chosen, ties, unstable = _stable_choice(sel, stability, opt)
     sel["chosen"] = chosen
     extended = _extended(ev_all, sel, nominal)
     diag = Diagnosis(data=data, rows_in_file=rows_in_file, robot=robot, calibration=calibration,
@@ -498,7 +502,8 @@ def diagnose(data: MeasuredData, robot: Robot | None = None, calibration: Calibr
                      train=sel["train"], heldout=heldout, unsolved=unsolved, nominal=nominal,
                      extended=extended, nominal_bic=sel["nominal_bic"], singles=sel["singles"],
                      pairs=sel["pairs"], chosen=chosen, outliers=outliers, outliers_refit=refit,
-                     noise=noise, stability=stability, ties=ties, not_fitted=sel["not_fitted"])
+                     noise=noise, stability=stability, ties=ties, unstable=unstable,
+                     not_fitted=sel["not_fitted"])
     from ctrplan.calibration.where import where_analysis
 
     diag.where = where_analysis(diag)
@@ -568,27 +573,35 @@ def _stability(picks: list[str], boot: dict[str, float], opt: DiagnoseOptions) -
                       f"{opt.bootstrap} bootstrap draws of the held-out rows (fits kept)"}
 
 
-def _stable_choice(sel: dict, stability: dict, opt: DiagnoseOptions) -> tuple[Candidate | None, list[str]]:
-    """The candidate to name: the main split's choice reduced to the causes chosen in at least
-    ``stable_fraction`` of the splits; plus near-ties (causes the data cannot tell apart)."""
+def _stable_choice(sel: dict, stability: dict,
+                   opt: DiagnoseOptions) -> tuple[Candidate | None, list[str], list[str]]:
+    """What to name: the main split's choice reduced to its causes chosen on at least
+    ``stable_fraction`` of the splits (nothing, if the splits mostly chose nothing); the ties (causes
+    the data cannot tell apart) and the unstable causes (chosen on some splits, not named)."""
     chosen = sel["chosen"]
     frac = stability["cause_fraction"]
-    ties = sorted(c for c, f in frac.items() if c != "none" and 0 < f < opt.stable_fraction)
-    if chosen is not None:
-        stable = {c for c in chosen.causes if frac.get(c, 0.0) >= opt.stable_fraction}
-        if stable and stable != set(chosen.causes):
-            sub = [c for c in sel["singles"] + sel["pairs"] if set(c.causes) == stable and c.significant]
-            if sub:
-                chosen = sub[0]
-        # near-ties on the main split: significant singles as good as the choice
-        for c in sel["singles"]:
-            if c.significant and c.cause not in chosen.causes and \
-                    abs(c.fit.bic - chosen.fit.bic) < opt.bic_margin and \
-                    c.heldout_mean(None) <= 1.05 * chosen.heldout_mean(None):
-                ties.append(c.cause)
-        if ties:
-            ties = sorted(set(ties) | set(chosen.causes))
-    return chosen, ties
+    unstable = sorted(c for c, f in frac.items() if c != "none" and 0 < f < opt.stable_fraction)
+    if chosen is None:
+        return None, [], unstable
+    ties: list[str] = []
+    stable = {c for c in chosen.causes if frac.get(c, 0.0) >= opt.stable_fraction}
+    if stable and stable != set(chosen.causes):
+        sub = [c for c in sel["singles"] + sel["pairs"] if set(c.causes) == stable and c.significant]
+        if sub:
+            chosen = sub[0]
+    elif not stable:
+        if frac.get("none", 0.0) >= opt.stable_fraction:
+            return None, [], unstable
+        ties = list(unstable)       # the splits disagree: a tie among what they chose
+    # near-ties on the main split: significant singles as good as the choice
+    for c in sel["singles"]:
+        if c.significant and c.cause not in chosen.causes and \
+                abs(c.fit.bic - chosen.fit.bic) < opt.bic_margin and \
+                c.heldout_mean(None) <= 1.05 * chosen.heldout_mean(None):
+            ties.append(c.cause)
+    if ties:
+        ties = sorted(set(ties) | set(chosen.causes))
+    return chosen, ties, [c for c in unstable if c not in chosen.causes and c not in ties]
 
 
 def contiguous_subsample(n: int, rows: int, runs: int = 20) -> np.ndarray:
