@@ -125,3 +125,34 @@ def test_offset_limits_keep_every_row_physical():
             assert lo <= 0.0 <= hi
             off[i] = hi if corner >> i & 1 else lo
         robot.with_changes(joint_offset=tuple(off)).check_joints(q, allow_outside_domain=True)
+
+
+def _cand(causes: tuple[str, ...], bic: float, held: float, significant: bool = True):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(causes=causes, cause="+".join(causes), significant=significant,
+                           fit=SimpleNamespace(bic=bic), heldout_mean=lambda tube=0: held)
+
+
+def test_only_stable_causes_are_named_and_disagreement_is_a_tie():
+    from ctrplan.calibration.diagnosis import _stability, _stable_choice
+
+    opt = DiagnoseOptions()
+    a, b, c = _cand(("registration",), -500, 0.2), _cand(("backlash",), -100, 0.8), \
+        _cand(("joint_offset",), -495, 0.205)
+    ab = _cand(("registration", "backlash"), -520, 0.19)
+    # the partner of a pair chosen on one split of three is not named
+    st = _stability(["backlash+registration", "registration", "registration"], {}, opt)
+    chosen, ties, unstable = _stable_choice({"chosen": ab, "singles": [a, b], "pairs": [ab]}, st, opt)
+    assert chosen is a and ties == [] and unstable == ["backlash"]
+    # the splits mostly chose nothing: nothing is named
+    st = _stability(["registration", "none", "none"], {}, opt)
+    assert _stable_choice({"chosen": a, "singles": [a], "pairs": []}, st, opt)[0] is None
+    # the splits disagree: a tie
+    st = _stability(["registration", "joint_offset", "none"], {}, opt)
+    chosen, ties, _ = _stable_choice({"chosen": a, "singles": [a], "pairs": []}, st, opt)
+    assert chosen is a and ties == ["joint_offset", "registration"]
+    # stable on every split, but a near-tie on the main split is reported
+    st = _stability(["registration"] * 3, {}, opt)
+    chosen, ties, _ = _stable_choice({"chosen": a, "singles": [a, c], "pairs": []}, st, opt)
+    assert ties == ["joint_offset", "registration"]
