@@ -194,8 +194,9 @@ def fit_effect(effect: Effect, base_robot: Robot, base_calib: Calibration, ev: E
             start = g
     lower = np.array([p.lower for p in params])
     upper = np.array([p.upper for p in params])
-    start = np.where(free, start, x0)
-    start = np.clip(start, np.minimum(lower + 1e-12 * scale, x0), np.maximum(upper - 1e-12 * scale, x0))
+    # free parameters start strictly inside their bounds (trf does not leave a bound it starts on);
+    # fixed ones stay at their base value
+    start = np.where(free, np.clip(start, lower + 1e-3 * scale, upper - 1e-3 * scale), x0)
     state = {"guess": nominal.initial_state.copy(), "fallback": nominal.tips_mm.copy()}
     cache: dict[bytes, tuple[np.ndarray, Prediction]] = {}
     idx = np.flatnonzero(free)
