@@ -4,18 +4,26 @@ the extended model and its held-out gain.
 Procedure (`diagnose`):
 
 1. split the rows into contiguous blocks, some held out (rows are sequences);
-2. nominal errors per tube and where they grow (joints, direction of motion, residual direction);
+2. nominal errors per tube and where they grow (joints, direction of motion, residual direction); the
+   measurement noise from the data alone (`noise.estimate_noise`), independent of any fitted model;
 3. fit every candidate cause of `effects.CAUSES` on the training rows (least squares on all measured
-   tube tips, finite-difference Jacobians, warm-started batched Cosserat solves);
-4. a candidate *beats noise* when it lowers the training BIC by more than ``bic_margin`` AND lowers the
-   held-out mean error by at least ``min_gain`` with a one-sided Wilcoxon signed-rank test on the
-   held-out rows at ``alpha``; the named cause is the one with the lowest BIC among those, else
-   ``none``;
+   tube tips, finite-difference Jacobians, warm-started batched Cosserat solves); parameters the data
+   cannot see (offset of a joint that never moves, backlash of a rotation that never reverses) are
+   not fitted, and joint offsets stay within what keeps every row of the file physical;
+4. a candidate *beats the nominal model* when it lowers the training BIC by more than ``bic_margin``
+   AND lowers the held-out mean error by at least ``min_gain`` with a one-sided Wilcoxon signed-rank
+   test on the held-out rows at ``alpha``, with no parameter at a bound away from its base value;
+   the named cause is the one with the lowest BIC among those;
 5. when one is not enough: the best cause paired with the ``pairs`` partners that a score test
    (linearised RSS at the best fit) ranks first, each fitted fully and accepted under the same test
    against the single cause;
 6. outliers (rows far off the extended model) are reported; if some are training rows, the
-   selection is repeated without them (and the report says so).
+   selection is repeated without them (and the report says so);
+7. stability: the selection is repeated on ``resamples`` other contiguous splits (fits warm-started)
+   and on bootstrap draws of the held-out rows; only causes chosen on ``stable_fraction`` of the
+   splits are named, disagreement is reported as a tie;
+8. verdict: ``explained`` when the extended model's held-out error is within ``noise_tolerance`` x
+   the noise; with no cause named, ``none`` if the nominal model is, else ``unexplained``.
 """
 
 from __future__ import annotations
