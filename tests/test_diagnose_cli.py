@@ -72,7 +72,7 @@ def test_fk_with_the_extended_robot_reproduces_diagnose(tmp_path, capsys):
     lab.write_csv(path)
     data = read_measured(path)
     diag = diagnose(data, options=DiagnoseOptions(
-        candidates=("registration", "sensor_offset", "backlash"), pairs=2, resamples=0, bootstrap=0))
+        candidates=("registration+sensor_offset+backlash",), pairs=0, resamples=0, bootstrap=0))
     write_outputs(diag, tmp_path / "diag", plots=False)
     robot, calib = load_extended_robot(tmp_path / "diag" / "extended_robot.yaml")
     assert any(calib.backlash_rad) and any(calib.sensor_offset_mm) and calib.has_registration, \

@@ -16,7 +16,7 @@ Procedure (`diagnose`):
    the named cause is the one with the lowest BIC among those;
 5. when one is not enough: the best cause paired with the ``pairs`` partners that a score test
    (linearised RSS at the best fit) ranks first, each fitted fully and accepted under the same test
-   against the single cause;
+   against the single cause; repeated up to ``max_causes`` causes;
 6. outliers (rows far off the extended model) are reported; if some are training rows, the
    selection is repeated without them (and the report says so);
 7. stability: the selection is repeated on ``resamples`` other contiguous splits (fits warm-started)
@@ -62,6 +62,7 @@ class DiagnoseOptions:
     blocks: int = 10
     seed: int = 0
     pairs: int = 3               # pair the best cause with this many next-best ones (0: no pairs)
+    max_causes: int = 3          # add causes one at a time (each under the same test) up to this many
     bic_margin: float = 10.0     # BIC must drop by more than this ("very strong" evidence)
     min_gain: float = 0.05       # and the held-out mean error by at least this fraction
     alpha: float = 0.01          # with this significance (one-sided Wilcoxon, held-out rows)
@@ -704,13 +705,15 @@ class _Selection:
         winners = [c for c in ranked if c.significant]
         chosen = winners[0] if winners else None
         pairs = []
-        if chosen is not None and opt.pairs > 0:
-            # rank the partners by a score test at the chosen fit, fit the best few fully
+        while chosen is not None and opt.pairs > 0 and len(chosen.causes) < opt.max_causes:
+            # add a cause: rank the partners by a score test at the chosen fit, fit the best few fully
             mine = {p.name for p in chosen.fit.params}
-            others = [c for c in ranked if c is not chosen and not mine & {p.name for p in c.fit.params}]
+            others = [c for c in ranked if c.cause not in chosen.causes
+                      and not mine & {p.name for p in c.fit.params}]
             scores = partner_scores(chosen.fit, [o.fit.effect for o in others], ev, measured,
                                     d.tubes, nom_train)
             others = [o for _, o in sorted(zip(scores, others, strict=True), key=lambda t: t[0])][:opt.pairs]
+            added = []
             for o in others:
                 eff = Combined([chosen.fit.effect, o.fit.effect])
                 x_start = warm.get(eff.name, np.concatenate([chosen.fit.x, o.fit.x0]))
@@ -719,10 +722,12 @@ class _Selection:
                 c.delta_bic = c.fit.bic - bic0
                 c.reference = chosen.cause
                 self._judge(c, chosen.heldout_err, chosen.fit.bic)
-                pairs.append(c)
-            better = sorted([c for c in pairs if c.significant], key=lambda c: c.fit.bic)
-            if better:
-                chosen = better[0]
+                added.append(c)
+            pairs += added
+            better = sorted([c for c in added if c.significant], key=lambda c: c.fit.bic)
+            if not better:
+                break
+            chosen = better[0]
         self.solves += ev.solves
         return {"train": train, "heldout": heldout, "nominal_bic": bic0, "singles": singles,
                 "pairs": pairs, "chosen": chosen, "not_fitted": not_fitted,
@@ -743,12 +748,14 @@ class _Selection:
             ok = [c for c in sel["singles"] if c.delta_bic < -opt.bic_margin and not c.off_limits()
                   and _compare(c.heldout_err[idx], nom[idx], opt.alpha, opt.min_gain)[2]]
             pick = min(ok, key=lambda c: c.fit.bic) if ok else None
-            if pick is not None:
-                pairs = [c for c in sel["pairs"] if c.causes[0] == pick.cause
-                         and c.delta_bic_ref < -opt.bic_margin and not c.off_limits()
-                         and _compare(c.heldout_err[idx], pick.heldout_err[idx], opt.alpha,
-                                      opt.min_gain)[2]]
-                pick = min(pairs, key=lambda c: c.fit.bic) if pairs else pick
+            while pick is not None:
+                more = [c for c in sel["pairs"] if c.reference == pick.cause
+                        and c.delta_bic_ref < -opt.bic_margin and not c.off_limits()
+                        and _compare(c.heldout_err[idx], pick.heldout_err[idx], opt.alpha,
+                                     opt.min_gain)[2]]
+                if not more:
+                    break
+                pick = min(more, key=lambda c: c.fit.bic)
             key = _pick_name(pick)
             counts[key] = counts.get(key, 0) + 1
         return {k: v / draws for k, v in sorted(counts.items(), key=lambda t: -t[1])}

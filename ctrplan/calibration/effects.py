@@ -11,7 +11,7 @@ curvature          3     pre-curvature kappa_i of each tube (1/m)
 stiffness_ratio    1     Poisson's ratio nu; G_i = E_i / (2 (1 + nu)) (torsion vs bending)
 bending_stiffness  N-1   stiffness of tube i relative to its file value (E_i and G_i scaled together:
                          wall thickness, heat treatment), i = 2..N; tube 1 is the reference (in free
-                         space only stiffness ratios shape the robot; all N with a load)
+                         space only stiffness ratios shape the robot)
 joint_offset       2N    zero offsets of beta_i (mm) and alpha_i (rad), added to q
 gravity            3     gravity vector (m/s^2) with the file's density and E: only rho*g/E matters
 tip_force          3     point force at the tip of tube 1 (N), robot frame
@@ -280,8 +280,9 @@ class BendingStiffness(Effect):
     description = "stiffness of each tube relative to tube 1 (E*I and G*J: wall thickness, heat treatment)"
 
     def _tubes(self, robot: Robot) -> range:
-        # without a load only stiffness ratios shape the robot: tube 1 is the reference
-        return range(0 if not robot.loads.is_free else 1, len(robot.tubes))
+        # only stiffness ratios shape the robot in free space (and a load's rho*g/E is the gravity
+        # cause's): tube 1 is the reference
+        return range(1, len(robot.tubes))
 
     def params(self, robot, calib):
         lo, hi = STIFFNESS_FACTOR_RANGE
