@@ -503,6 +503,11 @@ def diagnose(data: MeasuredData, robot: Robot | None = None, calibration: Calibr
                                           only=contenders)["chosen"]))
     boot = state.bootstrap(sel, opt.bootstrap)
     stability = _stability(picks, boot, opt)
+    top, n_top = max(stability["chosen"].items(), key=lambda t: (t[1], t[0] == picks[0]))
+    if top != picks[0] and n_top >= opt.stable_fraction * len(picks):
+        # most splits agree on another answer than the main split: that is the stable one
+        sel["chosen"] = None if top == "none" else state.named(top, sel)
+        stability["main_split_choice"] = picks[0]
     chosen, ties, unstable = _stable_choice(sel, stability, opt)
     sel["chosen"] = chosen
     extended = _extended(ev_all, sel, nominal)
@@ -732,6 +737,28 @@ class _Selection:
         return {"train": train, "heldout": heldout, "nominal_bic": bic0, "singles": singles,
                 "pairs": pairs, "chosen": chosen, "not_fitted": not_fitted,
                 "nominal_heldout_err": nom_held_err}
+
+    def named(self, name: str, sel: dict) -> Candidate:
+        """The candidate ``name`` (``a+b`` for several causes) of the split of ``sel``: already fitted
+        there, or fitted now (judged against the nominal model)."""
+        found = [c for c in sel["singles"] + sel["pairs"] if _pick_name(c) == name]
+        if found:
+            return found[0]
+        train, heldout, d = sel["train"], sel["heldout"], self.data
+        nom_train = self.nominal.subset(train)
+        ev = Evaluator(d.q[train], self.direction[train])
+        parts = [c for c in sel["singles"] + sel["pairs"] if set(c.causes) < set(name.split("+"))]
+        start = max(parts, key=lambda c: len(c.causes), default=None)
+        eff = make_effect(name) if start is None else Combined(
+            [start.fit.effect, make_effect("+".join(c for c in name.split("+") if c not in start.causes))])
+        x_start = None if start is None else np.concatenate(
+            [start.fit.x, eff.effects[1].x0(self.robot, self.calibration)])
+        c = self._candidate(eff, ev, d.tips_mm[train], nom_train, heldout, x_start=x_start)
+        self._judge(c, sel["nominal_heldout_err"], sel["nominal_bic"])
+        c.delta_bic = c.delta_bic_ref
+        self.solves += ev.solves
+        sel["pairs"].append(c)
+        return c
 
     def bootstrap(self, sel: dict, draws: int) -> dict[str, float]:
         """Share of bootstrap draws of the held-out rows in which each cause set is selected (the
