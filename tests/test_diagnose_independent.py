@@ -9,22 +9,22 @@ from __future__ import annotations
 
 import numpy as np
 
-from ctrplan.calibration import diagnose, read_measured
+from ctrplan.calibration import DiagnoseOptions, diagnose, read_measured
 from tests.independent.cosserat import Tubes, solve
 from tests.independent.lab import make, test_seed
 
 SEED = test_seed()
-ROWS = 150
+ROWS = 120
 SIGMA = 0.1
 NOISE = SIGMA * np.sqrt(8 / np.pi)   # mean tip-error norm pure noise gives
 
 
-def _diagnose(tmp_path, effects: dict, k: int):
+def _diagnose(tmp_path, effects: dict, k: int, options: DiagnoseOptions | None = None):
     lab = make(ROWS, effects, seed=1000 * SEED + k, sigma_mm=SIGMA)
     path = tmp_path / "lab.csv"
     lab.write_csv(path)
     data = read_measured(path)
-    diag = diagnose(data)
+    diag = diagnose(data, options=options)
     return lab, data, diag, diag.to_json()
 
 
@@ -80,7 +80,8 @@ def test_effect_outside_the_library_is_not_called_explained(tmp_path):
 def test_unseen_parameters_not_fitted_and_every_fit_keeps_rows_valid(tmp_path):
     """Three joints move (beta2, alpha1, alpha2); offsets of the fixed joints and backlash of a
     rotation that never reverses are not fitted; every candidate's robot accepts all rows."""
-    lab, data, diag, j = _diagnose(tmp_path, {"joint_offset": 1.0}, 5)
+    lab, data, diag, j = _diagnose(tmp_path, {"joint_offset": 1.0}, 5, DiagnoseOptions(
+        candidates=("joint_offset", "backlash", "torsional_windup", "registration", "curvature")))
     offsets = next(c for c in j["candidates"] if c["cause"] == "joint_offset")["parameters"]
     for name in ("beta1_offset_mm", "beta3_offset_mm", "alpha3_offset_rad"):
         assert offsets[name]["fitted"] is False and "never moves" in offsets[name]["reason"]
@@ -88,6 +89,8 @@ def test_unseen_parameters_not_fitted_and_every_fit_keeps_rows_valid(tmp_path):
     assert all("fitted" not in offsets[n] for n in ("beta2_offset_mm", "alpha1_offset_rad"))
     backlash = next(c for c in j["candidates"] if c["cause"] == "backlash")["parameters"]
     assert backlash["backlash3_rad"]["fitted"] is False
+    windup = next(c for c in j["candidates"] if c["cause"] == "torsional_windup")["parameters"]
+    assert windup["windup1_rad_per_mm"]["fitted"] is False     # beta1 never moves
     assert "not fitted" in diag.summary() or "held at their file values" in diag.summary()
     for c in diag.singles + diag.pairs:
         c.fit.robot.check_joints(data.q, allow_outside_domain=True)   # raises on an unphysical row
