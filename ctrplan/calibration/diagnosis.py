@@ -248,7 +248,7 @@ class Diagnosis:
         """measured - predicted (N, 3, 3), mm, in the robot frame of the respective model."""
         pred = self.nominal if which == "nominal" else self.extended
         calib = self.calibration if which == "nominal" else self.extended_calibration
-        return calib.to_robot_frame(self.data.tips_mm) - pred.robot_tips_mm
+        return calib.to_robot_frame(self.data.tips_mm) - calib.to_robot_frame(pred.tips_mm)
 
     def arc_lengths(self) -> np.ndarray:
         """Arc length of each tube's tip (N, 3), mm (commanded joints plus the base offsets)."""
