@@ -13,7 +13,7 @@ import os
 import numpy as np
 import pytest
 
-from ctrplan.calibration import DiagnoseOptions, diagnose, load_extended_robot, read_measured
+from ctrplan.calibration import CAUSES, DiagnoseOptions, diagnose, load_extended_robot, read_measured
 from ctrplan.calibration.data import write_measured_csv
 from ctrplan.calibration.synthetic import HIDDEN_CAUSES, generate
 from ctrplan.cli import main
@@ -69,7 +69,8 @@ def test_no_effect_gives_none():
     assert j["parameters"] == {} and j["gain_pct"] == 0.0
     assert j["extended"]["mean_mm"] == j["nominal"]["mean_mm"]
     assert not any(c["significant"] for c in j["candidates"])
-    assert len(j["candidates"]) == 7
+    assert len(j["candidates"]) == len(CAUSES)
+    assert j["explained"] is True and j["noise_mm"] > 0
     assert j["nominal"]["mean_mm"] <= NOISE_FACTOR * _noise_level(syn, diag.heldout)
 
 

@@ -1,12 +1,13 @@
 """Measured data: show what the model gets wrong, name the physical cause, extend the model, measure
 the gain (``ctrplan diagnose``).
 
-Modules: `data` (readers, split), `calibration`
-(the extended robot file), `effects` (candidate causes), `fit` (batched least squares), `diagnosis`
-(selection and report), `where` and `plots` (where the error grows), `synthetic` (data with a hidden
-cause), `study` (confusion table).
+Modules: `data` (readers, split), `calibration` (the extended robot file), `effects` (candidate
+causes), `fit` (batched least squares), `noise` (measurement noise from the data alone), `diagnosis`
+(selection, stability and report), `where` and `plots` (where the error grows), `synthetic` (data with
+a hidden cause), `study` (confusion table).
 
-The fitted `Calibration` (registration, backlash) lives with the robot model in `ctrplan.measurement`.
+The fitted `Calibration` (registration, backlash, sensor offset, torsional windup) lives with the robot
+model in `ctrplan.measurement`.
 """
 
 from __future__ import annotations

@@ -9,11 +9,17 @@ cause              k     parameters
 =================  ====  =====================================================================
 curvature          3     pre-curvature kappa_i of each tube (1/m)
 stiffness_ratio    1     Poisson's ratio nu; G_i = E_i / (2 (1 + nu)) (torsion vs bending)
-joint_offset       6     zero offsets of beta_i (mm) and alpha_i (rad), added to q
+bending_stiffness  N-1   stiffness of tube i relative to its file value (E_i and G_i scaled together:
+                         wall thickness, heat treatment), i = 2..N; tube 1 is the reference (in free
+                         space only stiffness ratios shape the robot)
+joint_offset       2N    zero offsets of beta_i (mm) and alpha_i (rad), added to q
 gravity            3     gravity vector (m/s^2) with the file's density and E: only rho*g/E matters
 tip_force          3     point force at the tip of tube 1 (N), robot frame
 registration       6     rotation vector (rad) and translation (mm), robot -> measurement frame
-backlash           3     lag of alpha_i (rad) in the direction of its latest motion
+backlash           N     lag of alpha_i (rad) in the direction of its latest motion
+sensor_offset      3     tracked point relative to the tip of tube 1, in its tip frame R(l1) (mm)
+torsional_windup   N     friction twists the tube behind the plate: a lag of alpha_i growing with
+                         -beta_i, windup_i (rad/mm) = friction torque / (G J_i), plus backlash_i
 =================  ====  =====================================================================
 """
 
@@ -33,8 +39,10 @@ from ctrplan.robot import Loads, Robot
 MAX_GRAVITY = 30.0     # m/s^2 per component
 MAX_TIP_FORCE = 0.05   # N per component (50 mN bends tube 1 by tens of mm)
 
-CAUSES = ("curvature", "stiffness_ratio", "joint_offset", "gravity", "tip_force", "registration",
-          "backlash")
+CAUSES = ("curvature", "stiffness_ratio", "bending_stiffness", "joint_offset", "gravity", "tip_force",
+          "registration", "sensor_offset", "backlash", "torsional_windup")
+MAX_SENSOR_OFFSET_MM = 20.0
+STIFFNESS_FACTOR_RANGE = (0.3, 3.0)
 
 
 @dataclass(frozen=True)
@@ -138,11 +146,13 @@ class JointOffset(Effect):
     kind = "joints"
 
     def derived(self, robot, calib, x):
-        return {f"alpha{i + 1}_offset_deg": float(np.degrees(x[3 + i])) for i in range(3)}
+        n = len(robot.tubes)
+        return {f"alpha{i + 1}_offset_deg": float(np.degrees(x[n + i])) for i in range(n)}
 
     def params(self, robot, calib):
-        return [Param(f"beta{i}_offset_mm", "mm", 1.0) for i in (1, 2, 3)] + \
-               [Param(f"alpha{i}_offset_rad", "rad", 0.05) for i in (1, 2, 3)]
+        n = len(robot.tubes)
+        return [Param(f"beta{i + 1}_offset_mm", "mm", 1.0) for i in range(n)] + \
+               [Param(f"alpha{i + 1}_offset_rad", "rad", 0.05) for i in range(n)]
 
     def x0(self, robot, calib):
         return np.asarray(robot.joint_offset, dtype=float)
@@ -227,7 +237,7 @@ class Backlash(Effect):
     kind = "joints"
 
     def params(self, robot, calib):
-        return [Param(f"backlash{i}_rad", "rad", 0.03) for i in (1, 2, 3)]
+        return [Param(f"backlash{i + 1}_rad", "rad", 0.03, 0.0, 0.5) for i in range(len(robot.tubes))]
 
     def x0(self, robot, calib):
         return np.asarray(calib.backlash_rad, dtype=float)
@@ -237,6 +247,80 @@ class Backlash(Effect):
 
     def apply(self, robot, calib, x):
         return robot, replace(calib, backlash_rad=tuple(float(v) for v in x))
+
+
+class TorsionalWindup(Effect):
+    name = "torsional_windup"
+    description = ("friction torque twisting each tube behind the plate: a lag of alpha_i in the "
+                   "direction of motion growing with -beta_i (with a constant backlash part)")
+    kind = "joints"
+
+    def params(self, robot, calib):
+        n = len(robot.tubes)
+        return [Param(f"windup{i + 1}_rad_per_mm", "rad/mm", 3e-4, 0.0, 0.02) for i in range(n)] + \
+            Backlash().params(robot, calib)
+
+    def x0(self, robot, calib):
+        return np.concatenate([np.asarray(calib.windup_rad_per_mm, dtype=float)[:len(robot.tubes)],
+                               Backlash().x0(robot, calib)])
+
+    def derived(self, robot, calib, x):
+        n = len(robot.tubes)
+        return {f"friction_torque{i + 1}_nmm": float(x[i]) * t.torsional_stiffness_nmm2
+                for i, t in enumerate(robot.tubes)} | Backlash().derived(robot, calib, x[n:])
+
+    def apply(self, robot, calib, x):
+        n = len(robot.tubes)
+        return robot, replace(calib, windup_rad_per_mm=tuple(float(v) for v in x[:n]),
+                              backlash_rad=tuple(float(v) for v in x[n:]))
+
+
+class BendingStiffness(Effect):
+    name = "bending_stiffness"
+    description = "stiffness of each tube relative to tube 1 (E*I and G*J: wall thickness, heat treatment)"
+
+    def _tubes(self, robot: Robot) -> range:
+        # only stiffness ratios shape the robot in free space (and a load's rho*g/E is the gravity
+        # cause's): tube 1 is the reference
+        return range(1, len(robot.tubes))
+
+    def params(self, robot, calib):
+        lo, hi = STIFFNESS_FACTOR_RANGE
+        return [Param(f"stiffness{i + 1}_rel", "1", 0.1, lo, hi) for i in self._tubes(robot)]
+
+    def x0(self, robot, calib):
+        return np.ones(len(self._tubes(robot)))
+
+    def derived(self, robot, calib, x):
+        return {f"tube{i + 1}_EI_change_pct": 100.0 * (float(v) - 1.0)
+                for i, v in zip(self._tubes(robot), x, strict=True)}
+
+    def apply(self, robot, calib, x):
+        tubes = list(robot.tubes)
+        for i, v in zip(self._tubes(robot), x, strict=True):
+            t = tubes[i]
+            tubes[i] = replace(t, youngs_modulus_mpa=t.youngs_modulus_mpa * float(v),
+                               shear_modulus_mpa=t.shear_modulus_mpa * float(v))
+        return robot.with_changes(tubes=tuple(tubes)), calib
+
+
+class SensorOffset(Effect):
+    name = "sensor_offset"
+    description = "tracked point offset from the tip of tube 1, fixed in its tip frame"
+    kind = "frame"
+
+    def params(self, robot, calib):
+        m = MAX_SENSOR_OFFSET_MM
+        return [Param(f"sensor_offset_{a}_mm", "mm", 1.0, -m, m) for a in "xyz"]
+
+    def x0(self, robot, calib):
+        return np.asarray(calib.sensor_offset_mm, dtype=float)
+
+    def derived(self, robot, calib, x):
+        return {"sensor_offset_mm": float(np.linalg.norm(x))}
+
+    def apply(self, robot, calib, x):
+        return robot, replace(calib, sensor_offset_mm=tuple(float(v) for v in x))
 
 
 class Combined(Effect):
@@ -277,8 +361,8 @@ class Combined(Effect):
         return robot, calib
 
 
-_LIBRARY = {c.name: c for c in (Curvature, StiffnessRatio, JointOffset, Gravity, TipForce, Registration,
-                                Backlash)}
+_LIBRARY = {c.name: c for c in (Curvature, StiffnessRatio, BendingStiffness, JointOffset, Gravity,
+                                TipForce, Registration, SensorOffset, Backlash, TorsionalWindup)}
 
 
 def make_effect(name: str) -> Effect:

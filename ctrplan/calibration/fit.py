@@ -11,7 +11,7 @@ of the same row at the current parameters (`Backbone.initial_state`), so Newton 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -29,10 +29,16 @@ FIT_TOL = 1e-6  # relative tolerance of least squares on the cost and on the par
 class Prediction:
     """Predicted tips of a set of rows under one (robot, calibration) model."""
 
-    tips_mm: np.ndarray          # (n, 3, 3) in the measurement frame
-    robot_tips_mm: np.ndarray    # (n, 3, 3) in the robot frame
+    tips_mm: np.ndarray          # (n, 3, 3) what the tracker sees, measurement frame
+    robot_tips_mm: np.ndarray    # (n, 3, 3) solved tube tips, robot frame
     converged: np.ndarray        # (n,)
     initial_state: np.ndarray    # (n, 15)
+    tip_rotation: np.ndarray     # (n, 3, 3) tip frame R(l1) of tube 1, robot frame
+
+    def subset(self, idx: np.ndarray) -> Prediction:
+        return Prediction(tips_mm=self.tips_mm[idx], robot_tips_mm=self.robot_tips_mm[idx],
+                          converged=self.converged[idx], initial_state=self.initial_state[idx],
+                          tip_rotation=self.tip_rotation[idx])
 
 
 class Evaluator:
@@ -54,7 +60,8 @@ class Evaluator:
         groups: dict[Robot, list] = {}
         plan = []
         for robot, calib in models:
-            mech = robot.with_changes(joint_offset=(0.0,) * 6, name="")
+            mech = robot.with_changes(joint_offset=(0.0,) * len(robot.joint_offset), name="",
+                                      calibration=Calibration())
             qj = calib.effective_joints(self.q, self.direction) + np.asarray(robot.joint_offset)
             g = groups.setdefault(mech, [])
             key = qj.tobytes()
@@ -70,13 +77,15 @@ class Evaluator:
             bb = CosseratBackend(mech).forward(stack, points=2, check=False, guess=tiled)
             self.solves += len(stack)
             self.calls += 1
-            solved[mech] = (bb.tips_mm.reshape(len(g), n, 3, 3), bb.converged.reshape(len(g), n),
-                            bb.initial_state.reshape(len(g), n, -1))
+            rot = bb.rotations[:, -1]
+            solved[mech] = (bb.tips_mm.reshape(len(g), n, *bb.tips_mm.shape[1:]),
+                            bb.converged.reshape(len(g), n), bb.initial_state.reshape(len(g), n, -1),
+                            rot.reshape(len(g), n, 3, 3))
         out = []
         for mech, j, calib in plan:
-            tips, conv, init = solved[mech]
-            out.append(Prediction(tips_mm=calib.to_measurement_frame(tips[j]), robot_tips_mm=tips[j],
-                                  converged=conv[j], initial_state=init[j]))
+            tips, conv, init, rot = solved[mech]
+            out.append(Prediction(tips_mm=calib.tracked_tips(tips[j], rot[j]), robot_tips_mm=tips[j],
+                                  converged=conv[j], initial_state=init[j], tip_rotation=rot[j]))
         return out
 
 
@@ -100,6 +109,8 @@ class FitResult:
     message: str
     seconds: float = 0.0
     identifiable: np.ndarray = field(default=None)  # type: ignore[assignment]
+    #: parameters held at their base value, with the reason (e.g. the joint never moves)
+    fixed: dict[str, str] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -107,7 +118,13 @@ class FitResult:
 
     @property
     def k(self) -> int:
-        return len(self.params)
+        """Number of fitted (free) parameters."""
+        return len(self.params) - len(self.fixed)
+
+    def at_bound(self) -> list[str]:
+        """Free parameters the data pushed to a bound (their std is not meaningful)."""
+        return [p.name for p, v in zip(self.params, self.x, strict=True)
+                if p.name not in self.fixed and min(abs(v - p.lower), abs(v - p.upper)) < 1e-4 * p.scale]
 
     @property
     def rms_mm(self) -> float:
@@ -117,11 +134,14 @@ class FitResult:
 
     def parameters(self) -> dict[str, dict]:
         out = {}
+        bound = set(self.at_bound())
         for p, v, s, v0, ok in zip(self.params, self.x, self.std, self.x0, self.identifiable, strict=True):
             out[p.name] = {"value": float(v), "std": float(s) if np.isfinite(s) and ok else None,
                            "nominal": float(v0), "unit": p.unit}
-            if min(abs(v - p.lower), abs(v - p.upper)) < 1e-6 * p.scale:
-                out[p.name]["at_bound"] = True  # the data push it to its limit: std not meaningful
+            if p.name in self.fixed:
+                out[p.name].update(fitted=False, reason=self.fixed[p.name], std=None)
+            elif p.name in bound:
+                out[p.name].update(at_bound=True, std=None)  # pushed to its limit: std not meaningful
         return out
 
 
@@ -143,17 +163,27 @@ def residual_vector(measured: np.ndarray, pred: Prediction, tubes: Sequence[int]
 
 def fit_effect(effect: Effect, base_robot: Robot, base_calib: Calibration, ev: Evaluator,
                measured: np.ndarray, tubes: Sequence[int], nominal: Prediction,
-               x_start: np.ndarray | None = None, max_nfev: int = 30) -> FitResult:
+               x_start: np.ndarray | None = None, max_nfev: int = 30,
+               fixed: dict[str, str] | None = None,
+               limits: dict[str, tuple[float, float]] | None = None) -> FitResult:
     """Least-squares fit of ``effect`` to ``measured`` (n, 3, 3) on the rows of ``ev``.
 
     ``nominal`` is the base model's prediction on these rows (warm starts, fallback).
     ``x_start`` overrides the starting parameters (e.g. from a single-cause fit).
+    ``fixed``: parameter name -> why the data cannot see it; held at its base value, not fitted.
+    ``limits``: parameter name -> (lower, upper) tighter than the effect's own (e.g. joint offsets
+    that keep every row physically valid).
     """
     import time
 
     t0 = time.perf_counter()
     params = effect.params(base_robot, base_calib)
+    limits = limits or {}
+    params = [replace(p, lower=max(p.lower, limits[p.name][0]), upper=min(p.upper, limits[p.name][1]))
+              if p.name in limits else p for p in params]
+    fixed = {k: v for k, v in (fixed or {}).items() if k in {p.name for p in params}}
     x0 = effect.x0(base_robot, base_calib)
+    free = np.array([p.name not in fixed for p in params])
     scale = np.array([p.scale for p in params])
     start = x0.copy() if x_start is None else np.asarray(x_start, dtype=float).copy()
     if x_start is None:
@@ -164,12 +194,17 @@ def fit_effect(effect: Effect, base_robot: Robot, base_calib: Calibration, ev: E
             start = g
     lower = np.array([p.lower for p in params])
     upper = np.array([p.upper for p in params])
-    start = np.clip(start, lower + 1e-12 * scale, upper - 1e-12 * scale)
+    # free parameters start strictly inside their bounds (trf does not leave a bound it starts on);
+    # fixed ones stay at their base value
+    start = np.where(free, np.clip(start, lower + 1e-3 * scale, upper - 1e-3 * scale), x0)
     state = {"guess": nominal.initial_state.copy(), "fallback": nominal.tips_mm.copy()}
     cache: dict[bytes, tuple[np.ndarray, Prediction]] = {}
+    idx = np.flatnonzero(free)
 
     def phys(z):
-        return start + scale * z
+        x = start.copy()
+        x[idx] += scale[idx] * z
+        return x
 
     def evaluate(z):
         key = np.asarray(z, dtype=float).tobytes()
@@ -194,32 +229,33 @@ def fit_effect(effect: Effect, base_robot: Robot, base_calib: Calibration, ev: E
         guess = np.where(pred.converged[:, None], pred.initial_state, state["guess"])
         fallback = np.where(pred.converged[:, None, None], pred.tips_mm, state["fallback"])
         models = []
-        for j in range(len(params)):
+        for j in range(len(idx)):
             zj = np.array(z, dtype=float)
             zj[j] += FD_STEP
             models.append(effect.apply(base_robot, base_calib, phys(zj)))
         preds = ev.predict(models, guess=guess)
-        J = np.empty((r.size, len(params)))
+        J = np.empty((r.size, len(idx)))
         for j, pj in enumerate(preds):
             J[:, j] = (residual_vector(measured, pj, tubes, fallback) - r) / FD_STEP
         return J
 
-    bounds = ((lower - start) / scale, (upper - start) / scale)
-    res = least_squares(fun, np.zeros(len(params)), jac=jac, bounds=bounds, method="trf",
+    bounds = (((lower - start) / scale)[idx], ((upper - start) / scale)[idx])
+    res = least_squares(fun, np.zeros(len(idx)), jac=jac, bounds=bounds, method="trf",
                         x_scale=1.0, ftol=FIT_TOL, xtol=FIT_TOL, gtol=1e-10, max_nfev=max_nfev)
     x = phys(res.x)
     r, pred = evaluate(res.x)
     rss = float(r @ r)
     n = r.size
-    k = len(params)
-    J = res.jac
-    std, ident = _uncertainty(J, rss, n, k)
+    k = len(idx)
+    std_free, ident_free = _uncertainty(res.jac, rss, n, k)
+    std, ident = np.full(len(params), np.nan), np.zeros(len(params), dtype=bool)
+    std[idx], ident[idx] = std_free * scale[idx], ident_free
     robot, calib = effect.apply(base_robot, base_calib, x)
     derived = effect.derived(base_robot, base_calib, x)
-    return FitResult(derived=derived, effect=effect, params=params, x0=x0, x=x, std=std * scale, robot=robot,
+    return FitResult(derived=derived, effect=effect, params=params, x0=x0, x=x, std=std, robot=robot,
                      calibration=calib, rss=rss, n_residuals=n, bic=bic(rss, n, k), nfev=res.nfev,
                      njev=res.njev or 0, success=bool(res.success), message=str(res.message),
-                     seconds=time.perf_counter() - t0, identifiable=ident)
+                     seconds=time.perf_counter() - t0, identifiable=ident, fixed=fixed)
 
 
 def _uncertainty(J: np.ndarray, rss: float, n: int, k: int) -> tuple[np.ndarray, np.ndarray]:

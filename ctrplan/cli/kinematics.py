@@ -10,6 +10,7 @@ import sys
 import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, nullcontext
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
@@ -106,13 +107,19 @@ def _run(configs: Path, backend: str, robot: str | None, model: str | None, allo
             table = read_joints(configs, robot_model, allow_outside_domain=allow_outside_domain)
         for w in caught:
             typer.echo(f"ctrplan: warning: {w.message}", err=True)
+        # the robot file's calibration (an extended robot of `ctrplan diagnose`): backlash on the rows
+        # in their order, then sensor offset and registration on each solved backbone
+        calib = robot_model.calibration
+        reached = calib.effective_joints(table.joints)
         chunk = max(1, CHUNK_ROWS // points)
         failed = []
         fh.write(",".join(header(robot_model)) + "\n")
         with progress_bar(len(table.lines), "configurations") as advance:
             for start in range(0, len(table.lines), chunk):
-                q, lines = table.joints[start:start + chunk], table.lines[start:start + chunk]
-                backbone = kinematics.forward(q, points=points, check=False)
+                rows_ = slice(start, start + chunk)
+                lines = table.lines[rows_]
+                backbone = calib.apply(kinematics.forward(reached[rows_], points=points, check=False))
+                backbone = replace(backbone, q=table.joints[rows_])  # outputs name the commanded joints
                 failed.append(lines[~backbone.converged])
                 fh.write(format_csv(None, *rows(lines, backbone)))
                 advance(len(lines))
@@ -128,8 +135,9 @@ def fk(configs: Configs, backend: BackendOpt = "cosserat", robot: RobotOpt = Non
        output: OutputOpt = None, allow_outside_domain: OutsideOpt = False) -> None:
     """Tip positions of tubes 1-N for every configuration (measured-data CSV format).
 
-    Output columns: beta1..alphaN, tip1_x..tipN_z (mm, robot frame), converged (1/0), stable (1/0:
-    the equilibrium is elastically stable; nan where the backend cannot tell -- the PINN).
+    Output columns: beta1..alphaN, tip1_x..tipN_z (mm, robot frame; the measurement frame of an
+    extended robot with a calibration), converged (1/0), stable (1/0: the equilibrium is elastically
+    stable; nan where the backend cannot tell -- the PINN).
     Rows that do not converge get NaN tips, converged = 0 and a note on stderr.
     """
 

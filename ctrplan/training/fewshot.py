@@ -58,6 +58,15 @@ def split_shots(data: MeasuredData, shots: int | None = None, heldout_fraction: 
                    train_rows=len(train), heldout_fraction=heldout_fraction, seed=seed)
 
 
+def check_trainable(robot: Robot) -> None:
+    """Few-shot training applies registration, backlash and joint offsets of the robot's calibration;
+    refuse (one line) what it does not model."""
+    if any(robot.calibration.sensor_offset_mm):
+        raise InputError(f"robot {robot.name!r}: its calibration has sensor_offset_mm, which PINN training "
+                         f"does not model; use the Cosserat backend, or remove sensor_offset_mm from the "
+                         f"robot file's calibration")
+
+
 def model_joints(robot: Robot, fs: FewShot, rows: np.ndarray) -> np.ndarray:
     """Joints (R, 6) the model sees for ``rows``: backlash of the robot's calibration, then its joint
     offsets (mm, rad)."""
@@ -68,5 +77,6 @@ def model_joints(robot: Robot, fs: FewShot, rows: np.ndarray) -> np.ndarray:
 def observations(robot: Robot, fs: FewShot) -> tuple[np.ndarray, np.ndarray]:
     """Training observations of the shots for `trainer.train`: joints (S, 6) with offsets applied and
     measured tips (S, 3, 3) mm in the robot frame, NaN for tubes that were not measured."""
+    check_trainable(robot)
     rows = fs.shots
     return model_joints(robot, fs, rows), robot.calibration.to_robot_frame(fs.data.tips_mm[rows])

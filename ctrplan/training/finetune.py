@@ -20,7 +20,7 @@ from ctrplan.kinematics.pinn import PinnBackend, PinnNet
 from ctrplan.measurement import Calibration
 from ctrplan.robot import Robot
 from ctrplan.training.evaluate import compare
-from ctrplan.training.fewshot import FewShot, model_joints, observations
+from ctrplan.training.fewshot import FewShot, check_trainable, model_joints, observations
 from ctrplan.training.losses import tube_tips
 from ctrplan.training.physics import TubeTensors
 from ctrplan.training.trainer import Recipe, TrainResult, train
@@ -79,6 +79,7 @@ def finetune(fs: FewShot, start: PinnBackend, out: Path, recipe: Recipe, *, init
     SHA-256), the split and the held-out table (``metrics.measured_heldout``). ``train_kwargs`` go to
     `trainer.train` (seed, device, time_limit_s, progress, ...)."""
     robot = start.robot
+    check_trainable(robot)
     diag = diagnose(fs.data.subset(fs.shots), robot, robot.calibration, diagnose_options,
                     direction=fs.direction[fs.shots])
     held = fs.heldout

@@ -1,0 +1,201 @@
+"""Measured data with hidden effects, made by the independent integrator (`cosserat`) and effects
+implemented here -- not by `ctrplan.calibration.effects`/`synthetic`.
+
+A lab acquisition: some joints sweep slowly back and forth (small steps, reversals, near-repeated
+configurations), the others stay fixed; a tracker with Gaussian noise sees the tips. Effects:
+
+==================  ==================================================================  ==========
+effect              how it is made here                                                 library?
+==================  ==================================================================  ==========
+registration        tracker frame rotated (Rodrigues) and shifted                       yes
+sensor_offset       tracked point 2-4 mm from the tip of tube 1, fixed in its tip frame  yes
+bending_stiffness   tube 2 wall thicker: E and G of tube 2 x 1.3                        yes
+curvature           pre-curvatures x (1 +- 5..12 %)                                     yes
+backlash            alpha_i lags 1.5-3 deg behind the command in its direction of motion yes
+joint_offset        zero offsets of the moving joints                                   yes
+torsional_windup    friction torque 0.02-0.06 N mm twists tube 1..3 behind the plate:  yes
+                    alpha_i lags tau / GJ_i * (-beta_i) in its direction of motion
+alpha_scale         rotation transmission ratio off by 4-6 % (alpha_true = s alpha)     no
+encoder_wobble      eccentric rotation encoder: alpha_true = alpha + a sin(alpha)       no
+==================  ==================================================================  ==========
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tests.independent.cosserat import Tubes, solve
+
+IN_LIBRARY = ("registration", "sensor_offset", "bending_stiffness", "curvature", "backlash",
+              "joint_offset", "torsional_windup")
+OUTSIDE = ("alpha_scale", "encoder_wobble")
+
+
+def test_seed() -> int:
+    """CTRPLAN_TEST_SEED if set, else drawn from the commit (so CI draws vary from commit to commit)."""
+    env = os.environ.get("CTRPLAN_TEST_SEED")
+    if env:
+        return int(env)
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5,
+                              cwd=os.path.dirname(__file__)).stdout.strip()
+        return int(head[:6], 16) % 10_000 if head else 0
+    except (OSError, ValueError, subprocess.SubprocessError):
+        return 0
+
+
+test_seed.__test__ = False  # not a pytest test
+
+
+@dataclass
+class LabData:
+    q: np.ndarray               # commanded joints (n, 2N), mm / rad, acquisition order
+    tips_mm: np.ndarray         # measured tips (n, N, 3)
+    clean_mm: np.ndarray        # noiseless measured tips
+    sigma_mm: float
+    effects: dict = field(default_factory=dict)   # effect -> its true parameters
+
+    def write_csv(self, path, tubes=(0, 1, 2)) -> None:
+        """The measured-data CSV (written here, not with ctrplan's writer)."""
+        N = self.q.shape[1] // 2
+        head = [f"beta{i + 1}" for i in range(N)] + [f"alpha{i + 1}" for i in range(N)]
+        head += [f"tip{t + 1}_{a}" for t in tubes for a in "xyz"]
+        lines = [",".join(head)]
+        for qr, tr in zip(self.q, self.tips_mm, strict=True):
+            lines.append(",".join(f"{v:.9g}" for v in list(qr) + [tr[t, a] for t in tubes for a in range(3)]))
+        with open(path, "w") as fh:
+            fh.write("\n".join(lines) + "\n")
+
+
+def sweep(n: int, rng: np.random.Generator, moving=(1, 3, 4), step: float = 0.25) -> np.ndarray:
+    """``n`` configurations of a three-tube robot: the ``moving`` joints (indices into q) sweep
+    back and forth between random turning points in small steps; the others never move. Domain:
+    -10 <= beta3 <= 0, beta3 - 55 <= beta2 <= beta3, beta2 - 15 <= beta1 <= beta2, |alpha| <= pi,
+    kept 1 mm / 0.3 rad inside (and beta3 <= -3 mm)."""
+    m = 1.0
+
+    def interval(q: np.ndarray, j: int) -> tuple[float, float]:
+        b1, b2, b3 = q[:3]
+        if j == 0:
+            return b2 - 15 + m, b2 - m
+        if j == 1:
+            return max(b3 - 55, b1) + m, min(b3, b1 + 15) - m
+        if j == 2:
+            return max(-10.0, b2) + m, min(-3.0, b2 + 55) - m
+        return -2.8, 2.8
+
+    b3 = rng.uniform(-8.0, -4.0)
+    b2 = b3 - rng.uniform(10.0, 45.0)
+    q = np.array([b2 - rng.uniform(4.0, 11.0), b2, b3, *rng.uniform(-2.5, 2.5, 3)])
+    speed = np.array([0.6, 2.0, 0.3, 0.06, 0.06, 0.06]) * step / 0.25
+    target = q.copy()
+    out = np.empty((n, 6))
+    for r in range(n):
+        for j in moving:
+            lo, hi = interval(q, j)
+            if abs(target[j] - q[j]) < speed[j] or not lo <= target[j] <= hi:
+                target[j] = rng.uniform(lo, hi)
+            q[j] = np.clip(q[j] + np.sign(target[j] - q[j]) * speed[j] * rng.uniform(0.5, 1.5), lo, hi)
+        out[r] = q
+    return out
+
+
+def _physical(q: np.ndarray, t: Tubes) -> bool:
+    """Tube order, bases behind the plate, inner tubes reaching furthest (written apart)."""
+    b = q[:, :3]
+    e = b + t.length_mm
+    return bool((b[:, 0] <= b[:, 1]).all() and (b[:, 1] <= b[:, 2]).all() and (b[:, 2] <= 0).all()
+                and (e[:, 0] >= e[:, 1]).all() and (e[:, 1] >= e[:, 2]).all())
+
+
+def _rodrigues(rv: np.ndarray) -> np.ndarray:
+    th = np.linalg.norm(rv)
+    if th == 0:
+        return np.eye(3)
+    k = rv / th
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(th) * K + (1 - math.cos(th)) * K @ K
+
+
+def _directions(q: np.ndarray) -> np.ndarray:
+    """+1/-1 for the latest move of each joint (0 before its first move), written apart."""
+    d = np.zeros_like(q)
+    last = np.zeros(q.shape[1])
+    for r in range(1, len(q)):
+        dq = q[r] - q[r - 1]
+        last = np.where(dq > 0, 1.0, np.where(dq < 0, -1.0, last))
+        d[r] = last
+    return d
+
+
+def make(n: int, effects: dict[str, float], seed: int, sigma_mm: float = 0.1, moving=(1, 3, 4),
+         step: float = 0.25) -> LabData:
+    """Lab data with the given hidden effects, each with a magnitude factor (1 = lab-sized,
+    smaller: nearer the noise)."""
+    rng = np.random.default_rng(seed)
+    q = sweep(n, rng, moving, step)
+    tubes = Tubes.paper()
+    qt = q.copy()
+    truth: dict = {}
+    N = 3
+    for name, mag in effects.items():
+        if name == "bending_stiffness":
+            f = 1.0 + 0.3 * mag
+            tubes = tubes.scaled(E=[1, f, 1], G=[1, f, 1])
+            truth[name] = {"stiffness2_rel": f}
+        elif name == "curvature":
+            f = 1.0 + mag * rng.uniform(0.05, 0.12, 3) * rng.choice([-1, 1], 3)
+            tubes = tubes.scaled(kappa_per_mm=f)
+            truth[name] = {"kappa_factor": f.tolist()}
+        elif name == "joint_offset":
+            off = np.zeros(6)
+            for j in moving:
+                off[j] = mag * (rng.uniform(1.0, 2.0) if j < N else math.radians(rng.uniform(2, 4))) \
+                    * rng.choice([-1, 1])
+            for _ in range(8):    # the true joints must be physical: else flip, then shrink
+                if _physical(qt + off, tubes):
+                    break
+                off[:N] = -off[:N] if _physical(qt + np.r_[-off[:N], off[N:]], tubes) else off[:N] / 2
+            qt = qt + off
+            truth[name] = {"offset": off.tolist()}
+    d = _directions(q)
+    for name, mag in effects.items():
+        if name == "backlash":
+            b = np.radians(rng.uniform(1.5, 3.0, N)) * mag
+            qt[:, N:] -= b * d[:, N:]
+            truth[name] = {"backlash_rad": b.tolist()}
+        elif name == "torsional_windup":
+            tau = rng.uniform(0.02, 0.06) * mag * np.array([1.0, 8.0, 40.0])   # N mm, ~ tube stiffness
+            qt[:, N:] -= (tau / tubes.gj) * (-q[:, :N]) * d[:, N:]
+            truth[name] = {"friction_torque_nmm": tau.tolist()}
+        elif name == "alpha_scale":
+            s = 1.0 + mag * rng.uniform(0.04, 0.06) * rng.choice([-1, 1])
+            qt[:, N:] *= s
+            truth[name] = {"scale": s}
+        elif name == "encoder_wobble":
+            a = mag * math.radians(rng.uniform(3.0, 5.0))
+            qt[:, N:] += a * np.sin(q[:, N:])
+            truth[name] = {"amplitude_rad": a}
+    sol = solve(qt, tubes)
+    assert sol["converged"].all()
+    tips = sol["tips_mm"].copy()
+    if "sensor_offset" in effects:
+        v = rng.normal(size=3)
+        dv = v / np.linalg.norm(v) * rng.uniform(2.0, 4.0) * effects["sensor_offset"]
+        tips[:, 0] += sol["tip_rotation"] @ dv
+        truth["sensor_offset"] = {"offset_mm": dv.tolist()}
+    if "registration" in effects:
+        mag = effects["registration"]
+        ax = rng.normal(size=3)
+        rv = ax / np.linalg.norm(ax) * math.radians(rng.uniform(1.0, 2.0)) * mag
+        tv = rng.normal(size=3)
+        tr = tv / np.linalg.norm(tv) * rng.uniform(0.5, 1.0) * mag
+        tips = tips @ _rodrigues(rv).T + tr
+        truth["registration"] = {"rotation_vector_rad": rv.tolist(), "translation_mm": tr.tolist()}
+    noisy = tips + rng.normal(0.0, sigma_mm, tips.shape)
+    return LabData(q=q, tips_mm=noisy, clean_mm=tips, sigma_mm=sigma_mm, effects=truth)
