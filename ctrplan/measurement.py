@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ctrplan.errors import InputError
 from ctrplan.yamlio import YamlDoc
 
 if TYPE_CHECKING:
@@ -62,6 +63,15 @@ class Calibration:
     backlash_rad: tuple[float, ...] = (0.0, 0.0, 0.0)
     sensor_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     windup_rad_per_mm: tuple[float, ...] = (0.0, 0.0, 0.0)
+
+    def refuse(self, robot_name: str, verb: str) -> None:
+        """`InputError` for work that models the mechanics only (``verb``: plan, train) when this
+        calibration is not the identity -- it would otherwise be ignored silently."""
+        if not self.is_identity:
+            raise InputError(
+                f"robot {robot_name!r}: its calibration section (registration, sensor offset, backlash, "
+                f"windup) describes how it is measured and cannot be used to {verb}; delete that section "
+                f"from the robot file to {verb} with its mechanics (curvatures, stiffnesses, offsets)")
 
     @property
     def is_identity(self) -> bool:

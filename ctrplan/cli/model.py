@@ -78,6 +78,8 @@ def train(
     if threads:
         torch.set_num_threads(threads)
     model_robot = Robot.load(robot)
+    if measured is None:
+        model_robot.calibration.refuse(model_robot.name, "train")
     recipe = recipe or ("fast" if measured is None else "finetune")
     try:
         rec = get_recipe(recipe, steps=steps, **_parse_settings(settings or []))

@@ -528,6 +528,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     repair = s.repair if repair is None else repair
     progress("compile")  # loading a backend compiles its kernels too
     t_compile = time.perf_counter()
+    scene.robot.calibration.refuse(scene.robot.name, "plan")
     be = resolve_backend(backend, scene.robot)
     exact = exact or (be if be.exact and be.robot is scene.robot else CosseratBackend(scene.robot))
     if not is_certified(scene.robot):  # the planner must never use a configuration that snaps
