@@ -245,7 +245,7 @@ def _failure_message(problem: PlanningProblem, limit_s: float, to_configuration:
         turned = f", {st.wrong_direction} of them not along the approach direction" \
             if st.wrong_direction else ""
         return (f"no collision-free goal configuration found ({st.ik_reached} IK solutions reached "
-                f"the target{turned}, the rest in collision)")
+                f"the target{turned}, all in collision)")
     return f"no path found within {limit_s:g} s ({len(sampler.goals)} goal configurations)"
 
 
