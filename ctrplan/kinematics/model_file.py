@@ -145,8 +145,9 @@ def load_model(model: str | Path | None, robot: Robot) -> tuple[PinnNet, dict[st
         raise InputError(
             f"{weights}: model was trained for robot {trained_for!r} "
             f"(fingerprint {str(card.get('robot_fingerprint'))[:12]}), not for robot {robot.name!r} "
-            f"(fingerprint {robot.fingerprint[:12]}); train one for it with `ctrplan train --robot ROBOT.yaml "
-            f"--name {robot.name}_pinn` and use `--model {robot.name}_pinn` (with measured tips, then "
+            f"(fingerprint {robot.fingerprint[:12]}); train one for it with "
+            f"`ctrplan train --robot ROBOT.yaml --name {robot.name}_pinn` and use "
+            f"`--model {robot.name}_pinn` (with measured tips, then "
             f"`ctrplan train --robot ROBOT.yaml --init {robot.name}_pinn --measured DATA.csv --shots 500`)")
     if file_sha256(weights) != card.get("weights_sha256"):
         raise InputError(f"{weights}: weights do not match the SHA-256 in the model card "
