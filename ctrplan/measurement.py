@@ -117,7 +117,12 @@ class Calibration:
             return q
         d = motion_direction(np.atleast_2d(q)) if direction is None else np.asarray(direction)
         n = q.shape[-1] // 2
-        lag = np.asarray(self.backlash_rad)[:n] + np.asarray(self.windup_rad_per_mm)[:n] * -q[..., :n]
+        def per_tube(values) -> np.ndarray:  # missing tubes: 0
+            v = np.zeros(n)
+            v[:min(n, len(values))] = np.asarray(values, dtype=float)[:n]
+            return v
+
+        lag = per_tube(self.backlash_rad) + per_tube(self.windup_rad_per_mm) * -q[..., :n]
         out = np.array(q, dtype=float, copy=True)
         out[..., n:] -= lag * d[..., n:]
         return out

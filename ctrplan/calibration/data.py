@@ -28,9 +28,10 @@ from ctrplan.dataio import (
     parse_number,
     parse_table,
     read_text,
+    tip_names,
 )
 from ctrplan.errors import InputError
-from ctrplan.robot import JOINT_NAMES, Robot
+from ctrplan.robot import JOINT_NAMES, Robot, joint_names
 
 #: Tip columns of tubes 1..3, three per tube (`ctrplan.dataio.TIP_NAMES`).
 TIP_COLUMNS = tuple(TIP_NAMES[3 * t: 3 * t + 3] for t in range(3))
@@ -117,43 +118,49 @@ def read_measured(path: str | Path, robot: Robot | None = None, *,
     rows outside the snap-free domain are accepted and flagged.
     """
     path = Path(path)
+    robot = robot or Robot.nominal()
+    joints = robot.joint_names
     text = read_text(path)
     head = next(((n, ln) for n, ln in enumerate(text.splitlines(), start=1) if ln.strip()), None)
     if head is None:
         raise InputError(f"{path}: empty file (expected a header line "
-                         f"{','.join(JOINT_NAMES)},tip1_x,tip1_y,tip1_z or 40-column CRL rows)")
+                         f"{','.join(joints)},tip1_x,tip1_y,tip1_z or 40-column CRL rows)")
     head_line, first = head
     fields_ = _split_fields(first)
-    if any(f in JOINT_NAMES for f in fields_):
-        data = _parse_measured_csv(path, text, head_line)
+    if any(f in joints for f in fields_):
+        data = _parse_measured_csv(path, text, head_line, robot.n_tubes)
+    elif all(_is_number(f) for f in fields_) and robot.n_tubes != 3:
+        raise InputError(f"{path}: row {head_line}: CRL-Dataset-CTCR-Pose rows are for three-tube robots, "
+                         f"robot {robot.name!r} has {robot.n_tubes}; give a header ({','.join(joints)},...)")
     elif all(_is_number(f) for f in fields_):
         if len(fields_) != CRL_COLUMNS:
             raise InputError(f"{path}: row {head_line}: no header and {len(fields_)} numeric columns; "
-                             f"expected a header ({','.join(JOINT_NAMES)},tip1_x,...) or the "
+                             f"expected a header ({','.join(joints)},tip1_x,...) or the "
                              f"{CRL_COLUMNS} columns of the CRL-Dataset-CTCR-Pose format")
         data = _parse_crl(path, text)
     else:
         raise InputError(f"{path}: row {head_line}: header lacks the joint columns "
-                         f"{','.join(JOINT_NAMES)} (got: {','.join(fields_)})")
-    return _validate(data, robot or Robot.nominal(), min_rows)
+                         f"{','.join(joints)} (got: {','.join(fields_)})")
+    return _validate(data, robot, min_rows)
 
 
-def _parse_measured_csv(path: Path, text: str, head_line: int) -> MeasuredData:
-    table = parse_table(text, path, JOINT_NAMES + TIP_COLUMNS[0],
-                        optional=TIP_COLUMNS[1] + TIP_COLUMNS[2], allow_missing=True)
+def _parse_measured_csv(path: Path, text: str, head_line: int, n_tubes: int = 3) -> MeasuredData:
+    tip_columns = tuple(tip_names(n_tubes)[3 * t: 3 * t + 3] for t in range(n_tubes))
+    table = parse_table(text, path, joint_names(n_tubes) + tip_columns[0],
+                        optional=sum(tip_columns[1:], ()), allow_missing=True)
     tubes = [0]
-    for t in (1, 2):
-        present = [c in table.columns for c in TIP_COLUMNS[t]]
+    for t in range(1, n_tubes):
+        present = [c in table.columns for c in tip_columns[t]]
         if any(present) and not all(present):
-            lack = [c for c, p in zip(TIP_COLUMNS[t], present, strict=True) if not p]
+            lack = [c for c, p in zip(tip_columns[t], present, strict=True) if not p]
             raise InputError(f"{path}: row {head_line}: tube {t + 1} tip is incomplete: missing column"
                              f"{'s' if len(lack) > 1 else ''} {', '.join(repr(c) for c in lack)}")
         if all(present):
             tubes.append(t)
     _raise_nonfinite(path, table.values, table.lines, table.columns)
-    tips = np.full((len(table.values), 3, 3), np.nan)
+    tips = np.full((len(table.values), n_tubes, 3), np.nan)
     for t in tubes:
-        tips[:, t, :] = table.values[:, [table.columns.index(c) for c in TIP_COLUMNS[t]]]
+        tips[:, t, :] = table.values[:, [table.columns.index(c) for c in tip_columns[t]]]
     return MeasuredData(q=table.joints, tips_mm=tips, tubes=tuple(tubes), lines=table.lines,
                         source=str(path), format="csv")
 

@@ -231,6 +231,14 @@ class Registration(Effect):
         return np.concatenate([Rotation.from_matrix(R).as_rotvec(), t])
 
 
+def per_tube(values, n: int) -> np.ndarray:
+    """A per-tube calibration vector (any length; missing tubes 0) as n values."""
+    out = np.zeros(n)
+    m = min(n, len(values))
+    out[:m] = np.asarray(values, dtype=float)[:m]
+    return out
+
+
 class Backlash(Effect):
     name = "backlash"
     description = "direction-dependent lag of the rotation joints alpha_i"
@@ -240,7 +248,7 @@ class Backlash(Effect):
         return [Param(f"backlash{i + 1}_rad", "rad", 0.03, 0.0, 0.5) for i in range(len(robot.tubes))]
 
     def x0(self, robot, calib):
-        return np.asarray(calib.backlash_rad, dtype=float)
+        return per_tube(calib.backlash_rad, len(robot.tubes))
 
     def derived(self, robot, calib, x):
         return {f"backlash{i + 1}_deg": float(np.degrees(v)) for i, v in enumerate(x)}
@@ -261,7 +269,7 @@ class TorsionalWindup(Effect):
             Backlash().params(robot, calib)
 
     def x0(self, robot, calib):
-        return np.concatenate([np.asarray(calib.windup_rad_per_mm, dtype=float)[:len(robot.tubes)],
+        return np.concatenate([per_tube(calib.windup_rad_per_mm, len(robot.tubes)),
                                Backlash().x0(robot, calib)])
 
     def derived(self, robot, calib, x):

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ctrplan.dataio import atomic_write
-from ctrplan.robot import JOINT_NAMES
+from ctrplan.robot import joint_names
 
 NOMINAL_COLOR = "#b0b0b0"
 EXTENDED_COLOR = "#1f77b4"
@@ -39,9 +39,10 @@ def _save(fig, path: Path) -> Path:
 
 
 def _joint_axis(j: int, q: np.ndarray) -> tuple[np.ndarray, str]:
-    if j < 3:
-        return q[:, j], f"{JOINT_NAMES[j]} (mm)"
-    return np.degrees(q[:, j]), f"{JOINT_NAMES[j]} (deg)"
+    names = joint_names(q.shape[1] // 2)
+    if j < len(names) // 2:
+        return q[:, j], f"{names[j]} (mm)"
+    return np.degrees(q[:, j]), f"{names[j]} (deg)"
 
 
 def _binned(x: np.ndarray, y: np.ndarray, bins: int = 10) -> tuple[np.ndarray, np.ndarray]:
@@ -67,7 +68,8 @@ def plot_residual_vs_joints(diag, path: Path) -> Path:
     q = diag.data.q[rows]
     e0 = diag.errors("nominal")[rows, 0]
     e1 = diag.errors("extended")[rows, 0]
-    fig, axes = plt.subplots(2, 3, figsize=(13, 7), sharey=True)
+    n = q.shape[1] // 2
+    fig, axes = plt.subplots(2, n, figsize=(4.4 * n, 7), sharey=True, squeeze=False)
     for j, ax in enumerate(axes.ravel()):
         x, label = _joint_axis(j, q)
         ax.scatter(x, e0, s=6, color=NOMINAL_COLOR, label="nominal")
@@ -78,7 +80,7 @@ def plot_residual_vs_joints(diag, path: Path) -> Path:
             bx, by = _binned(x, e1)
             ax.plot(bx, by, color=EXTENDED_COLOR, lw=1.5)
         ax.set_xlabel(label)
-        if j % 3 == 0:
+        if j % n == 0:
             ax.set_ylabel("tube-1 tip error (mm)")
         ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=8)
@@ -88,13 +90,14 @@ def plot_residual_vs_joints(diag, path: Path) -> Path:
 
 
 def _explaining_change(diag, which: str) -> np.ndarray:
-    """Per row and joint, the joint change (mm or rad) that best explains the residual (N, 6)."""
+    """Per row and joint, the joint change (mm or rad) that best explains the residual (R, 2N)."""
     sens = diag.sensitivity
     res = diag.residuals(which)
     t = list(diag.data.tubes)
-    out = np.full((len(res), 6), np.nan)
+    nj = sens.shape[1]
+    out = np.full((len(res), nj), np.nan)
     r = res[:, t, :].reshape(len(res), -1)
-    for j in range(6):
+    for j in range(nj):
         s = sens[:, j, t, :].reshape(len(res), -1)
         ss = (s * s).sum(1)
         ok = np.isfinite(r).all(1) & np.isfinite(s).all(1) & (ss > 1e-12)
@@ -108,10 +111,11 @@ def plot_residual_vs_direction(diag, path: Path) -> Path:
     c0 = _explaining_change(diag, "nominal")[rows]
     c1 = _explaining_change(diag, "extended")[rows] if diag.chosen is not None else None
     d = diag.direction[rows]
-    fig, axes = plt.subplots(2, 3, figsize=(13, 7))
+    n = d.shape[1] // 2
+    fig, axes = plt.subplots(2, n, figsize=(4.4 * n, 7), squeeze=False)
     for j, ax in enumerate(axes.ravel()):
-        conv = 1.0 if j < 3 else 180.0 / np.pi
-        unit = "mm" if j < 3 else "deg"
+        conv = 1.0 if j < n else 180.0 / np.pi
+        unit = "mm" if j < n else "deg"
         data, labels, colors = [], [], []
         for sign, name in ((-1, "-"), (1, "+")):
             m = (d[:, j] == sign) & np.isfinite(c0[:, j])
@@ -128,7 +132,7 @@ def plot_residual_vs_direction(diag, path: Path) -> Path:
             patch.set_facecolor(col)
         ax.set_xticks(range(1, len(labels) + 1), labels, fontsize=7)
         ax.axhline(0.0, color="k", lw=0.8)
-        ax.set_title(JOINT_NAMES[j])
+        ax.set_title(joint_names(diag.data.q.shape[1] // 2)[j])
         ax.set_ylabel(f"joint change explaining the residual ({unit})", fontsize=8)
         ax.grid(alpha=0.3, axis="y")
     fig.suptitle(f"{_title(diag)} -- residual against the direction of the latest motion\n"

@@ -7,26 +7,35 @@ import numpy as np
 from scipy import stats
 
 from ctrplan.calibration.fit import Evaluator
-from ctrplan.robot import JOINT_NAMES
+from ctrplan.robot import joint_names
 
-#: Finite-difference steps for the joint sensitivities (mm for beta, rad for alpha).
-JOINT_STEP = np.array([1e-3, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4])
+#: Finite-difference steps for the joint sensitivities: mm for beta, rad for alpha.
+BETA_STEP_MM, ALPHA_STEP_RAD = 1e-3, 1e-4
+
+
+def joint_steps(n_joints: int) -> np.ndarray:
+    """Finite-difference step of every joint (2N,): `BETA_STEP_MM`, then `ALPHA_STEP_RAD`."""
+    n = n_joints // 2
+    return np.array([BETA_STEP_MM] * n + [ALPHA_STEP_RAD] * n)
 
 
 def joint_sensitivity(diag) -> np.ndarray:
-    """d(tip_t)/d(q_j) of the nominal model (N, 6, 3, 3): rows, joint, tube, xyz -- one batched solve."""
+    """d(tip_t)/d(q_j) of the nominal model (R, 2N, N, 3): rows, joint, tube, xyz -- one batched
+    solve."""
     d = diag.data
+    nj = d.q.shape[1]
+    step = joint_steps(nj)
     ev = Evaluator(d.q, diag.direction)
     models = []
-    for j in range(6):
-        off = np.zeros(6)
-        off[j] = JOINT_STEP[j]
+    for j in range(nj):
+        off = np.zeros(nj)
+        off[j] = step[j]
         models.append((diag.robot.with_changes(joint_offset=tuple(np.asarray(diag.robot.joint_offset) + off)),
                        diag.calibration))
     preds = ev.predict(models, guess=diag.nominal.initial_state)
     diag.solves += ev.solves
     base = diag.nominal.robot_tips_mm
-    return np.stack([(p.robot_tips_mm - base) / JOINT_STEP[j] for j, p in enumerate(preds)], axis=1)
+    return np.stack([(p.robot_tips_mm - base) / step[j] for j, p in enumerate(preds)], axis=1)
 
 
 def motion_lag(residual: np.ndarray, sens: np.ndarray, direction: np.ndarray, tubes) -> dict:
@@ -35,24 +44,26 @@ def motion_lag(residual: np.ndarray, sens: np.ndarray, direction: np.ndarray, tu
     of ``residual ~ sum_j sens_j (offset_j - lag_j d_j)`` (offsets absorb direction-free errors)."""
     t = list(tubes)
     n = len(residual)
+    nj = sens.shape[1]
+    names = joint_names(nj // 2)
     r = residual[:, t, :].reshape(n, -1)
-    S = sens[:, :, t, :].reshape(n, 6, -1)                       # (n, 6, m)
+    S = sens[:, :, t, :].reshape(n, nj, -1)                      # (n, 2N, m)
     ok = np.isfinite(r).all(1) & np.isfinite(S).all((1, 2))
     r, S, d = r[ok], S[ok], direction[ok]
-    A = np.concatenate([S, -S * d[:, :, None]], axis=1)          # (n, 12, m): offsets, lags
-    A = A.transpose(0, 2, 1).reshape(-1, 12)
+    A = np.concatenate([S, -S * d[:, :, None]], axis=1)          # (n, 4N, m): offsets, lags
+    A = A.transpose(0, 2, 1).reshape(-1, 2 * nj)
     b = r.reshape(-1)
     out = {}
-    if len(b) <= 12:
-        return {name: {"lag": None, "lag_std": None} for name in JOINT_NAMES}
+    if len(b) <= 2 * nj:
+        return {name: {"lag": None, "lag_std": None} for name in names}
     x, *_ = np.linalg.lstsq(A, b, rcond=None)
-    s2 = float(np.sum((b - A @ x) ** 2) / (len(b) - 12))
+    s2 = float(np.sum((b - A @ x) ** 2) / (len(b) - 2 * nj))
     cov = s2 * np.linalg.pinv(A.T @ A)
-    for j, name in enumerate(JOINT_NAMES):
+    for j, name in enumerate(names):
         moved = int((d[:, j] != 0).sum())
         ident = moved >= 3 and (d[:, j] > 0).any() and (d[:, j] < 0).any()
-        out[name] = {"lag": float(x[6 + j]) if ident else None,
-                     "lag_std": float(np.sqrt(max(cov[6 + j, 6 + j], 0.0))) if ident else None,
+        out[name] = {"lag": float(x[nj + j]) if ident else None,
+                     "lag_std": float(np.sqrt(max(cov[nj + j, nj + j], 0.0))) if ident else None,
                      "rows_plus": int((d[:, j] > 0).sum()), "rows_minus": int((d[:, j] < 0).sum())}
     return out
 
@@ -67,7 +78,8 @@ def where_analysis(diag) -> dict:
     findings = []
     by_joint = {}
     best = (0.0, None)
-    for j, name in enumerate(JOINT_NAMES):
+    names = joint_names(q.shape[1] // 2)
+    for j, name in enumerate(names):
         x = q[:, j]
         if np.ptp(x) <= 1e-12:
             by_joint[name] = {"spearman": None}
@@ -90,12 +102,13 @@ def where_analysis(diag) -> dict:
     diag.sensitivity = sens
     lag = motion_lag(res[rows], sens[rows], diag.direction[rows], d.tubes)
     e_all = diag.errors("nominal")[rows, 0]
-    for j, name in enumerate(JOINT_NAMES):
+    for j, name in enumerate(names):
         dj = diag.direction[rows, j]
         lag[name]["err_plus_mm"] = float(e_all[dj > 0].mean()) if (dj > 0).any() else None
         lag[name]["err_minus_mm"] = float(e_all[dj < 0].mean()) if (dj < 0).any() else None
         v, s = lag[name]["lag"], lag[name]["lag_std"]
-        if v is not None and s is not None and abs(v) > 8 * s and j >= 3 and abs(v) > np.radians(0.3):
+        if v is not None and s is not None and abs(v) > 8 * s and j >= len(names) // 2 \
+                and abs(v) > np.radians(0.3):
             findings.append(f"{name} lags {np.degrees(v):+.2f} deg (+- {np.degrees(s):.2f}) behind the "
                             f"command in the direction of motion")
     # residual direction in the robot frame (tube 1)
