@@ -46,6 +46,14 @@ if TYPE_CHECKING:
 CALIBRATION_KEY = "calibration"
 
 
+def per_tube(values, n: int) -> np.ndarray:
+    """A per-tube calibration vector (any length; missing tubes 0) as n values."""
+    out = np.zeros(n)
+    m = min(n, len(values))
+    out[:m] = np.asarray(values, dtype=float)[:m]
+    return out
+
+
 @dataclass(frozen=True)
 class Calibration:
     """Registration (robot frame -> measurement frame), backlash of alpha_1..N, sensor offset.
@@ -117,12 +125,7 @@ class Calibration:
             return q
         d = motion_direction(np.atleast_2d(q)) if direction is None else np.asarray(direction)
         n = q.shape[-1] // 2
-        def per_tube(values) -> np.ndarray:  # missing tubes: 0
-            v = np.zeros(n)
-            v[:min(n, len(values))] = np.asarray(values, dtype=float)[:n]
-            return v
-
-        lag = per_tube(self.backlash_rad) + per_tube(self.windup_rad_per_mm) * -q[..., :n]
+        lag = per_tube(self.backlash_rad, n) + per_tube(self.windup_rad_per_mm, n) * -q[..., :n]
         out = np.array(q, dtype=float, copy=True)
         out[..., n:] -= lag * d[..., n:]
         return out

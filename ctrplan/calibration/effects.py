@@ -33,7 +33,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ctrplan.errors import InputError
-from ctrplan.measurement import Calibration
+from ctrplan.measurement import Calibration, per_tube
 from ctrplan.robot import Loads, Robot
 
 MAX_GRAVITY = 30.0     # m/s^2 per component
@@ -229,14 +229,6 @@ class Registration(Effect):
     def initial_guess(self, robot, calib, predicted_robot_frame, measured):
         R, t = kabsch(predicted_robot_frame, measured)
         return np.concatenate([Rotation.from_matrix(R).as_rotvec(), t])
-
-
-def per_tube(values, n: int) -> np.ndarray:
-    """A per-tube calibration vector (any length; missing tubes 0) as n values."""
-    out = np.zeros(n)
-    m = min(n, len(values))
-    out[:m] = np.asarray(values, dtype=float)[:m]
-    return out
 
 
 class Backlash(Effect):
