@@ -22,7 +22,7 @@ import fcl
 import numpy as np
 from numba import njit
 
-from ctrplan.broadphase import DistanceGrid, grid_for, primitive_bounds
+from ctrplan.broadphase import DistanceGrid, _capsule_lower_bounds, grid_for, primitive_bounds
 from ctrplan.scene import Obstacle, Scene, transform_points
 
 
@@ -59,9 +59,9 @@ def capsule_frames(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 @njit(cache=True)
 def _frames_and_boxes(a, b, radii, aabb_lo, aabb_hi):
-    """Compiled hot path of `segments_collide`: `capsule_frames` of K segments a -> b (K, 3), their
-    bounding boxes grown by ``radii`` (K,), and the (capsule, object) pairs (P, 2) whose boxes overlap
-    the objects' boxes ``aabb_lo/hi`` (O, 3), capsule-major."""
+    """Compiled hot path of `CapsuleChain.capsules_collide`: `capsule_frames` of K segments a -> b
+    (K, 3), their bounding boxes grown by ``radii`` (K,), and the (capsule, object) pairs (P, 2) whose
+    boxes overlap the objects' boxes ``aabb_lo/hi`` (O, 3), capsule-major."""
     k = a.shape[0]
     centres = np.empty((k, 3))
     R = np.empty((k, 3, 3))
@@ -122,6 +122,47 @@ def _to_world(positions, radius, T, margin):
             r = max(radius[b, i], radius[b, i + 1]) + margin
             radii[b, i] = r if math.isfinite(r) else 0.0
     return p, radii, finite
+
+
+@njit(cache=True)
+def _near_in_order(p, radii, finite, lo, cell, step, band, values, spacing):
+    """Per row of world polylines ``p`` (B, N, 3) with capsule radii (B, N-1): the capsules the
+    distance grid cannot clear, likeliest contact (smallest lower bound) first, as ``order`` (B, N-1)
+    with ``count`` (B,) valid entries per row (rows that are not finite: none)."""
+    nb, m = radii.shape
+    lower = np.empty((nb, m))
+    _capsule_lower_bounds(p, radii, lo, cell, step, band, values, spacing, lower)
+    order = np.empty((nb, m), dtype=np.int64)
+    count = np.zeros(nb, dtype=np.int64)
+    for b in range(nb):
+        if not finite[b]:
+            continue
+        k = 0
+        for i in range(m):
+            if lower[b, i] <= radii[b, i] + 1e-9:
+                j = k  # insertion by lower bound; stable for ties
+                while j > 0 and lower[b, order[b, j - 1]] > lower[b, i]:
+                    order[b, j] = order[b, j - 1]
+                    j -= 1
+                order[b, j] = i
+                k += 1
+        count[b] = k
+    return order, count
+
+
+@njit(cache=True)
+def _chosen_frames_and_boxes(points, radii, caps, aabb_lo, aabb_hi):
+    """`_frames_and_boxes` of the capsules ``caps`` (K,) of one polyline ``points`` (N, 3) with
+    capsule radii (N-1,)."""
+    k = caps.shape[0]
+    a = np.empty((k, 3))
+    b = np.empty((k, 3))
+    r = np.empty(k)
+    for j in range(k):
+        a[j] = points[caps[j]]
+        b[j] = points[caps[j] + 1]
+        r[j] = radii[caps[j]]
+    return _frames_and_boxes(a, b, r, aabb_lo, aabb_hi) + (r,)
 
 
 def segment_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -312,14 +353,14 @@ class CapsuleChain:
                 return True
         return False
 
-    def segments_collide(self, world: CollisionWorld, a: np.ndarray, b: np.ndarray,
-                         radii: np.ndarray) -> bool:
-        """Whether any of the K capsules from ``a`` to ``b`` (K, 3) (world frame, mm) with ``radii``
-        (K,) touches an obstacle, tested in the given order (replaces the chain's configuration)."""
-        centres, R, length, lo, hi, pairs = _frames_and_boxes(
-            np.ascontiguousarray(a), np.ascontiguousarray(b), np.ascontiguousarray(radii, dtype=float),
-            world.aabb_lo, world.aabb_hi)
-        self.load(centres, R, length, radii, lo, hi)
+    def capsules_collide(self, world: CollisionWorld, points: np.ndarray, radii: np.ndarray,
+                         caps: np.ndarray) -> bool:
+        """Whether any of the capsules ``caps`` (K,) of one polyline ``points`` (N, 3) (world frame,
+        mm) with capsule radii (N-1,) touches an obstacle, tested in the given order (replaces the
+        chain's configuration)."""
+        centres, R, length, lo, hi, pairs, r = _chosen_frames_and_boxes(points, radii, caps, world.aabb_lo,
+                                                                        world.aabb_hi)
+        self.load(centres, R, length, r, lo, hi)
         return self.collides(world, pairs)
 
     def contacts(self, world: CollisionWorld) -> list[tuple[int, str]]:
@@ -384,8 +425,12 @@ def warm_kernels() -> None:
     a = np.zeros((1, 2, 3))
     a[0, 1, 2] = 1.0
     _to_world(a, np.ones((1, 2)), np.eye(4), 0.0)
-    _frames_and_boxes(a[0, :1], a[0, 1:], np.ones(1), np.zeros((1, 3)), np.ones((1, 3)))
-    DistanceGrid(np.zeros(3), 1.0, 1.0, np.zeros((1, 1, 1), dtype=np.uint8)).segment_lower_bounds(a)
+    _chosen_frames_and_boxes(a[0], np.ones(1), np.zeros(1, dtype=np.int64), np.zeros((1, 3)),
+                             np.ones((1, 3)))
+    grid = DistanceGrid(np.zeros(3), 1.0, 1.0, np.zeros((1, 1, 1), dtype=np.uint8))
+    grid.segment_lower_bounds(a)
+    _near_in_order(a, np.ones((1, 1)), np.ones(1, dtype=np.bool_), grid.lo, grid.cell_mm, grid.step_mm,
+                   grid.band_mm, grid.values, grid.spacing_mm)
     _WARM = True
 
 
@@ -434,8 +479,8 @@ class RobotCollisionChecker:
         p, radii, finite = _to_world(np.ascontiguousarray(positions, dtype=float),
                                      np.ascontiguousarray(radius, dtype=float), self.base_pose,
                                      self.margin_mm)
-        near, priority = self.world.near(p, radii)
-        cleared = finite & ~near.any(axis=1)
+        caps, count = self._near_in_order(p, radii, finite)
+        cleared = finite & (count == 0)
         if order is None and not stop_at_first and cleared.all():
             self.checks += len(cleared)
             return cleared
@@ -446,13 +491,24 @@ class RobotCollisionChecker:
                 ok = bool(cleared[i])
             else:
                 self.narrow_checks += 1
-                caps = np.flatnonzero(near[i])
-                caps = caps[np.argsort(priority[i, caps], kind="stable")]
-                ok = not self.chain.segments_collide(self.world, p[i, caps], p[i, caps + 1], radii[i, caps])
+                ok = not self.chain.capsules_collide(self.world, p[i], radii[i], caps[i, :count[i]])
             free[i] = ok
             if stop_at_first and not ok:
                 break
         return free
+
+    def _near_in_order(self, p: np.ndarray, radii: np.ndarray, finite: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """Capsules (B, M) the broadphase cannot clear, likeliest contact first, and their count (B,)
+        per row (see `CollisionWorld.near`)."""
+        grid = self.world.grid
+        if grid is not None and len(self.world):
+            return _near_in_order(p, radii, finite, grid.lo, grid.cell_mm, grid.step_mm, grid.band_mm,
+                                  grid.values, grid.spacing_mm)
+        near, priority = self.world.near(p, radii)
+        near &= finite[:, None]
+        order = np.argsort(np.where(near, priority, np.inf), axis=1, kind="stable")
+        return order, near.sum(axis=1)
 
     def contacts(self, positions: np.ndarray, radius: np.ndarray) -> list[tuple[int, str]]:
         """(segment, obstacle) pairs in contact for one backbone (with the margin)."""

@@ -105,21 +105,25 @@ def pinn_every_point(robot, pinn) -> PinnBackend:
 
 
 def test_interpolated_backbone_matches_network_at_every_point(robot, pinn, pinn_every_point):
-    """Hermite interpolation between the network nodes stays within 0.1 mm of the network evaluated
-    at every point (measured: <= 0.06 mm on 1000 configurations); node values are the network's, up
-    to float32 rounding (1e-4 mm, rad)."""
+    """Hermite interpolation between the network nodes stays within 0.3 mm of the network evaluated
+    at every point (measured with the default 15 nodes: <= 0.26 mm on 2000 configurations); node
+    values are the network's, up to float32 rounding (1e-4 mm, rad); a point's value does not depend
+    on which other points are asked for (part of a backbone costs part of the network)."""
     q = robot.sample_joints(60, rng=40)
     fast, full = pinn.forward(q, 64), pinn_every_point.forward(q, 64)
     assert pinn.describe()["nodes"] < 64 + 4 and pinn_every_point.describe()["nodes"] is None
-    assert np.linalg.norm(fast.positions_mm - full.positions_mm, axis=-1).max() < 0.1
+    assert np.linalg.norm(fast.positions_mm - full.positions_mm, axis=-1).max() < 0.3
     np.testing.assert_allclose(fast.state[:, 0], full.state[:, 0], atol=1e-4)  # s = 0 is a node
     np.testing.assert_allclose(fast.tips_mm, full.tips_mm, atol=1e-4)
     np.testing.assert_allclose(fast.initial_state, full.initial_state, atol=1e-4)
     np.testing.assert_allclose(fast.residual, full.residual, rtol=1e-3, atol=1e-3)
     np.testing.assert_allclose(np.linalg.norm(fast.quaternions, axis=-1), 1.0, atol=1e-12)
     np.testing.assert_allclose(fast.positions_mm[:, -1], fast.tip_mm, atol=1e-9)  # l1 is a node
-    # few points: the network is evaluated at every point, no interpolation
-    np.testing.assert_array_equal(pinn.forward(q, 12).state, pinn_every_point.forward(q, 12).state)
+    frac = np.linspace(0.0, 1.0, 64)
+    for part in (frac[40:], frac[:20], frac[[0, 31, 63]]):
+        sub = pinn.forward(q, part)
+        np.testing.assert_allclose(sub.state, fast.state[:, np.searchsorted(frac, part)], atol=1e-6)
+        np.testing.assert_allclose(sub.tips_mm, fast.tips_mm, atol=1e-6)
 
 
 def test_network_nodes_include_every_transition_point(robot):

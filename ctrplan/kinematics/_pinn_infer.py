@@ -7,7 +7,9 @@ network at ``intervals + 1`` nodes only -- every transition point (tube ends, st
 is a node -- joined by cubic Hermite interpolation whose slopes are the Cosserat right-hand side
 (`_shooting.rhs`) at the predicted node states ("physics-informed interpolation"; at ``s = 0`` the
 position slope is ``e3`` exactly, the boundary condition the network's positions are built with).
-Arc-length cost is then per node, not per output point.
+Arc-length cost is then per node, not per output point, and only the nodes the requested points need
+are evaluated: a point's value does not depend on which other points are asked for, so part of a
+backbone (a distal stretch, the tip alone) costs part of the network.
 
 Any tube count N = 1…4: shapes follow from the arrays (``box_lo`` (2N,), ``rod`` arrays (N,)); states
 are (2N + 9)-vectors. ``rod`` holds plain arrays (`cosserat.RodArrays.arrays`): numba's parallel
@@ -175,28 +177,61 @@ def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends):
         states[:] = y[:, :n]
         at_ends[:] = y[:, n:]
         return
-    frac = np.empty((nb, intervals + 1))
+    # the network only at the nodes the requested points need: those bracketing a point (the node
+    # itself for a point on a node), the tube ends and s = 0 (`at_ends`)
+    m = intervals
+    need = np.zeros((nb, m + 1), dtype=np.bool_)
+    node_frac = np.empty((nb, m + 1))
     for b in range(nb):
-        nodes = node_layout(q[b], intervals, lengths, straight, EI)[0]
-        frac[b] = nodes / nodes[-1]
-    y = np.empty((nb, intervals + 1, ns))
-    infer(q, frac, *net, y)
+        nodes, _, _, _, _, end_node = node_layout(q[b], intervals, lengths, straight, EI)
+        node_frac[b] = nodes / nodes[-1]
+        need[b, 0] = True
+        for i in range(nt):
+            need[b, end_node[i]] = True
+        j = 0
+        for p in range(n):
+            s = out_frac[p] * nodes[-1]
+            while j < m - 1 and s > nodes[j + 1]:
+                j += 1
+            if s <= nodes[j]:
+                need[b, j] = True
+            elif s >= nodes[j + 1]:
+                need[b, j + 1] = True
+            else:
+                need[b, j] = True
+                need[b, j + 1] = True
+    rows = np.flatnonzero(need.ravel())
+    qr = np.empty((rows.size, q.shape[1]))
+    fr = np.empty((rows.size, 1))
+    for r in range(rows.size):
+        b, j = rows[r] // (m + 1), rows[r] % (m + 1)
+        qr[r] = q[b]
+        fr[r, 0] = node_frac[b, j]
+    yr = np.empty((rows.size, 1, ns))
+    infer(qr, fr, *net, yr)
+    y = np.zeros((nb, m + 1, ns))  # nodes not needed stay 0: Hermite weighs them by exactly 0
+    for r in range(rows.size):
+        y[rows[r] // (m + 1), rows[r] % (m + 1)] = yr[r, 0]
     fl = np.empty((intervals, ns))
-    fr = np.empty((intervals, ns))
+    fr_ = np.empty((intervals, ns))
     for b in range(nb):  # the layout again: cheaper than keeping ragged per-segment tables
         nodes, seg_of, present, kc, bend, end_node = node_layout(q[b], intervals, lengths, straight, EI)
         ends = q[b, :nt] + lengths
         yb = y[b]
+        fl[:] = 0.0
+        fr_[:] = 0.0
         for j in range(intervals):
+            if not (need[b, j] and need[b, j + 1]):
+                continue
             k = seg_of[j]
             rhs(nodes[j], yb[j], present[k], kc[k], kappa, bend[k], EI, GJ, ends, force, weight, loaded,
                 True, fl[j])
             rhs(nodes[j + 1], yb[j + 1], present[k], kc[k], kappa, bend[k], EI, GJ, ends, force, weight,
-                loaded, True, fr[j])
+                loaded, True, fr_[j])
         fl[0, i_p] = 0.0
         fl[0, i_p + 1] = 0.0
         fl[0, i_p + 2] = 1.0
-        hermite(nodes, seg_of, yb, fl, fr, out_frac * nodes[-1], states[b])
+        hermite(nodes, seg_of, yb, fl, fr_, out_frac * nodes[-1], states[b])
         for i in range(nt):
             at_ends[b, i] = yb[end_node[i]]
         at_ends[b, nt] = yb[0]
@@ -211,3 +246,37 @@ def backbones_chunked(q, out_frac, intervals, net, rod, loaded, states, at_ends,
         a = c * chunk
         b = min(nb, a + chunk)
         backbones(q[a:b], out_frac, intervals, net, rod, loaded, states[a:b], at_ends[a:b])
+
+
+@njit(cache=True)
+def backbone_fields(qm, out_frac, lengths, outer_radii, residual_weights, states, at_ends):
+    """The rest of a `Backbone` from `backbones`' output, in one pass: tube ends (B, N) mm, arc
+    lengths (B, P) mm, outer radius along the backbone (B, P) mm (outermost tube present), whether
+    each row is finite (B,) and the distal residual max |residual_weights * at_ends| (B,)."""
+    nb, n = states.shape[0], out_frac.shape[0]
+    nt = lengths.shape[0]
+    ends = np.empty((nb, nt))
+    s_mm = np.empty((nb, n))
+    radius = np.empty((nb, n))
+    finite = np.ones(nb, dtype=np.bool_)
+    residual = np.zeros(nb)
+    for b in range(nb):
+        for i in range(nt):
+            ends[b, i] = qm[b, i] + lengths[i]
+        for p in range(n):
+            s = out_frac[p] * ends[b, 0]
+            s_mm[b, p] = s
+            r = outer_radii[0]
+            for i in range(1, nt):
+                if s <= ends[b, i] + 1e-9:
+                    r = outer_radii[i]
+            radius[b, p] = r
+            for k in range(states.shape[2]):
+                if not math.isfinite(states[b, p, k]):
+                    finite[b] = False
+        for i in range(at_ends.shape[1]):
+            for k in range(at_ends.shape[2]):
+                v = abs(at_ends[b, i, k] * residual_weights[i, k])
+                if v > residual[b] or not math.isfinite(v):
+                    residual[b] = v
+    return ends, s_mm, radius, finite, residual

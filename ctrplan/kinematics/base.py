@@ -7,6 +7,7 @@ from functools import lru_cache
 from typing import ClassVar
 
 import numpy as np
+from numba import njit
 
 from ctrplan.errors import InputError
 from ctrplan.kinematics.backbone import Backbone
@@ -31,19 +32,40 @@ def arc_fractions(points: int | np.ndarray) -> np.ndarray:
             raise InputError(f"points: need at least 2 backbone points, got {n}")
         return _uniform_fractions(n)
     frac = np.asarray(points, dtype=float).ravel()
+    key = frac.tobytes()
+    if key in _checked_fractions:  # planners ask for the same few sets of points again and again
+        return _checked_fractions[key]
     if frac.size < 1 or not np.all(np.isfinite(frac)) or frac.min() < 0 or frac.max() > 1 \
             or np.any(np.diff(frac) < 0):
         raise InputError("points: arc fractions must be ascending values in [0, 1]")
+    if len(_checked_fractions) >= 256:
+        _checked_fractions.clear()
+    frac = frac.copy()
+    frac.flags.writeable = False
+    _checked_fractions[key] = frac
     return frac
+
+
+_checked_fractions: dict[bytes, np.ndarray] = {}
 
 
 def outer_radius_along(robot: Robot, s_mm: np.ndarray, ends_mm: np.ndarray) -> np.ndarray:
     """Outer radius (mm) of the outermost tube present at each arc length; s (B, P), ends (B, N)."""
-    radii = robot.outer_radii_mm
-    out = np.full(s_mm.shape, radii[0])
-    for i in range(1, robot.n_tubes):
-        out = np.where(s_mm <= ends_mm[:, i:i + 1] + 1e-9, radii[i], out)
+    out = np.empty(s_mm.shape)
+    _outer_radius(np.ascontiguousarray(s_mm, dtype=float), np.ascontiguousarray(ends_mm, dtype=float),
+                  robot.outer_radii_mm, out)
     return out
+
+
+@njit(cache=True)
+def _outer_radius(s, ends, radii, out):
+    for b in range(s.shape[0]):
+        for p in range(s.shape[1]):
+            r = radii[0]
+            for i in range(1, radii.shape[0]):
+                if s[b, p] <= ends[b, i] + 1e-9:
+                    r = radii[i]
+            out[b, p] = r
 
 
 class Backend(ABC):
@@ -56,7 +78,10 @@ class Backend(ABC):
     * ``warm_startable`` -- ``forward(..., guess=)`` uses initial states (B, 2N + 9), e.g.
       ``Backbone.initial_state`` of a neighbouring configuration; other backends ignore ``guess``;
     * ``analytic_tip_jacobian`` -- `tip_jacobian` is the backend's own derivative and cheaper than
-      forward differences through `forward` (which is what callers use otherwise).
+      forward differences through `forward` (which is what callers use otherwise);
+    * ``partial_backbones_cheap`` -- a backbone's cost grows with the stretch of it requested (a
+      surrogate evaluated along the arc), so part of one (a distal stretch, the tip) costs less than
+      the whole; a shooting solver integrates the whole rod either way.
 
     Implementations keep the robot (immutable model) apart from any per-call workspace.
     """
@@ -65,6 +90,7 @@ class Backend(ABC):
     exact: ClassVar[bool] = False
     warm_startable: ClassVar[bool] = False
     analytic_tip_jacobian: ClassVar[bool] = False
+    partial_backbones_cheap: ClassVar[bool] = False
 
     def __init__(self, robot: Robot):
         self.robot = robot

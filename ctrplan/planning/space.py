@@ -158,10 +158,22 @@ class BoxSpace:
 
     def state_coords(self, state) -> np.ndarray:
         """OMPL state -> coordinates (D,)."""
-        return np.array([state[i] for i in range(self.dimension)])
+        return np.array([state[i] for i in range(self._dimension)])
+
+    @cached_property
+    def _dimension(self) -> int:
+        return self.dimension
+
+    @cached_property
+    def _affine(self) -> tuple[np.ndarray, np.ndarray]:
+        """``to_joints`` as ``q = A @ y + c``: A (2N, D), c (2N,) (the planner's hot path)."""
+        c = self.to_joints(np.zeros(self.dimension))
+        return self.to_joints(np.eye(self.dimension)).T - c[:, None], c
 
     def state_to_q(self, state) -> np.ndarray:
-        return self.to_joints(self.state_coords(state))
+        """OMPL state -> joints (2N,) (mm, rad)."""
+        A, c = self._affine
+        return A @ self.state_coords(state) + c
 
     def set_state(self, state, q: np.ndarray) -> None:
         """Write joints q (2N,) into an allocated OMPL state."""

@@ -19,7 +19,7 @@ from ompl import base as ob
 
 from ctrplan.collision import CollisionWorld, RobotCollisionChecker
 from ctrplan.kinematics.backbone import Backbone
-from ctrplan.kinematics.base import Backend
+from ctrplan.kinematics.base import Backend, arc_fractions
 from ctrplan.planning.space import BoxSpace
 from ctrplan.scene import Scene
 
@@ -83,16 +83,32 @@ class ConfigurationChecker:
         self.valid_q: list[np.ndarray] = []
         self.valid_tips: list[np.ndarray] = []
 
+    @property
+    def stages(self) -> tuple[np.ndarray, ...]:
+        """Arc fractions of the backbone points checked in turn. Where the backend makes part of a
+        backbone cheaper (``partial_backbones_cheap``): the distal half first -- a robot probing
+        anatomy meets it there first, and an invalid state then costs half a backbone -- and the
+        proximal half (sharing the middle point, so every capsule is checked) only for states the
+        first half leaves valid. Otherwise the whole backbone at once. Either way a state is valid
+        exactly when every capsule of the ``points``-point backbone is free."""
+        frac = arc_fractions(self.points)
+        if not self.backend.partial_backbones_cheap:
+            return (frac,)
+        k = self.points // 2
+        return frac[k:], frac[:k + 1]
+
     # ---- kinematics ------------------------------------------------------------------------------
     def forward(self, q: np.ndarray, guess: np.ndarray | None = None,
-                points: int | None = None) -> Backbone:
-        """Backbones of joints (B, 2N) (no joint checks: planner states lie in the domain)."""
+                points: int | np.ndarray | None = None, *, new_states: bool = True) -> Backbone:
+        """Backbones of joints (B, 2N) (no joint checks: planner states lie in the domain);
+        ``new_states=False`` does not count them again (a later stage of the same states)."""
         q = np.atleast_2d(q)
         t = time.perf_counter()
-        bb = self.backend.forward(q, points=points or self.points, guess=guess if self.warm_start else None,
-                                  check=False)
+        bb = self.backend.forward(q, points=self.points if points is None else points,
+                                  guess=guess if self.warm_start else None, check=False)
         self.counters.kinematics_s += time.perf_counter() - t
-        self.counters.kinematics_calls += q.shape[0]
+        if new_states:
+            self.counters.kinematics_calls += q.shape[0]
         self.counters.kinematics_batches += 1
         if self.hook is not None:
             self.hook()
@@ -101,16 +117,31 @@ class ConfigurationChecker:
     def tips_scene(self, bb: Backbone) -> np.ndarray:
         return self.scene.to_scene(bb.tip_mm)
 
-    def backbone_valid(self, bb: Backbone, i: int) -> bool:
-        """Row i of a backbone batch: converged, elastically stable (where the backend checks it),
-        finite and collision-free."""
-        return bool(self.backbones_valid(bb, [i])[i])
+    def validate(self, q: np.ndarray, guess: np.ndarray | None = None,
+                 stop_at_first: bool = False) -> tuple[np.ndarray, Backbone]:
+        """Validity (B,) of configurations q (B, 2N), checked in `stages`, and the backbones of the
+        first stage (their tips and initial states serve the cache). With ``stop_at_first``, rows
+        are tested in order and all are left False after the first invalid one."""
+        stages = self.stages
+        bb = self.forward(q, guess=guess, points=stages[0])
+        valid = self.backbones_valid(bb, range(len(q)) if stop_at_first else None, stop_at_first)
+        rows = np.flatnonzero(valid)
+        if len(stages) > 1 and rows.size and not (stop_at_first and rows.size < len(q)):
+            rest = self.forward(q[rows], guess=None if guess is None else guess[rows], points=stages[1],
+                                new_states=False)
+            valid[rows] = self.backbones_valid(rest, range(rows.size) if stop_at_first else None,
+                                               stop_at_first)
+            if stop_at_first and not valid.all():
+                valid[:] = False
+        return valid, bb
 
     def backbones_valid(self, bb: Backbone, order=None, stop_at_first: bool = False) -> np.ndarray:
         """Validity of the rows of a backbone batch (B,), tested in ``order`` (default: all);
         with ``stop_at_first`` rows after the first invalid one stay False."""
         t = time.perf_counter()
-        pos = np.where(bb.converged[:, None, None], bb.positions_mm, np.nan)
+        pos = bb.positions_mm
+        if not bb.converged.all():
+            pos = np.where(bb.converged[:, None, None], pos, np.nan)
         free = self.collision.free_batch(pos, bb.radius_mm, order=order, stop_at_first=stop_at_first)
         self.counters.collision_s += time.perf_counter() - t
         self.counters.collision_checks += len(bb) if order is None else len(order)
@@ -121,44 +152,36 @@ class ConfigurationChecker:
     # ---- cache ---------------------------------------------------------------------------------
     @staticmethod
     def key(q: np.ndarray) -> bytes:
-        return np.round(np.asarray(q, dtype=float), 9).tobytes()
+        return np.asarray(q, dtype=float).round(9).tobytes()
 
     def lookup(self, q: np.ndarray) -> _Entry | None:
         return self._cache.get(self.key(q))
 
-    def _store(self, q: np.ndarray, entry: _Entry) -> None:
-        k = self.key(q)
-        if entry.valid and k not in self._cache:
+    def _store(self, key: bytes, q: np.ndarray, entry: _Entry) -> None:
+        if entry.valid and key not in self._cache:
             self.valid_q.append(np.array(q, dtype=float))
             self.valid_tips.append(entry.tip)
             if len(self.valid_q) > 20_000:
                 del self.valid_q[:5_000], self.valid_tips[:5_000]
-        self._cache[k] = entry
+        self._cache[key] = entry
         if len(self._cache) > self.cache_size:
             self._cache.popitem(last=False)
-
-    def _entry(self, bb: Backbone, i: int, valid: bool) -> _Entry:
-        tip = self.scene.to_scene(bb.tip_mm[i]) if bb.converged[i] else np.full(3, np.nan)
-        init = bb.initial_state[i].copy() if bb.converged[i] else None
-        return _Entry(valid, tip, init)
 
     # ---- public checks -----------------------------------------------------------------------------
     def check(self, q: np.ndarray) -> np.ndarray:
         """Validity of configurations (B, 2N) -> (B,) bool (cached; one backend call for the misses)."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
-        out = np.zeros(q.shape[0], dtype=bool)
-        miss = []
-        for i, qi in enumerate(q):
-            e = self.lookup(qi)
-            if e is None:
-                miss.append(i)
-            else:
-                out[i] = e.valid
+        keys = [self.key(qi) for qi in q]
+        entries = [self._cache.get(k) for k in keys]
+        out = np.array([e is not None and e.valid for e in entries])
+        miss = [i for i, e in enumerate(entries) if e is None]
         if miss:
-            bb = self.forward(q[miss])
-            valid = self.backbones_valid(bb)
+            valid, bb = self.validate(q[miss])
+            ok = bb.converged
+            tips = np.where(ok[:, None], self.scene.to_scene(bb.tip_mm), np.nan)
             for j, i in enumerate(miss):
-                self._store(q[i], self._entry(bb, j, bool(valid[j])))
+                init = bb.initial_state[j].copy() if ok[j] else None
+                self._store(keys[i], q[i], _Entry(bool(valid[j]), tips[j], init))
                 out[i] = valid[j]
         return out
 
@@ -184,18 +207,17 @@ class ConfigurationChecker:
         e2 = self.lookup(q2)
         if e2 is not None and not e2.valid:
             return False
+        if e2 is None and not self.check(q2)[0]:
+            return False
         d = float(self.space.distance(q1, q2))
         n = max(1, int(np.ceil(d / resolution)))
         e1 = self.lookup(q1)
         guess = e1.initial_state[None, :] if (e1 is not None and e1.initial_state is not None) else None
-        if e2 is None:
-            self.check(q2)
-            if not self.lookup(q2).valid:
-                return False
         order = np.asarray(bisection_order(n), dtype=float)
         for a, b in edge_batches(len(order)):
-            bb = self.forward(self.space.interpolate(q1, q2, order[a:b] / n), guess=guess)
-            if not self.backbones_valid(bb, range(b - a), stop_at_first=True).all():
+            qs = self.space.interpolate(q1, q2, order[a:b] / n)
+            g = None if guess is None else np.repeat(guess, len(qs), axis=0)
+            if not self.validate(qs, guess=g, stop_at_first=True)[0].all():
                 return False
         self.counters.valid_motions += 1
         return True
