@@ -61,7 +61,8 @@ def capsule_frames(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray
 def _frames_and_boxes(a, b, radii, aabb_lo, aabb_hi):
     """Compiled hot path of `CapsuleChain.capsules_collide`: `capsule_frames` of K segments a -> b
     (K, 3), their bounding boxes grown by ``radii`` (K,), and the (capsule, object) pairs (P, 2) whose
-    boxes overlap the objects' boxes ``aabb_lo/hi`` (O, 3), capsule-major."""
+    boxes overlap the objects' boxes ``aabb_lo/hi`` (O, 3), capsule-major, for each capsule the
+    objects whose box is nearest its centre first."""
     k = a.shape[0]
     centres = np.empty((k, 3))
     R = np.empty((k, 3, 3))
@@ -69,6 +70,7 @@ def _frames_and_boxes(a, b, radii, aabb_lo, aabb_hi):
     lo = np.empty((k, 3))
     hi = np.empty((k, 3))
     pairs = np.empty((k * aabb_lo.shape[0], 2), dtype=np.int64)
+    dist = np.empty(k * aabb_lo.shape[0])
     n = 0
     for i in range(k):
         d = b[i] - a[i]
@@ -90,12 +92,24 @@ def _frames_and_boxes(a, b, radii, aabb_lo, aabb_hi):
             centres[i, j] = a[i, j] + 0.5 * d[j]
             lo[i, j] = min(a[i, j], b[i, j]) - radii[i]
             hi[i, j] = max(a[i, j], b[i, j]) + radii[i]
+        first = n
         for o in range(aabb_lo.shape[0]):
             if (lo[i, 0] <= aabb_hi[o, 0] + 1e-6 and hi[i, 0] >= aabb_lo[o, 0] - 1e-6
                     and lo[i, 1] <= aabb_hi[o, 1] + 1e-6 and hi[i, 1] >= aabb_lo[o, 1] - 1e-6
                     and lo[i, 2] <= aabb_hi[o, 2] + 1e-6 and hi[i, 2] >= aabb_lo[o, 2] - 1e-6):
-                pairs[n, 0] = i
-                pairs[n, 1] = o
+                # objects nearest the capsule centre first (insertion): the likeliest contact
+                d = 0.0
+                for j in range(3):
+                    d += max(aabb_lo[o, j] - centres[i, j], 0.0, centres[i, j] - aabb_hi[o, j]) ** 2
+                dist[n] = d
+                m = n
+                while m > first and dist[m - 1] > d:
+                    pairs[m] = pairs[m - 1]
+                    dist[m] = dist[m - 1]
+                    m -= 1
+                pairs[m, 0] = i
+                pairs[m, 1] = o
+                dist[m] = d
                 n += 1
     return centres, R, length, lo, hi, pairs[:n]
 
@@ -148,6 +162,14 @@ def _near_in_order(p, radii, finite, lo, cell, step, band, values, spacing):
                 k += 1
         count[b] = k
     return order, count
+
+
+@njit(cache=True)
+def _world_and_near(positions, radius, T, margin, lo, cell, step, band, values, spacing):
+    """`_to_world` then `_near_in_order`, in one compiled call (the planner's hot path)."""
+    p, radii, finite = _to_world(positions, radius, T, margin)
+    order, count = _near_in_order(p, radii, finite, lo, cell, step, band, values, spacing)
+    return p, radii, finite, order, count
 
 
 @njit(cache=True)
@@ -429,8 +451,8 @@ def warm_kernels() -> None:
                              np.ones((1, 3)))
     grid = DistanceGrid(np.zeros(3), 1.0, 1.0, np.zeros((1, 1, 1), dtype=np.uint8))
     grid.segment_lower_bounds(a)
-    _near_in_order(a, np.ones((1, 1)), np.ones(1, dtype=np.bool_), grid.lo, grid.cell_mm, grid.step_mm,
-                   grid.band_mm, grid.values, grid.spacing_mm)
+    _world_and_near(a, np.ones((1, 2)), np.eye(4), 0.0, grid.lo, grid.cell_mm, grid.step_mm, grid.band_mm,
+                    grid.values, grid.spacing_mm)
     _WARM = True
 
 
@@ -476,10 +498,8 @@ class RobotCollisionChecker:
         The broadphase runs on the whole batch at once; FCL then tests each row's remaining capsules,
         likeliest contact first. With ``stop_at_first``, rows after the first collision (in
         ``order``) are left not free."""
-        p, radii, finite = _to_world(np.ascontiguousarray(positions, dtype=float),
-                                     np.ascontiguousarray(radius, dtype=float), self.base_pose,
-                                     self.margin_mm)
-        caps, count = self._near_in_order(p, radii, finite)
+        p, radii, finite, caps, count = self._world_and_near(np.ascontiguousarray(positions, dtype=float),
+                                                             np.ascontiguousarray(radius, dtype=float))
         cleared = finite & (count == 0)
         if order is None and not stop_at_first and cleared.all():
             self.checks += len(cleared)
@@ -497,18 +517,19 @@ class RobotCollisionChecker:
                 break
         return free
 
-    def _near_in_order(self, p: np.ndarray, radii: np.ndarray, finite: np.ndarray
-                       ) -> tuple[np.ndarray, np.ndarray]:
-        """Capsules (B, M) the broadphase cannot clear, likeliest contact first, and their count (B,)
-        per row (see `CollisionWorld.near`)."""
+    def _world_and_near(self, positions: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Backbones (B, N, 3) robot frame with tube radii (B, N) -> world points (B, N, 3), capsule
+        radii with the margin (B, N-1), finite rows (B,), and the capsules the broadphase cannot
+        clear, likeliest contact first (B, N-1), with their count (B,) (see `CollisionWorld.near`)."""
         grid = self.world.grid
         if grid is not None and len(self.world):
-            return _near_in_order(p, radii, finite, grid.lo, grid.cell_mm, grid.step_mm, grid.band_mm,
-                                  grid.values, grid.spacing_mm)
+            return _world_and_near(positions, radius, self.base_pose, self.margin_mm, grid.lo, grid.cell_mm,
+                                   grid.step_mm, grid.band_mm, grid.values, grid.spacing_mm)
+        p, radii, finite = _to_world(positions, radius, self.base_pose, self.margin_mm)
         near, priority = self.world.near(p, radii)
         near &= finite[:, None]
         order = np.argsort(np.where(near, priority, np.inf), axis=1, kind="stable")
-        return order, near.sum(axis=1)
+        return p, radii, finite, order, near.sum(axis=1)
 
     def contacts(self, positions: np.ndarray, radius: np.ndarray) -> list[tuple[int, str]]:
         """(segment, obstacle) pairs in contact for one backbone (with the margin)."""

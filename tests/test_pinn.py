@@ -283,3 +283,18 @@ def test_saved_model_files_have_normal_permissions(robot, tmp_path):
     plain.write_text("")
     for ext in (".safetensors", ".json"):
         assert os.stat(tmp_path / f"perm{ext}").st_mode == os.stat(plain).st_mode
+
+
+def test_tip_and_tangent_is_the_backbone_tip(robot, pinn, cosserat):
+    """The PINN's one-row tip (inverse kinematics) is the tip of its backbones; the tangent is the
+    third column of the tip rotation (`quaternion_to_matrix`, written apart)."""
+    from ctrplan.kinematics.backbone import quaternion_to_matrix
+
+    q = robot.sample_joints(40, rng=42)
+    for backend in (pinn, cosserat):
+        tip, tangent, ok = backend.tip_and_tangent(q)
+        bb = backend.forward(q, 2)
+        assert ok.all()
+        np.testing.assert_allclose(tip, bb.tip_mm, atol=1e-4)
+        np.testing.assert_allclose(tangent, quaternion_to_matrix(bb.quaternions[:, -1])[:, :, 2], atol=1e-5)
+        np.testing.assert_allclose(np.linalg.norm(tangent, axis=1), 1.0, atol=1e-5)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,6 +86,13 @@ class Backbone:
     def quaternions(self) -> np.ndarray:
         """Orientation of tube 1 (B, P, 4), scalar-first."""
         return self.state[..., -4:]
+
+    def with_radius(self, radius_mm: np.ndarray) -> Backbone:
+        """The same backbones with another radius (B, P) mm, e.g. a planning margin added
+        (a shallow copy: faster than `dataclasses.replace`, which re-runs the constructor)."""
+        out = copy.copy(self)
+        object.__setattr__(out, "radius_mm", radius_mm)
+        return out
 
     @property
     def stable(self) -> np.ndarray:

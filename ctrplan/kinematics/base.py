@@ -125,12 +125,25 @@ class Backend(ABC):
         """Tube tip positions (B, N, 3), mm."""
         return self.forward(q, points=2, check=check).tips_mm
 
+    def tip_and_tangent(self, q: np.ndarray, *, check: bool = True
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What inverse kinematics needs: the tip of tube 1 (B, 3) mm, its unit tangent (B, 3) and
+        whether each row converged (B,), robot frame. Default: from a two-point `forward`."""
+        bb = self.forward(q, points=2, check=check)
+        return bb.tip_mm, tangent_of(bb.quaternions[:, -1]), bb.converged
+
     def tip_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Tip of tube 1 (B, 3) mm, its Jacobian d tip / d q (B, 3, n_joints) in mm per mm|rad, and
         whether each row is valid (B,). Default: forward differences through one batched `forward`,
         with steps taken inside the joint domain."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         return forward_difference_tip_jacobian(self.forward, self.robot, q)[:3]
+
+
+def tangent_of(quaternions: np.ndarray) -> np.ndarray:
+    """Backbone tangent (third column of the rotation) of scalar-first unit quaternions (..., 4)."""
+    w, x, y, z = np.moveaxis(np.asarray(quaternions, dtype=float), -1, 0)
+    return np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], -1)
 
 
 def forward_difference_tip_jacobian(forward, robot: Robot, q: np.ndarray, eps: float = 1e-3,

@@ -23,18 +23,16 @@ The output transform builds the known structure in exactly (hard constraints):
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import torch
-from threadpoolctl import ThreadpoolController
 from torch import nn
 
 from ctrplan.kinematics._pinn_infer import backbone_fields, backbones, backbones_chunked, infer
 from ctrplan.kinematics.backbone import Backbone
-from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, arc_fractions
+from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, arc_fractions, tangent_of
+from ctrplan.kinematics.blas import one_blas_thread
 from ctrplan.kinematics.cosserat import RodArrays
 from ctrplan.robot import Robot
 
@@ -153,7 +151,7 @@ class PinnBackend(Backend):
     from the nodes they need only, so a point's value never depends on the other points requested.
     ``nodes=None`` evaluates the network at every point instead.
 
-    Its own computations run with BLAS on a single thread (restored afterwards; the rest of the
+    Its own computations run with BLAS on a single thread (`ctrplan.kinematics.blas`; the rest of the
     process is left alone): the many small matrix products of single queries and planner edges lose
     far more to BLAS thread synchronisation than they gain, and large batches are parallelised across
     cache-sized chunks instead.
@@ -188,7 +186,6 @@ class PinnBackend(Backend):
         self._residual_weights = np.zeros((n + 1, ns))
         self._residual_weights[np.arange(n), 2 + np.arange(n)] = gj / gj[0] * 1e3
         self._residual_weights[0, 0:2] = 1e3 / robot.tubes[0].bending_stiffness_nmm2
-        self._blas = ThreadpoolController().select(user_api="blas").lib_controllers
         # compile (or load from numba's cache) the kernels now, not inside a caller's timed loop
         q0 = np.zeros((CHUNK_ROWS + 1, 2 * n))
         q0[:, :n] = -1.0
@@ -231,25 +228,11 @@ class PinnBackend(Backend):
     def error_bound(self) -> dict | None:
         return self.card.get(ERROR_BOUND_KEY)
 
-    @contextmanager
-    def _one_blas_thread(self) -> Iterator[None]:
-        """BLAS on one thread for the enclosed calls only. Sets the libraries threadpoolctl found at
-        creation directly (``threadpool_limits`` costs ~40 us a call, a sixth of a query), and only
-        those not on one thread already (~10 us otherwise)."""
-        changed = [(lib, n) for lib in self._blas if (n := lib.num_threads) != 1]
-        for lib, _ in changed:
-            lib.set_num_threads(1)
-        try:
-            yield
-        finally:
-            for lib, n in changed:
-                lib.set_num_threads(n)
-
     def _evaluate(self, q: np.ndarray, frac: np.ndarray) -> np.ndarray:
         """The network's states (B, F, 2N + 9) at arc fractions frac (B, F) for joints q (B, 2N) with
         offsets applied."""
         out = np.empty((frac.shape[0], frac.shape[1], self.robot.n_states))
-        with self._one_blas_thread():
+        with one_blas_thread():
             infer(np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(frac, dtype=float),
                   *self._compiled, out)
         return out
@@ -267,7 +250,7 @@ class PinnBackend(Backend):
         states = np.empty((len(qm), n, ns))
         at_ends = np.empty((len(qm), nt + 1, ns))
         chunk = max(1, CHUNK_ROWS // rows)
-        with self._one_blas_thread():
+        with one_blas_thread():
             if len(qm) <= chunk:
                 backbones(qm, frac, intervals, self._compiled, self._rod, self._loaded, states, at_ends)
             else:
@@ -282,6 +265,16 @@ class PinnBackend(Backend):
             radius_mm=radius, converged=finite, initial_state=at_ends[:, nt],
             iterations=np.zeros(len(qm), dtype=np.int64), residual=residual, backend=self.name,
         )
+
+    def tip_and_tangent(self, q: np.ndarray, *, check: bool = True
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The network at the tip alone: one row per configuration, where a backbone costs a row
+        for every tube end too (see `Backend.tip_and_tangent`)."""
+        q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
+        qm = np.ascontiguousarray(q + self._offset if self._has_offset else q, dtype=float)
+        x = self._evaluate(qm, np.ones((len(qm), 1)))[:, 0]
+        ip = self._i_p
+        return x[:, ip:ip + 3], tangent_of(x[:, ip + 3:ip + 7]), np.isfinite(x).all(axis=1)
 
     def initial_states(self, q: np.ndarray) -> np.ndarray:
         """Predicted state at s = 0 (B, 2N + 9) for joints q (B, 2N): a warm start for shooting."""

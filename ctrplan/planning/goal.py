@@ -64,7 +64,7 @@ class GoalSampler:
         self.rng = rng
         self.space = checker.space
         self.jacobian = jacobian or backend_tip_jacobian(checker.backend, self.space,
-                                                         forward=checker.forward)
+                                                         forward=checker.forward, tips=checker.tips)
         self.seeds_per_batch = int(seeds_per_batch)
         self.candidates_per_seed = int(candidates_per_seed)
         self.goals: list[np.ndarray] = []
@@ -76,22 +76,22 @@ class GoalSampler:
     def _random_seeds(self, n: int) -> np.ndarray:
         m = n * self.candidates_per_seed
         q = self.space.sample(m, self.rng)
-        bb = self.checker.forward(q, points=2)
-        tips = self.checker.scene.to_scene(bb.tip_mm)
-        d = self.region.distance(tips)
+        tip, tangent, converged = self.checker.tips(q)
+        scene = self.checker.scene
+        d = self.region.distance(scene.to_scene(tip))
         if self.region.direction is not None:
-            angle = self.region.angle_rad(tip_tangents(self.checker.scene, bb))
+            angle = self.region.angle_rad(tangent @ scene.base_pose[:3, :3].T)
             excess = angle - self.region.angle_tolerance_rad
             d = d + ANGLE_WEIGHT_MM_PER_RAD * np.maximum(excess, 0.0)
-        d = np.where(bb.converged & np.isfinite(d), d, np.inf)
+        d = np.where(converged & np.isfinite(d), d, np.inf)
         return q[np.argsort(d)[:n]]
 
     def directions_ok(self, q: np.ndarray) -> np.ndarray:
         """Whether the tips of configurations (B, 2N) respect the target's approach direction."""
         if self.region.direction is None or len(q) == 0:
             return np.ones(len(q), dtype=bool)
-        bb = self.checker.forward(q, points=2)
-        return self.region.direction_ok(tip_tangents(self.checker.scene, bb)) & bb.converged
+        _, tangent, converged = self.checker.tips(q)
+        return self.region.direction_ok(tangent @ self.checker.scene.base_pose[:3, :3].T) & converged
 
     def _frontier(self, m: int) -> np.ndarray:
         """Valid states met so far (e.g. by the planner's trees) whose tips are nearest the target,

@@ -21,19 +21,24 @@ from ctrplan.planning.space import BoxSpace
 
 TipJacobian = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
 ForwardFn = Callable[..., Backbone]
+TipFn = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
 class FDTipJacobian:
     """Forward-difference tip Jacobian of ``forward(q, points=2[, guess=])`` (a backend's ``forward``
     or `ConfigurationChecker.forward`): 7 configurations per seed in one batched call. Steps are taken
     in box coordinates, towards the interior at the domain boundary. Pass ``guess`` (B, 15) initial
-    states to warm-start a shooting backend; `last_initial_state` holds those of the last call."""
+    states to warm-start a shooting backend; `last_initial_state` holds those of the last call.
+    Without warm starts, ``tips(q) -> (tip (B, 3), tangent (B, 3), ok (B,))`` (e.g.
+    `Backend.tip_and_tangent`) is used instead of ``forward`` where given."""
 
-    def __init__(self, forward: ForwardFn, space: BoxSpace, eps: float = 1e-3, warm: bool = False):
+    def __init__(self, forward: ForwardFn, space: BoxSpace, eps: float = 1e-3, warm: bool = False,
+                 tips: TipFn | None = None):
         self.forward = forward
         self.space = space
         self.eps = float(eps)
         self.warm = bool(warm)
+        self.tips = tips
         self._Minv = np.linalg.pinv(space.joint_from_coords)  # J_q = J_y M^+ (M has full column rank)
         self.last_initial_state: np.ndarray | None = None
 
@@ -47,33 +52,42 @@ class FDTipJacobian:
         Y = np.repeat(y[:, None, :], d + 1, axis=1)
         Y[:, 1:, :] += h[:, None, :] * np.eye(d)[None]
         Q = sp.to_joints(Y.reshape(-1, d))
-        if self.warm and guess is not None:
-            bb = self.forward(Q, points=2, guess=np.repeat(guess, d + 1, axis=0))
+        if self.tips is not None and not self.warm:
+            tip, _, converged = self.tips(Q)
         else:
-            bb = self.forward(Q, points=2)
-        tips = bb.tip_mm.reshape(b, d + 1, 3)
-        ok = bb.converged.reshape(b, d + 1).all(axis=1)
-        self.last_initial_state = bb.initial_state.reshape(b, d + 1, -1)[:, 0]
+            bb = self.forward(Q, points=2, guess=np.repeat(guess, d + 1, axis=0)) \
+                if self.warm and guess is not None else self.forward(Q, points=2)
+            tip, converged = bb.tip_mm, bb.converged
+            self.last_initial_state = bb.initial_state.reshape(b, d + 1, -1)[:, 0]
+        tips = tip.reshape(b, d + 1, 3)
+        ok = converged.reshape(b, d + 1).all(axis=1)
         Jy = (tips[:, 1:, :] - tips[:, :1, :]).transpose(0, 2, 1) / h[:, None, :]  # (B, 3, D)
         return tips[:, 0], Jy @ self._Minv[None], ok
 
 
 def fd_tip_jacobian(forward: ForwardFn, space: BoxSpace, eps: float = 1e-3,
-                    warm: bool = False) -> FDTipJacobian:
-    """Finite-difference tip Jacobian through one batched call of ``forward`` per evaluation."""
-    return FDTipJacobian(forward, space, eps, warm)
+                    warm: bool = False, tips: TipFn | None = None) -> FDTipJacobian:
+    """Finite-difference tip Jacobian through one batched call of ``forward`` (or ``tips``) per
+    evaluation."""
+    return FDTipJacobian(forward, space, eps, warm, tips)
 
 
-def backend_tip_jacobian(backend: Backend, space: BoxSpace, forward: ForwardFn | None = None) -> TipJacobian:
+def backend_tip_jacobian(backend: Backend, space: BoxSpace, forward: ForwardFn | None = None,
+                         tips: TipFn | None = None) -> TipJacobian:
     """A tip Jacobian for ``backend``: its own `Backend.tip_jacobian` where it declares
-    ``analytic_tip_jacobian``; otherwise forward differences through ``forward`` (default: the
-    backend's), one batched call each, warm-started where the backend is ``warm_startable``."""
+    ``analytic_tip_jacobian``; otherwise forward differences, one batched call each: warm-started
+    through ``forward`` (default: the backend's) where the backend is ``warm_startable``, else through
+    ``tips`` (default: the backend's `Backend.tip_and_tangent`, for a surrogate one network row per
+    configuration)."""
     if backend.analytic_tip_jacobian:
         return backend.tip_jacobian
     if forward is None:
         def forward(q, points=2, guess=None):
             return backend.forward(q, points=points, guess=guess, check=False)
-    return fd_tip_jacobian(forward, space, warm=backend.warm_startable)
+    if tips is None:
+        def tips(q):
+            return backend.tip_and_tangent(q, check=False)
+    return fd_tip_jacobian(forward, space, warm=backend.warm_startable, tips=tips)
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -23,6 +23,7 @@ from ctrplan.errors import InputError
 from ctrplan.kinematics import make_backend
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, arc_fractions
+from ctrplan.kinematics.blas import single_threaded_blas
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY
 from ctrplan.planning.goal import GoalSampler, TipGoal, tip_tangents
@@ -271,47 +272,48 @@ def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, p
     checker = problem.checker
     sampler = problem.sampler
     checker.hook = _progress_hook(problem, clock, progress)
-    try:
-        region_goal = isinstance(problem.goal, TipGoal)
-        if region_goal:
-            problem.goal.deadline = clock.deadline
-            progress("goal", elapsed=0.0, limit=clock.limit_s)
-            _sample_goals(sampler, clock)
-        timings = {"goal_sampling_s": clock.elapsed()}
+    with single_threaded_blas():  # tens of thousands of small products: no per-call switching
+        try:
+            region_goal = isinstance(problem.goal, TipGoal)
+            if region_goal:
+                problem.goal.deadline = clock.deadline
+                progress("goal", elapsed=0.0, limit=clock.limit_s)
+                _sample_goals(sampler, clock)
+            timings = {"goal_sampling_s": clock.elapsed()}
 
-        def outcome(path_q: np.ndarray | None, status: str, exact: bool, message: str) -> SearchOutcome:
-            return SearchOutcome(path_q, status, exact, clock.elapsed(), {**vars(sampler.stats), **timings},
-                                 message)
+            def outcome(path_q: np.ndarray | None, status: str, exact: bool, message: str) -> SearchOutcome:
+                return SearchOutcome(path_q, status, exact, clock.elapsed(),
+                                     {**vars(sampler.stats), **timings}, message)
 
-        if region_goal and not sampler.goals and sampler.stats.ik_reached == 0:
-            return outcome(None, "INVALID_GOAL", False,
-                           f"target unreachable: inverse kinematics got the tip no closer than "
-                           f"{sampler.stats.closest_mm:.1f} mm to the target region after "
-                           f"{sampler.stats.seeds} seeds"), checker
-        if clock.remaining() <= 0:
-            reached = sampler.stats.ik_reached
-            why = f": {reached} IK solutions reached the target, all in collision" \
-                if reached and not sampler.goals else ""
-            return outcome(None, "TIMEOUT", False,
-                           f"time limit of {clock.limit_s:g} s reached while sampling goal "
-                           f"configurations ({len(sampler.goals)} found{why})"), checker
-        if spec.fixed_goal_set and region_goal:
-            _fix_goal_set(problem, clock)
-        pl = _setup_planner(planner, problem, s.range_mm)
-        progress("search", elapsed=clock.elapsed(), limit=clock.limit_s,
-                 kinematics_calls=checker.counters.kinematics_calls, goals=len(sampler.goals))
-        t_solve = time.perf_counter()
-        status = pl.solve(max(clock.remaining(), 1e-3))
-        timings["search_s"] = time.perf_counter() - t_solve
-        status_name = status.asString() if hasattr(status, "asString") else str(status)
-        if not problem.pdef.hasExactSolution():
-            return outcome(None, status_name, False,
-                           _failure_message(problem, clock.limit_s, goal_q is not None)), checker
-        if simplify:
-            progress("simplify", elapsed=clock.elapsed())
-        return outcome(_simplified_path(problem, simplify, timings), status_name, True, ""), checker
-    finally:
-        checker.hook = None
+            if region_goal and not sampler.goals and sampler.stats.ik_reached == 0:
+                return outcome(None, "INVALID_GOAL", False,
+                               f"target unreachable: inverse kinematics got the tip no closer than "
+                               f"{sampler.stats.closest_mm:.1f} mm to the target region after "
+                               f"{sampler.stats.seeds} seeds"), checker
+            if clock.remaining() <= 0:
+                reached = sampler.stats.ik_reached
+                why = f": {reached} IK solutions reached the target, all in collision" \
+                    if reached and not sampler.goals else ""
+                return outcome(None, "TIMEOUT", False,
+                               f"time limit of {clock.limit_s:g} s reached while sampling goal "
+                               f"configurations ({len(sampler.goals)} found{why})"), checker
+            if spec.fixed_goal_set and region_goal:
+                _fix_goal_set(problem, clock)
+            pl = _setup_planner(planner, problem, s.range_mm)
+            progress("search", elapsed=clock.elapsed(), limit=clock.limit_s,
+                     kinematics_calls=checker.counters.kinematics_calls, goals=len(sampler.goals))
+            t_solve = time.perf_counter()
+            status = pl.solve(max(clock.remaining(), 1e-3))
+            timings["search_s"] = time.perf_counter() - t_solve
+            status_name = status.asString() if hasattr(status, "asString") else str(status)
+            if not problem.pdef.hasExactSolution():
+                return outcome(None, status_name, False,
+                               _failure_message(problem, clock.limit_s, goal_q is not None)), checker
+            if simplify:
+                progress("simplify", elapsed=clock.elapsed())
+            return outcome(_simplified_path(problem, simplify, timings), status_name, True, ""), checker
+        finally:
+            checker.hook = None
 
 
 @dataclass
@@ -406,7 +408,7 @@ class RegionMarginBackend(Backend):
     def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
                 guess: np.ndarray | None = None, check: bool = True) -> Backbone:
         bb = self.inner.forward(q, points, guess=guess, check=check)
-        return replace(bb, radius_mm=bb.radius_mm + self._margins(arc_fractions(points)))
+        return bb.with_radius(bb.radius_mm + self._margins(arc_fractions(points)))
 
     def _margins(self, s_fraction: np.ndarray) -> np.ndarray:
         """`region_margins_mm` at arc fractions (P,) of l1, once per set of fractions (a planner asks

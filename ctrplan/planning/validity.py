@@ -117,6 +117,19 @@ class ConfigurationChecker:
     def tips_scene(self, bb: Backbone) -> np.ndarray:
         return self.scene.to_scene(bb.tip_mm)
 
+    def tips(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Tips (B, 3) mm, unit tip tangents (B, 3) -- robot frame -- and convergence (B,) of joints
+        (B, 2N) (`Backend.tip_and_tangent`; counted like `forward`)."""
+        q = np.atleast_2d(q)
+        t = time.perf_counter()
+        out = self.backend.tip_and_tangent(q, check=False)
+        self.counters.kinematics_s += time.perf_counter() - t
+        self.counters.kinematics_calls += q.shape[0]
+        self.counters.kinematics_batches += 1
+        if self.hook is not None:
+            self.hook()
+        return out
+
     def validate(self, q: np.ndarray, guess: np.ndarray | None = None,
                  stop_at_first: bool = False) -> tuple[np.ndarray, Backbone]:
         """Validity (B,) of configurations q (B, 2N), checked in `stages`, and the backbones of the
@@ -173,20 +186,31 @@ class ConfigurationChecker:
         q = np.atleast_2d(np.asarray(q, dtype=float))
         keys = [self.key(qi) for qi in q]
         entries = [self._cache.get(k) for k in keys]
-        out = np.array([e is not None and e.valid for e in entries])
         miss = [i for i, e in enumerate(entries) if e is None]
         if miss:
             valid, bb = self.validate(q[miss])
-            ok = bb.converged
-            tips = np.where(ok[:, None], self.scene.to_scene(bb.tip_mm), np.nan)
             for j, i in enumerate(miss):
-                init = bb.initial_state[j].copy() if ok[j] else None
-                self._store(keys[i], q[i], _Entry(bool(valid[j]), tips[j], init))
-                out[i] = valid[j]
-        return out
+                entries[i] = self._new_entry(keys[i], q[i], bb, j, bool(valid[j]))
+        return np.array([e.valid for e in entries])
 
     def is_valid(self, q: np.ndarray) -> bool:
-        return bool(self.check(q)[0])
+        """Validity of one configuration (2N,) (cached): the planner's hot path."""
+        key = self.key(q)
+        e = self._cache.get(key)
+        if e is None:
+            q1 = np.asarray(q, dtype=float)[None]
+            valid, bb = self.validate(q1)
+            e = self._new_entry(key, q1[0], bb, 0, bool(valid[0]))
+        return e.valid
+
+    def _new_entry(self, key: bytes, q: np.ndarray, bb: Backbone, i: int, valid: bool) -> _Entry:
+        """Cache row i of a backbone batch under ``key``."""
+        if bb.converged[i]:
+            e = _Entry(valid, self.scene.to_scene(bb.tip_mm[i]), bb.initial_state[i].copy())
+        else:
+            e = _Entry(valid, np.full(3, np.nan))
+        self._store(key, q, e)
+        return e
 
     def tip(self, q: np.ndarray) -> np.ndarray:
         """Tip position in the scene frame (NaN if the backend did not converge)."""
@@ -207,7 +231,7 @@ class ConfigurationChecker:
         e2 = self.lookup(q2)
         if e2 is not None and not e2.valid:
             return False
-        if e2 is None and not self.check(q2)[0]:
+        if e2 is None and not self.is_valid(q2):
             return False
         d = float(self.space.distance(q1, q2))
         n = max(1, int(np.ceil(d / resolution)))
