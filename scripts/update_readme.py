@@ -71,13 +71,13 @@ def render_kinematics(doc: dict[str, Any]) -> str:
 
 def render_pinn(doc: dict[str, Any]) -> str:
     """Accuracy of a PINN vs the exact solver, from `ctrplan eval-model --json`."""
-    e, t = doc["backbone_error_pct"], doc["tip_error_mm"]
-    rows = [["backbone error / arc length", f"{e['mean']:.3f} %", f"{e['max']:.3f} %"]]
-    rows += [[f"{tube} tip error", f"{v['mean']:.3f} mm", f"{v['max']:.3f} mm"] for tube, v in t.items()]
-    rows += [["orientation error", f"{doc['orientation_error_deg']['mean']:.2f} deg",
-              f"{doc['orientation_error_deg']['max']:.2f} deg"],
-             ["u_z RMSE", f"{doc['u_z_rmse_1_per_m']:.3f} 1/m", ""],
-             ["theta RMSE", f"{doc['theta_rmse_rad']:.4f} rad", ""]]
+    e, t, o = doc["backbone_error_pct"], doc["tip_error_mm"], doc["orientation_error_deg"]
+    rows = [["backbone error / arc length", f"{e['mean']:.3f} %", "", "", f"{e['max']:.3f} %"]]
+    rows += [[f"{tube} tip error", *(f"{v[k]:.3f} mm" for k in ("mean", "p99", "p99_9", "max"))]
+             for tube, v in t.items()]
+    rows += [["orientation error", *(f"{o[k]:.2f} deg" for k in ("mean", "p99", "p99_9", "max"))],
+             ["u_z RMSE", f"{doc['u_z_rmse_1_per_m']:.3f} 1/m", "", "", ""],
+             ["theta RMSE", f"{doc['theta_rmse_rad']:.4f} rad", "", "", ""]]
     tr = doc.get("training", {})
     stages = "; ".join(
         f"{s['recipe']} {s['steps']} steps, {s['wall_time_s'] / 60:.1f} min on {s['hardware']}"
@@ -85,8 +85,8 @@ def render_pinn(doc: dict[str, Any]) -> str:
     nodes = doc.get("inference", {}).get("nodes")
     how = (f"; inference: network at {nodes} nodes per backbone, physics-interpolated" if nodes
            else "; inference: network at every point")
-    return (markdown_table(["metric (" + str(doc["configurations"]) + " unseen configurations)", "mean",
-                            "max"], rows) + f"\n\nModel `{doc['model']}`; training: {stages}{how}.")
+    return (markdown_table([f"metric ({doc['configurations']:,} unseen configurations)", "mean", "p99",
+                            "p99.9", "max"], rows) + f"\n\nModel `{doc['model']}`; training: {stages}{how}.")
 
 
 def render_training(cards: list[dict[str, Any]]) -> str:
@@ -201,7 +201,7 @@ def render_plan(doc: dict[str, Any]) -> str:
 
 BLOCKS = {
     "kinematics": Block(marker="bench:kinematics", args=("bench", "kinematics"), render=render_kinematics),
-    "pinn": Block(marker="pinn:accuracy", args=("eval-model",), render=render_pinn),
+    "pinn": Block(marker="pinn:accuracy", args=("eval-model", "--n", "5000"), render=render_pinn),
     "plan": Block(marker="bench:plan", args=("bench", "plan", "scenes/skullbase.yaml", "--out",
                                               "docs/bench/plan_skullbase"), render=render_plan),
     "plan-scenes": Block(marker="bench:plan-scenes",

@@ -121,10 +121,19 @@ def test_pinn_limits_blas_threads_only_around_its_own_calls(robot):
     def blas_threads() -> list[int]:
         return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
 
+    from ctrplan.kinematics.blas import one_blas_thread, single_threaded_blas
+
     with threadpool_limits(limits=2, user_api="blas"):
         pinn = PinnBackend.load(None, robot)
         pinn.forward(robot.sample_joints(3, np.random.default_rng(0)), 10)
         assert blas_threads() and set(blas_threads()) == {2}  # the process keeps its setting
-        with pinn._one_blas_thread():
+        with one_blas_thread():
+            assert set(blas_threads()) == {1}
+        assert set(blas_threads()) == {2}
+        with single_threaded_blas():  # a planner's search: one thread throughout, guards inside free
+            assert set(blas_threads()) == {1}
+            with one_blas_thread():
+                assert set(blas_threads()) == {1}
+            pinn.forward(robot.sample_joints(3, np.random.default_rng(0)), 10)
             assert set(blas_threads()) == {1}
         assert set(blas_threads()) == {2}

@@ -228,10 +228,7 @@ class ConfigurationChecker:
         (a short edge in one call; a long one, e.g. a path shortcut, stops computing kinematics at
         the first batch with an invalid state), stopping at the first invalid one."""
         self.counters.motions += 1
-        e2 = self.lookup(q2)
-        if e2 is not None and not e2.valid:
-            return False
-        if e2 is None and not self.is_valid(q2):
+        if not self.is_valid(q2):
             return False
         d = float(self.space.distance(q1, q2))
         n = max(1, int(np.ceil(d / resolution)))
