@@ -133,13 +133,17 @@ class ConfigurationChecker:
     def validate(self, q: np.ndarray, guess: np.ndarray | None = None,
                  stop_at_first: bool = False) -> tuple[np.ndarray, Backbone]:
         """Validity (B,) of configurations q (B, 2N), checked in `stages`, and the backbones of the
-        first stage (their tips and initial states serve the cache). With ``stop_at_first``, rows
-        are tested in order and all are left False after the first invalid one."""
+        first stage (their tips and initial states serve the cache). With ``stop_at_first`` (an edge:
+        only whether all rows are valid matters) the rows are tested in order, the work stops at the
+        first invalid one and then every row is reported invalid."""
         stages = self.stages
+        order = range(len(q)) if stop_at_first else None
         bb = self.forward(q, guess=guess, points=stages[0])
-        valid = self.backbones_valid(bb, range(len(q)) if stop_at_first else None, stop_at_first)
+        valid = self.backbones_valid(bb, order, stop_at_first)
+        if stop_at_first and not valid.all():
+            return np.zeros(len(q), dtype=bool), bb
         rows = np.flatnonzero(valid)
-        if len(stages) > 1 and rows.size and not (stop_at_first and rows.size < len(q)):
+        if len(stages) > 1 and rows.size:
             rest = self.forward(q[rows], guess=None if guess is None else guess[rows], points=stages[1],
                                 new_states=False)
             valid[rows] = self.backbones_valid(rest, range(rows.size) if stop_at_first else None,
