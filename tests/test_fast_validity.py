@@ -121,6 +121,15 @@ def test_exact_goal_puts_the_exact_tip_where_the_surrogate_put_it():
     assert np.linalg.norm(exact.forward(out[-1], 2).tip_mm[0] - aim) <= EXACT_GOAL_TOL_MM + 1e-9
     assert np.linalg.norm(out[-1] - goal) < 5.0  # a small correction, not another configuration
 
+    # with an approach direction: the surrogate's tip pose (position and tangent)
+    aimed = replace(scene, target=replace(scene.target, direction=np.array([0.0, 0.0, 1.0]),
+                                          angle_tolerance_rad=np.pi / 2))
+    _, tangent, _ = checker.backend.tip_and_tangent(goal)
+    out = exact_goal(path, ConfigurationChecker(aimed, checker.backend), exact)
+    tip, exact_tangent, _ = exact.tip_and_tangent(out[-1])
+    assert np.linalg.norm(tip - aim) < EXACT_GOAL_TOL_MM
+    assert np.degrees(np.arccos(np.clip(exact_tangent[0] @ tangent[0], -1, 1))) < 0.2
+
     # left alone: when the exact tip is in the target already, and for an exact planning backend
     inside = replace(scene, target=TargetRegion.sphere(scene.to_scene(exact.forward(goal, 2).tip_mm[0]), 2.0))
     assert exact_goal(path, ConfigurationChecker(inside, checker.backend), exact) is path

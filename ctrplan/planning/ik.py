@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ctrplan.kinematics.backbone import Backbone
-from ctrplan.kinematics.base import Backend
+from ctrplan.kinematics.base import Backend, tangent_of
 from ctrplan.planning.space import BoxSpace
 
 TipJacobian = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
@@ -30,15 +30,17 @@ class FDTipJacobian:
     in box coordinates, towards the interior at the domain boundary. Pass ``guess`` (B, 15) initial
     states to warm-start a shooting backend; `last_initial_state` holds those of the last call.
     Without warm starts, ``tips(q) -> (tip (B, 3), tangent (B, 3), ok (B,))`` (e.g.
-    `Backend.tip_and_tangent`) is used instead of ``forward`` where given."""
+    `Backend.tip_and_tangent`) is used instead of ``forward`` where given. With ``tangent_weight_mm``
+    the task is the tip pose: ``(tip, tangent_weight_mm * tangent)`` (B, 6) and its Jacobian."""
 
     def __init__(self, forward: ForwardFn, space: BoxSpace, eps: float = 1e-3, warm: bool = False,
-                 tips: TipFn | None = None):
+                 tips: TipFn | None = None, tangent_weight_mm: float | None = None):
         self.forward = forward
         self.space = space
         self.eps = float(eps)
         self.warm = bool(warm)
         self.tips = tips
+        self.tangent_weight_mm = tangent_weight_mm
         self._Minv = np.linalg.pinv(space.joint_from_coords)  # J_q = J_y M^+ (M has full column rank)
         self.last_initial_state: np.ndarray | None = None
 
@@ -53,33 +55,37 @@ class FDTipJacobian:
         Y[:, 1:, :] += h[:, None, :] * np.eye(d)[None]
         Q = sp.to_joints(Y.reshape(-1, d))
         if self.tips is not None and not self.warm:
-            tip, _, converged = self.tips(Q)
+            tip, tangent, converged = self.tips(Q)
         else:
             bb = self.forward(Q, points=2, guess=np.repeat(guess, d + 1, axis=0)) \
                 if self.warm and guess is not None else self.forward(Q, points=2)
             tip, converged = bb.tip_mm, bb.converged
+            tangent = tangent_of(bb.quaternions[:, -1]) if self.tangent_weight_mm else None
             self.last_initial_state = bb.initial_state.reshape(b, d + 1, -1)[:, 0]
-        tips = tip.reshape(b, d + 1, 3)
+        if self.tangent_weight_mm:
+            tip = np.concatenate([tip, self.tangent_weight_mm * tangent], axis=1)
+        tips = tip.reshape(b, d + 1, tip.shape[1])
         ok = converged.reshape(b, d + 1).all(axis=1)
         Jy = (tips[:, 1:, :] - tips[:, :1, :]).transpose(0, 2, 1) / h[:, None, :]  # (B, 3, D)
         return tips[:, 0], Jy @ self._Minv[None], ok
 
 
 def fd_tip_jacobian(forward: ForwardFn, space: BoxSpace, eps: float = 1e-3,
-                    warm: bool = False, tips: TipFn | None = None) -> FDTipJacobian:
-    """Finite-difference tip Jacobian through one batched call of ``forward`` (or ``tips``) per
-    evaluation."""
-    return FDTipJacobian(forward, space, eps, warm, tips)
+                    warm: bool = False, tips: TipFn | None = None,
+                    tangent_weight_mm: float | None = None) -> FDTipJacobian:
+    """Finite-difference tip (or tip pose) Jacobian through one batched call of ``forward`` (or
+    ``tips``) per evaluation."""
+    return FDTipJacobian(forward, space, eps, warm, tips, tangent_weight_mm)
 
 
 def backend_tip_jacobian(backend: Backend, space: BoxSpace, forward: ForwardFn | None = None,
-                         tips: TipFn | None = None) -> TipJacobian:
+                         tips: TipFn | None = None, tangent_weight_mm: float | None = None) -> TipJacobian:
     """A tip Jacobian for ``backend``: its own `Backend.tip_jacobian` where it declares
     ``analytic_tip_jacobian``; otherwise forward differences, one batched call each: warm-started
     through ``forward`` (default: the backend's) where the backend is ``warm_startable``, else through
     ``tips`` (default: the backend's `Backend.tip_and_tangent`, for a surrogate one network row per
-    configuration)."""
-    if backend.analytic_tip_jacobian:
+    configuration). With ``tangent_weight_mm``, the tip pose (see `FDTipJacobian`)."""
+    if backend.analytic_tip_jacobian and not tangent_weight_mm:
         return backend.tip_jacobian
     if forward is None:
         def forward(q, points=2, guess=None):
@@ -87,12 +93,14 @@ def backend_tip_jacobian(backend: Backend, space: BoxSpace, forward: ForwardFn |
     if tips is None:
         def tips(q):
             return backend.tip_and_tangent(q, check=False)
-    return fd_tip_jacobian(forward, space, warm=backend.warm_startable, tips=tips)
+    return fd_tip_jacobian(forward, space, warm=backend.warm_startable, tips=tips,
+                           tangent_weight_mm=tangent_weight_mm)
 
 
 @dataclass(frozen=True)
 class IKResult:
-    """Per seed: joints (B, 2N), tip (B, 3) robot frame, error to its target (B,), success (B,)."""
+    """Per seed: joints (B, 2N), tip (B, 3) -- or tip pose (B, 6) -- robot frame, error to its target
+    (B,), success (B,)."""
 
     q: np.ndarray
     tip: np.ndarray
@@ -104,7 +112,9 @@ class IKResult:
 def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets: np.ndarray, *,
              tol_mm: float = 0.05, max_iterations: int = 40, damping: float = 1.0,
              max_step: float = 15.0, rotation_weight: float = 1.0) -> IKResult:
-    """Move every seed (B, 2N) so its tip reaches its target (B, 3) (robot frame, mm).
+    """Move every seed (B, 2N) so its tip reaches its target (B, 3) (robot frame, mm) -- or, with a
+    tip-pose Jacobian (``FDTipJacobian(tangent_weight_mm=w)``), its pose target (B, 6) ``(tip, w *
+    tangent)``; the error (and ``tol_mm``) is then the norm of both together.
 
     Levenberg-style: a step is kept only if it lowers that seed's error; otherwise the damping of
     the seed grows. Each iteration is one call of ``jacobian`` for all seeds still running.
@@ -112,7 +122,9 @@ def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets:
     step (insertion-first solutions, which stay closer to a seed's shape).
     """
     seeds = np.atleast_2d(np.asarray(seeds, dtype=float))
-    targets = np.broadcast_to(np.asarray(targets, dtype=float), (seeds.shape[0], 3))
+    targets = np.asarray(targets, dtype=float)
+    k = targets.shape[-1]  # 3: tip position; 6: tip pose
+    targets = np.broadcast_to(targets, (seeds.shape[0], k))
     b = seeds.shape[0]
     M = space.joint_from_coords
     wcol = np.where(space.is_rotation, 1.0 / float(rotation_weight), 1.0)  # dy = wcol * dz
@@ -120,8 +132,8 @@ def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets:
     lam = np.full(b, float(damping))
     best_err = np.full(b, np.inf)
     best_y = y.copy()
-    best_tip = np.full((b, 3), np.nan)
-    best_J = np.zeros((b, 3, space.dimension))
+    best_tip = np.full((b, k), np.nan)
+    best_J = np.zeros((b, k, space.dimension))
     active = np.ones(b, dtype=bool)
     warm = bool(getattr(jacobian, "warm", False))
     best_init = None
@@ -163,7 +175,7 @@ def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets:
         yb = best_y[idx]
         J = best_J[idx] * wcol[None, None, :]
         for _ in range(3):  # active set: drop coordinates at a bound that the step pushes outwards
-            A = J @ J.transpose(0, 2, 1) + (lam[idx] ** 2)[:, None, None] * np.eye(3)[None]
+            A = J @ J.transpose(0, 2, 1) + (lam[idx] ** 2)[:, None, None] * np.eye(k)[None]
             dy = (J.transpose(0, 2, 1) @ np.linalg.solve(A, e[:, :, None]))[:, :, 0]
             blocked = ((yb <= space.lower + 1e-9) & (dy < 0)) | ((yb >= space.upper - 1e-9) & (dy > 0))
             if not blocked.any():

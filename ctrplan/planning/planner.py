@@ -26,7 +26,7 @@ from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, arc_fractions
 from ctrplan.kinematics.blas import single_threaded_blas
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY
-from ctrplan.planning.goal import GoalSampler, TipGoal, tip_tangents
+from ctrplan.planning.goal import ANGLE_WEIGHT_MM_PER_RAD, GoalSampler, TipGoal, tip_tangents
 from ctrplan.planning.ik import backend_tip_jacobian, solve_ik
 from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate_path
 from ctrplan.planning.validity import BatchMotionValidator, ConfigurationChecker, ValidityChecker
@@ -465,6 +465,8 @@ def exact_goal(path_q: np.ndarray, checker: ConfigurationChecker, exact: Backend
     A surrogate's goal configuration misses the target by its tip error, often as much as the target
     is wide; a few exact damped-least-squares iterations from that configuration close the gap for the
     price of a few dozen exact solves, where re-planning the end with the exact model costs seconds.
+    With an approach direction the iterations aim at the surrogate's tip pose (tangent weighted by
+    `ANGLE_WEIGHT_MM_PER_RAD`): its orientation error can exceed the angular tolerance too.
     The surrogate's own view of the new state is beside the point (it is off by the same error), so
     the short move there is left to exact validation, like the rest of the path. Returns ``path_q``
     unchanged for an exact planning backend, or when the exact iterations fail."""
@@ -477,9 +479,13 @@ def exact_goal(path_q: np.ndarray, checker: ConfigurationChecker, exact: Backend
     target = scene.target
     if bb.converged[0] and target.contains(tip) and target.direction_ok(tip_tangents(scene, bb))[0]:
         return path_q
-    aim = checker.backend.forward(goal[None], points=2, check=False).tip_mm
-    ik = solve_ik(backend_tip_jacobian(exact, checker.space), checker.space, goal[None], aim,
-                  tol_mm=EXACT_GOAL_TOL_MM, max_iterations=8)
+    aim, tangent, _ = checker.tips(goal[None])
+    weight = None
+    if target.direction is not None:  # the tip's direction matters too: aim at the surrogate's pose
+        weight = ANGLE_WEIGHT_MM_PER_RAD
+        aim = np.concatenate([aim, weight * tangent], axis=1)
+    ik = solve_ik(backend_tip_jacobian(exact, checker.space, tangent_weight_mm=weight), checker.space,
+                  goal[None], aim, tol_mm=EXACT_GOAL_TOL_MM, max_iterations=8)
     return np.vstack([path_q, ik.q]) if ik.success[0] else path_q
 
 
