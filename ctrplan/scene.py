@@ -351,6 +351,10 @@ class Scene:
     def to_robot(self, p_scene: np.ndarray) -> np.ndarray:
         return transform_points(self.base_inverse, p_scene)
 
+    def direction_to_scene(self, v_robot: np.ndarray) -> np.ndarray:
+        """Robot-frame directions (..., 3) -> scene frame (rotation only)."""
+        return np.asarray(v_robot, dtype=float) @ self.base_pose[:3, :3].T
+
     def merged_obstacles(self):
         """All obstacles as one trimesh (scene frame, mm)."""
         import trimesh

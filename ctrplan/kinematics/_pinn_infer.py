@@ -24,6 +24,7 @@ import numpy as np
 from numba import njit, prange
 
 from ctrplan.kinematics._shooting import hermite, lay_nodes, rhs, segments
+from ctrplan.kinematics.base import outer_radius
 
 # Rational approximation of tanh used by Eigen for float32 (accurate to float32 rounding on the
 # clamped range); unlike libm's tanh it vectorises.
@@ -264,13 +265,7 @@ def backbone_fields(qm, out_frac, lengths, outer_radii, residual_weights, states
         for i in range(nt):
             ends[b, i] = qm[b, i] + lengths[i]
         for p in range(n):
-            s = out_frac[p] * ends[b, 0]
-            s_mm[b, p] = s
-            r = outer_radii[0]
-            for i in range(1, nt):
-                if s <= ends[b, i] + 1e-9:
-                    r = outer_radii[i]
-            radius[b, p] = r
+            s_mm[b, p] = out_frac[p] * ends[b, 0]
             for k in range(states.shape[2]):
                 if not math.isfinite(states[b, p, k]):
                     finite[b] = False
@@ -279,4 +274,5 @@ def backbone_fields(qm, out_frac, lengths, outer_radii, residual_weights, states
                 v = abs(at_ends[b, i, k] * residual_weights[i, k])
                 if v > residual[b] or not math.isfinite(v):
                     residual[b] = v
+    outer_radius(s_mm, ends, outer_radii, radius)
     return ends, s_mm, radius, finite, residual

@@ -52,13 +52,14 @@ _checked_fractions: dict[bytes, np.ndarray] = {}
 def outer_radius_along(robot: Robot, s_mm: np.ndarray, ends_mm: np.ndarray) -> np.ndarray:
     """Outer radius (mm) of the outermost tube present at each arc length; s (B, P), ends (B, N)."""
     out = np.empty(s_mm.shape)
-    _outer_radius(np.ascontiguousarray(s_mm, dtype=float), np.ascontiguousarray(ends_mm, dtype=float),
-                  robot.outer_radii_mm, out)
+    outer_radius(np.ascontiguousarray(s_mm, dtype=float), np.ascontiguousarray(ends_mm, dtype=float),
+                 robot.outer_radii_mm, out)
     return out
 
 
 @njit(cache=True)
-def _outer_radius(s, ends, radii, out):
+def outer_radius(s, ends, radii, out):
+    """Compiled `outer_radius_along`: ``out`` (B, P) from s (B, P), ends (B, N), tube radii (N,)."""
     for b in range(s.shape[0]):
         for p in range(s.shape[1]):
             r = radii[0]

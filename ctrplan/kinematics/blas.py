@@ -19,19 +19,29 @@ _LIBS = ThreadpoolController().select(user_api="blas").lib_controllers
 _scopes = 0  # nesting depth of `single_threaded_blas`
 
 
+def _set_one_thread() -> list:
+    """Set every BLAS library not on one thread to one; return (library, previous count) pairs."""
+    changed = [(lib, n) for lib in _LIBS if (n := lib.num_threads) != 1]
+    for lib, _ in changed:
+        lib.set_num_threads(1)
+    return changed
+
+
+def _restore(changed: list) -> None:
+    for lib, n in changed:
+        lib.set_num_threads(n)
+
+
 class _OneThread:
     """Context manager: BLAS on one thread for the enclosed calls only (see the module docstring)."""
 
     __slots__ = ("_changed",)
 
     def __enter__(self) -> None:
-        self._changed = [] if _scopes else [(lib, n) for lib in _LIBS if (n := lib.num_threads) != 1]
-        for lib, _ in self._changed:
-            lib.set_num_threads(1)
+        self._changed = [] if _scopes else _set_one_thread()
 
     def __exit__(self, *exc) -> None:
-        for lib, n in self._changed:
-            lib.set_num_threads(n)
+        _restore(self._changed)
 
 
 def one_blas_thread() -> _OneThread:
@@ -43,13 +53,10 @@ def one_blas_thread() -> _OneThread:
 def single_threaded_blas() -> Iterator[None]:
     """BLAS on one thread for everything inside; `one_blas_thread` guards inside are then free."""
     global _scopes
-    changed = [(lib, n) for lib in _LIBS if (n := lib.num_threads) != 1]
-    for lib, _ in changed:
-        lib.set_num_threads(1)
+    changed = _set_one_thread()
     _scopes += 1
     try:
         yield
     finally:
         _scopes -= 1
-        for lib, n in changed:
-            lib.set_num_threads(n)
+        _restore(changed)

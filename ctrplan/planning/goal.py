@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from ompl import base as ob
 
-from ctrplan.kinematics.backbone import Backbone, quaternion_to_matrix
+from ctrplan.kinematics.backbone import Backbone
+from ctrplan.kinematics.base import tangent_of
 from ctrplan.planning.ik import TipJacobian, backend_tip_jacobian, solve_ik
 from ctrplan.planning.validity import ConfigurationChecker
 from ctrplan.scene import Scene, TargetRegion
@@ -28,7 +29,7 @@ ANGLE_WEIGHT_MM_PER_RAD = 20.0
 
 def tip_tangents(scene: Scene, bb: Backbone) -> np.ndarray:
     """Unit tangent of the backbone at the tip (B, 3), scene frame."""
-    return quaternion_to_matrix(bb.quaternions[:, -1])[:, :, 2] @ scene.base_pose[:3, :3].T
+    return scene.direction_to_scene(tangent_of(bb.quaternions[:, -1]))
 
 
 @dataclass
@@ -80,7 +81,7 @@ class GoalSampler:
         scene = self.checker.scene
         d = self.region.distance(scene.to_scene(tip))
         if self.region.direction is not None:
-            angle = self.region.angle_rad(tangent @ scene.base_pose[:3, :3].T)
+            angle = self.region.angle_rad(scene.direction_to_scene(tangent))
             excess = angle - self.region.angle_tolerance_rad
             d = d + ANGLE_WEIGHT_MM_PER_RAD * np.maximum(excess, 0.0)
         d = np.where(converged & np.isfinite(d), d, np.inf)
@@ -91,7 +92,7 @@ class GoalSampler:
         if self.region.direction is None or len(q) == 0:
             return np.ones(len(q), dtype=bool)
         _, tangent, converged = self.checker.tips(q)
-        return self.region.direction_ok(tangent @ self.checker.scene.base_pose[:3, :3].T) & converged
+        return self.region.direction_ok(self.checker.scene.direction_to_scene(tangent)) & converged
 
     def _frontier(self, m: int) -> np.ndarray:
         """Valid states met so far (e.g. by the planner's trees) whose tips are nearest the target,

@@ -65,7 +65,7 @@ class BoxSpace:
         """Which box coordinates are searched (2N,) bool: those of non-zero width."""
         return self._full_upper > self._full_lower
 
-    @property
+    @cached_property
     def dimension(self) -> int:
         return int(self.free.sum())
 
@@ -158,11 +158,7 @@ class BoxSpace:
 
     def state_coords(self, state) -> np.ndarray:
         """OMPL state -> coordinates (D,)."""
-        return np.array([state[i] for i in range(self._dimension)])
-
-    @cached_property
-    def _dimension(self) -> int:
-        return self.dimension
+        return np.array([state[i] for i in range(self.dimension)])
 
     @cached_property
     def _affine(self) -> tuple[np.ndarray, np.ndarray]:

@@ -13,6 +13,7 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from ompl import base as ob
@@ -82,9 +83,10 @@ class ConfigurationChecker:
         #: joints and scene-frame tips of recently found valid states (seeds for goal sampling)
         self.valid_q: list[np.ndarray] = []
         self.valid_tips: list[np.ndarray] = []
+        #: arc fractions checked in turn (see `_stages`)
+        self.stages = self._stages()
 
-    @property
-    def stages(self) -> tuple[np.ndarray, ...]:
+    def _stages(self) -> tuple[np.ndarray, ...]:
         """Arc fractions of the backbone points checked in turn. Where the backend makes part of a
         backbone cheaper (``partial_backbones_cheap``): the distal half first -- a robot probing
         anatomy meets it there first, and an invalid state then costs half a backbone -- and the
@@ -98,37 +100,31 @@ class ConfigurationChecker:
         return frac[k:], frac[:k + 1]
 
     # ---- kinematics ------------------------------------------------------------------------------
+    def _counted(self, call: Callable[[], Any], n_states: int) -> Any:
+        """``call()`` of the backend, timed and counted (``n_states`` new configurations)."""
+        t = time.perf_counter()
+        out = call()
+        self.counters.kinematics_s += time.perf_counter() - t
+        self.counters.kinematics_calls += n_states
+        self.counters.kinematics_batches += 1
+        if self.hook is not None:
+            self.hook()
+        return out
+
     def forward(self, q: np.ndarray, guess: np.ndarray | None = None,
                 points: int | np.ndarray | None = None, *, new_states: bool = True) -> Backbone:
         """Backbones of joints (B, 2N) (no joint checks: planner states lie in the domain);
         ``new_states=False`` does not count them again (a later stage of the same states)."""
         q = np.atleast_2d(q)
-        t = time.perf_counter()
-        bb = self.backend.forward(q, points=self.points if points is None else points,
-                                  guess=guess if self.warm_start else None, check=False)
-        self.counters.kinematics_s += time.perf_counter() - t
-        if new_states:
-            self.counters.kinematics_calls += q.shape[0]
-        self.counters.kinematics_batches += 1
-        if self.hook is not None:
-            self.hook()
-        return bb
-
-    def tips_scene(self, bb: Backbone) -> np.ndarray:
-        return self.scene.to_scene(bb.tip_mm)
+        return self._counted(lambda: self.backend.forward(
+            q, points=self.points if points is None else points,
+            guess=guess if self.warm_start else None, check=False), q.shape[0] if new_states else 0)
 
     def tips(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Tips (B, 3) mm, unit tip tangents (B, 3) -- robot frame -- and convergence (B,) of joints
         (B, 2N) (`Backend.tip_and_tangent`; counted like `forward`)."""
         q = np.atleast_2d(q)
-        t = time.perf_counter()
-        out = self.backend.tip_and_tangent(q, check=False)
-        self.counters.kinematics_s += time.perf_counter() - t
-        self.counters.kinematics_calls += q.shape[0]
-        self.counters.kinematics_batches += 1
-        if self.hook is not None:
-            self.hook()
-        return out
+        return self._counted(lambda: self.backend.tip_and_tangent(q, check=False), q.shape[0])
 
     def validate(self, q: np.ndarray, guess: np.ndarray | None = None,
                  stop_at_first: bool = False) -> tuple[np.ndarray, Backbone]:
