@@ -173,9 +173,10 @@ def _world_and_near(positions, radius, T, margin, lo, cell, step, band, values, 
 
 
 @njit(cache=True)
-def _chosen_frames_and_boxes(points, radii, caps, aabb_lo, aabb_hi):
-    """`_frames_and_boxes` of the capsules ``caps`` (K,) of one polyline ``points`` (N, 3) with
-    capsule radii (N-1,)."""
+def _candidate_frames(points, radii, caps, aabb_lo, aabb_hi):
+    """The capsules ``caps`` (K,) of one polyline ``points`` (N, 3) with capsule radii (N-1,) as FCL
+    needs them, ``frames`` (K, 14) = centre (3), rotation (9, row-major), length, radius, and their
+    (capsule row, object) pairs (P, 2) whose boxes overlap (see `_frames_and_boxes`)."""
     k = caps.shape[0]
     a = np.empty((k, 3))
     b = np.empty((k, 3))
@@ -184,7 +185,32 @@ def _chosen_frames_and_boxes(points, radii, caps, aabb_lo, aabb_hi):
         a[j] = points[caps[j]]
         b[j] = points[caps[j] + 1]
         r[j] = radii[caps[j]]
-    return _frames_and_boxes(a, b, r, aabb_lo, aabb_hi) + (r,)
+    centres, R, length, _, _, pairs = _frames_and_boxes(a, b, r, aabb_lo, aabb_hi)
+    return _pack_frames(centres, R, length, r), pairs
+
+
+@njit(cache=True)
+def _pack_frames(centres, R, length, radii):
+    """Rows of centre (3), rotation (9), length and radius (K, 14) of K capsules."""
+    k = length.shape[0]
+    frames = np.empty((k, 14))
+    for j in range(k):
+        frames[j, 0:3] = centres[j]
+        frames[j, 3:12] = R[j].ravel()
+        frames[j, 12] = length[j]
+        frames[j, 13] = radii[j]
+    return frames
+
+
+@njit(cache=True)
+def _one_backbone(positions, radius, T, margin, lo, cell, step, band, values, spacing, aabb_lo, aabb_hi):
+    """`_world_and_near` then `_candidate_frames` for a single backbone (1, N, 3) in one compiled
+    call (the planner's single-state hot path): whether it is finite, and the frames and pairs of
+    the capsules the broadphase cannot clear (none: the backbone is free)."""
+    p, radii, finite, order, count = _world_and_near(positions, radius, T, margin, lo, cell, step, band,
+                                                     values, spacing)
+    frames, pairs = _candidate_frames(p[0], radii[0], order[0, :count[0]], aabb_lo, aabb_hi)
+    return finite[0], frames, pairs
 
 
 def segment_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -320,17 +346,19 @@ class CollisionWorld:
 class CapsuleChain:
     """A chain of ``n_segments`` FCL capsules, placed lazily and updated in place.
 
-    `set` stores the segment frames of a new configuration (vectorised); a capsule's FCL object is
-    only updated when a query needs it (capsules far from every obstacle never are).
+    `set` (or `load_frames`) stores the capsule frames of a new configuration (vectorised); a
+    capsule's FCL object is only updated when a query needs it (capsules far from every obstacle
+    never are).
     """
 
     def __init__(self, n_segments: int):
         self.n_segments = int(n_segments)
         self._geoms = [fcl.Capsule(0.5, 1.0) for _ in range(self.n_segments)]
         self._objects = [fcl.CollisionObject(g, fcl.Transform()) for g in self._geoms]
-        self._active = 0
         self._placed = np.zeros(self.n_segments, dtype=bool)
-        self.points = np.zeros((0, 3))
+        self._frames = np.zeros((0, 14))
+        self.seg_lo = self.seg_hi = np.zeros((0, 3))
+        self._result = fcl.CollisionResult()
         #: FCL narrow-phase tests (capsule, object pairs) run by `collides`
         self.tests = 0
 
@@ -341,37 +369,38 @@ class CapsuleChain:
             raise ValueError(f"chain has {self.n_segments} capsules, got {p.shape[0] - 1} segments")
         centres, R, length = segment_frames(p)
         radii = np.asarray(radii, dtype=float)
+        self.load_frames(_pack_frames(centres, R, length, radii))
         r = radii[:, None]
-        self.load(centres, R, length, radii, np.minimum(p[:-1], p[1:]) - r, np.maximum(p[:-1], p[1:]) + r)
+        self.seg_lo, self.seg_hi = np.minimum(p[:-1], p[1:]) - r, np.maximum(p[:-1], p[1:]) + r
 
-    def load(self, centres, R, length, radii, seg_lo, seg_hi) -> None:
-        """New configuration from precomputed segment frames (see `segment_frames`)."""
-        self._active = len(length)
-        self._centres, self._R, self._length, self._radii = centres, R, length, radii
-        self.seg_lo, self.seg_hi = seg_lo, seg_hi
+    def load_frames(self, frames: np.ndarray) -> None:
+        """New configuration from capsule frames (K, 14) (see `_pack_frames`)."""
+        self._frames = frames
         self._placed[:] = False
 
     def _object(self, i: int) -> fcl.CollisionObject:
         o = self._objects[i]
         if not self._placed[i]:
+            f = self._frames[i]
             g = self._geoms[i]
-            g.radius = float(self._radii[i])
-            g.lz = float(self._length[i])
-            o.setRotation(self._R[i])
-            o.setTranslation(self._centres[i])
+            g.radius = float(f[13])
+            g.lz = float(f[12])
+            o.setRotation(f[3:12].reshape(3, 3))
+            o.setTranslation(f[0:3])
             self._placed[i] = True
         return o
 
     def collides(self, world: CollisionWorld, pairs: np.ndarray | None = None) -> bool:
         """True if any capsule touches any obstacle (distal capsules are tested first).
         ``pairs``: precomputed candidate (capsule, object) pairs."""
-        req = world._request
+        req, res = world._request, self._result
         objs = world._objects
         if pairs is None:
             pairs = world.candidates(self.seg_lo, self.seg_hi)
         for i, j in pairs:
             self.tests += 1
-            if fcl.collide(self._object(i), objs[j], req, fcl.CollisionResult()):
+            if fcl.collide(self._object(i), objs[j], req, res):  # returns this test's contact count
+                res.contacts.clear()  # a result only grows on contact: reused, not rebuilt
                 return True
         return False
 
@@ -380,9 +409,8 @@ class CapsuleChain:
         """Whether any of the capsules ``caps`` (K,) of one polyline ``points`` (N, 3) (world frame,
         mm) with capsule radii (N-1,) touches an obstacle, tested in the given order (replaces the
         chain's configuration)."""
-        centres, R, length, lo, hi, pairs, r = _chosen_frames_and_boxes(points, radii, caps, world.aabb_lo,
-                                                                        world.aabb_hi)
-        self.load(centres, R, length, r, lo, hi)
+        frames, pairs = _candidate_frames(points, radii, caps, world.aabb_lo, world.aabb_hi)
+        self.load_frames(frames)
         return self.collides(world, pairs)
 
     def contacts(self, world: CollisionWorld) -> list[tuple[int, str]]:
@@ -400,7 +428,7 @@ class CapsuleChain:
         bound of the distance) reaches the best distance found, so the result is exact.
         """
         best = Clearance(np.inf, -1, "", np.full(3, np.nan), np.full(3, np.nan))
-        if len(world) == 0 or self._active == 0:
+        if len(world) == 0 or len(self._frames) == 0:
             return best
         lo, hi = self.seg_lo, self.seg_hi
         gap = np.maximum(0.0, np.maximum(world.aabb_lo[None] - hi[:, None],
@@ -447,12 +475,13 @@ def warm_kernels() -> None:
     a = np.zeros((1, 2, 3))
     a[0, 1, 2] = 1.0
     _to_world(a, np.ones((1, 2)), np.eye(4), 0.0)
-    _chosen_frames_and_boxes(a[0], np.ones(1), np.zeros(1, dtype=np.int64), np.zeros((1, 3)),
-                             np.ones((1, 3)))
+    _candidate_frames(a[0], np.ones(1), np.zeros(1, dtype=np.int64), np.zeros((1, 3)), np.ones((1, 3)))
     grid = DistanceGrid(np.zeros(3), 1.0, 1.0, np.zeros((1, 1, 1), dtype=np.uint8))
     grid.segment_lower_bounds(a)
-    _world_and_near(a, np.ones((1, 2)), np.eye(4), 0.0, grid.lo, grid.cell_mm, grid.step_mm, grid.band_mm,
-                    grid.values, grid.spacing_mm)
+    args = (a, np.ones((1, 2)), np.eye(4), 0.0, grid.lo, grid.cell_mm, grid.step_mm, grid.band_mm,
+            grid.values, grid.spacing_mm)
+    _world_and_near(*args)
+    _one_backbone(*args, np.zeros((1, 3)), np.ones((1, 3)))
     _WARM = True
 
 
@@ -498,8 +527,12 @@ class RobotCollisionChecker:
         The broadphase runs on the whole batch at once; FCL then tests each row's remaining capsules,
         likeliest contact first. With ``stop_at_first``, rows after the first collision (in
         ``order``) are left not free."""
-        p, radii, finite, caps, count = self._world_and_near(np.ascontiguousarray(positions, dtype=float),
-                                                             np.ascontiguousarray(radius, dtype=float))
+        positions = np.ascontiguousarray(positions, dtype=float)
+        radius = np.ascontiguousarray(radius, dtype=float)
+        grid = self.world.grid
+        if len(positions) == 1 and grid is not None and len(self.world):
+            return self._free_one(positions, radius, grid)
+        p, radii, finite, caps, count = self._world_and_near(positions, radius)
         cleared = finite & (count == 0)
         if order is None and not stop_at_first and cleared.all():
             self.checks += len(cleared)
@@ -516,6 +549,21 @@ class RobotCollisionChecker:
             if stop_at_first and not ok:
                 break
         return free
+
+    def _free_one(self, positions: np.ndarray, radius: np.ndarray, grid: DistanceGrid) -> np.ndarray:
+        """`free_batch` of a single backbone (1, N, 3) with the broadphase grid: one compiled call,
+        then FCL on the capsules it cannot clear."""
+        self.checks += 1
+        finite, frames, pairs = _one_backbone(positions, radius, self.base_pose, self.margin_mm, grid.lo,
+                                              grid.cell_mm, grid.step_mm, grid.band_mm, grid.values,
+                                              grid.spacing_mm, self.world.aabb_lo, self.world.aabb_hi)
+        if not finite:
+            return np.zeros(1, dtype=bool)
+        if len(frames):
+            self.narrow_checks += 1
+            self.chain.load_frames(frames)
+            return np.array([not self.chain.collides(self.world, pairs)])
+        return np.ones(1, dtype=bool)
 
     def _world_and_near(self, positions: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, ...]:
         """Backbones (B, N, 3) robot frame with tube radii (B, N) -> world points (B, N, 3), capsule

@@ -27,18 +27,24 @@ from ctrplan.kinematics._shooting import hermite, lay_nodes, rhs, segments
 from ctrplan.kinematics.base import outer_radius
 
 # Rational approximation of tanh used by Eigen for float32 (accurate to float32 rounding on the
-# clamped range); unlike libm's tanh it vectorises.
-_CLAMP = 7.90531110763549805
-_A = (4.89352455891786e-03, 6.37261928875436e-04, 1.48572235717979e-05, 5.12229709037114e-08,
-      -8.60467152213735e-11, 2.00018790482477e-13, -2.76076847742355e-16)
-_B = (4.89352518554385e-03, 2.26843463243900e-03, 1.18534705686654e-04, 1.19825839466702e-06)
+# clamped range); unlike libm's tanh it vectorises -- in float32 constants, and with numpy's error
+# model (no division-by-zero branch: the denominator is at least _B[0] > 0), and with exact division
+# (no reciprocal approximation) so that a row's value does not depend on where it falls in a batch.
+_CLAMP = np.float32(7.90531110763549805)
+_A = tuple(np.float32(v) for v in (
+    4.89352455891786e-03, 6.37261928875436e-04, 1.48572235717979e-05, 5.12229709037114e-08,
+    -8.60467152213735e-11, 2.00018790482477e-13, -2.76076847742355e-16))
+_B = tuple(np.float32(v) for v in (
+    4.89352518554385e-03, 2.26843463243900e-03, 1.18534705686654e-04, 1.19825839466702e-06))
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath={"nnan", "ninf", "nsz", "contract"}, error_model="numpy")
 def _tanh_inplace(a):
     flat = a.reshape(-1)
     for i in range(flat.size):
-        x = min(max(flat[i], -_CLAMP), _CLAMP)
+        x = flat[i]
+        x = _CLAMP if x > _CLAMP else x
+        x = -_CLAMP if x < -_CLAMP else x
         x2 = x * x
         p = ((((((_A[6] * x2 + _A[5]) * x2 + _A[4]) * x2 + _A[3]) * x2 + _A[2]) * x2 + _A[1]) * x2
              + _A[0]) * x
@@ -153,9 +159,10 @@ def node_layout(q, intervals, lengths, straight, EI):
 
 
 @njit(cache=True)
-def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends):
+def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends, with_ends=True):
     """States ``states`` (B, P, 2N + 9) at arc fractions ``out_frac`` (P,) of l1 for joints q (B, 2N),
-    and the network's states ``at_ends`` (B, N + 1, 2N + 9) at the tube ends l1 … lN and at s = 0.
+    and the network's states ``at_ends`` (B, N + 1, 2N + 9) at the tube ends l1 … lN and at s = 0
+    (with ``with_ends`` only: otherwise ``at_ends`` is left alone and those rows cost nothing).
 
     ``intervals = 0``: the network at every point; otherwise Hermite interpolation between the
     network at ``intervals + 1`` nodes (see the module docstring). ``net`` is the weights tuple of
@@ -167,28 +174,32 @@ def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends):
     nt = lengths.shape[0]
     ns, i_p = 2 * nt + 9, 2 + 2 * nt
     if intervals == 0:
-        frac = np.empty((nb, n + nt + 1))
+        extra = nt + 1 if with_ends else 0
+        frac = np.empty((nb, n + extra))
         for b in range(nb):
             frac[b, :n] = out_frac
-            for i in range(nt):
-                frac[b, n + i] = (q[b, i] + lengths[i]) / (q[b, 0] + lengths[0])
-            frac[b, n + nt] = 0.0
-        y = np.empty((nb, n + nt + 1, ns))
+            if with_ends:
+                for i in range(nt):
+                    frac[b, n + i] = (q[b, i] + lengths[i]) / (q[b, 0] + lengths[0])
+                frac[b, n + nt] = 0.0
+        y = np.empty((nb, n + extra, ns))
         infer(q, frac, *net, y)
         states[:] = y[:, :n]
-        at_ends[:] = y[:, n:]
+        if with_ends:
+            at_ends[:] = y[:, n:]
         return
     # the network only at the nodes the requested points need: those bracketing a point (the node
-    # itself for a point on a node), the tube ends and s = 0 (`at_ends`)
+    # itself for a point on a node), and with ``with_ends`` the tube ends and s = 0 (`at_ends`)
     m = intervals
     need = np.zeros((nb, m + 1), dtype=np.bool_)
     node_frac = np.empty((nb, m + 1))
     for b in range(nb):
         nodes, _, _, _, _, end_node = node_layout(q[b], intervals, lengths, straight, EI)
         node_frac[b] = nodes / nodes[-1]
-        need[b, 0] = True
-        for i in range(nt):
-            need[b, end_node[i]] = True
+        if with_ends:
+            need[b, 0] = True
+            for i in range(nt):
+                need[b, end_node[i]] = True
         j = 0
         for p in range(n):
             s = out_frac[p] * nodes[-1]
@@ -233,9 +244,10 @@ def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends):
         fl[0, i_p + 1] = 0.0
         fl[0, i_p + 2] = 1.0
         hermite(nodes, seg_of, yb, fl, fr_, out_frac * nodes[-1], states[b])
-        for i in range(nt):
-            at_ends[b, i] = yb[end_node[i]]
-        at_ends[b, nt] = yb[0]
+        if with_ends:
+            for i in range(nt):
+                at_ends[b, i] = yb[end_node[i]]
+            at_ends[b, nt] = yb[0]
 
 
 @njit(cache=True, parallel=True)
@@ -246,7 +258,7 @@ def backbones_chunked(q, out_frac, intervals, net, rod, loaded, states, at_ends,
     for c in prange((nb + chunk - 1) // chunk):
         a = c * chunk
         b = min(nb, a + chunk)
-        backbones(q[a:b], out_frac, intervals, net, rod, loaded, states[a:b], at_ends[a:b])
+        backbones(q[a:b], out_frac, intervals, net, rod, loaded, states[a:b], at_ends[a:b], True)
 
 
 @njit(cache=True)
@@ -276,3 +288,32 @@ def backbone_fields(qm, out_frac, lengths, outer_radii, residual_weights, states
                     residual[b] = v
     outer_radius(s_mm, ends, outer_radii, radius)
     return ends, s_mm, radius, finite, residual
+
+
+@njit(cache=True)
+def body_points(q, out_frac, intervals, net, rod, loaded, outer_radii):
+    """What a collision check needs, from the network at the nodes the points need only (no tube
+    ends, no s = 0): positions (B, P, 3) mm and outer radius (B, P) mm at arc fractions ``out_frac``
+    (P,) of l1, and whether each row is finite (B,). Arguments as `backbones`."""
+    lengths = rod[0]
+    nb, n, nt = q.shape[0], out_frac.shape[0], lengths.shape[0]
+    ns, i_p = 2 * nt + 9, 2 + 2 * nt
+    states = np.empty((nb, n, ns))
+    backbones(q, out_frac, intervals, net, rod, loaded, states, states, False)
+    positions = np.empty((nb, n, 3))
+    finite = np.ones(nb, dtype=np.bool_)
+    s_mm = np.empty((nb, n))
+    ends = np.empty((nb, nt))
+    for b in range(nb):
+        for i in range(nt):
+            ends[b, i] = q[b, i] + lengths[i]
+        for p in range(n):
+            s_mm[b, p] = out_frac[p] * ends[b, 0]
+            for k in range(3):
+                v = states[b, p, i_p + k]
+                positions[b, p, k] = v
+                if not math.isfinite(v):
+                    finite[b] = False
+    radius = np.empty((nb, n))
+    outer_radius(s_mm, ends, outer_radii, radius)
+    return positions, radius, finite

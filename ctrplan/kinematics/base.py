@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from functools import lru_cache
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -25,7 +25,10 @@ def _uniform_fractions(n: int) -> np.ndarray:
 
 def arc_fractions(points: int | np.ndarray) -> np.ndarray:
     """Output arc lengths as fractions of l1: ``points`` uniform samples in [0, 1], or the given
-    ascending fractions (N,)."""
+    ascending fractions (N,). An array this function returned comes back as it is, at once (planners
+    pass the same few again and again)."""
+    if id(points) in _checked_ids:
+        return points
     if np.isscalar(points):
         n = int(points)
         if n < 2:
@@ -33,20 +36,25 @@ def arc_fractions(points: int | np.ndarray) -> np.ndarray:
         return _uniform_fractions(n)
     frac = np.asarray(points, dtype=float).ravel()
     key = frac.tobytes()
-    if key in _checked_fractions:  # planners ask for the same few sets of points again and again
+    if key in _checked_fractions:
         return _checked_fractions[key]
     if frac.size < 1 or not np.all(np.isfinite(frac)) or frac.min() < 0 or frac.max() > 1 \
             or np.any(np.diff(frac) < 0):
         raise InputError("points: arc fractions must be ascending values in [0, 1]")
     if len(_checked_fractions) >= 256:
         _checked_fractions.clear()
+        _checked_ids.clear()
     frac = frac.copy()
     frac.flags.writeable = False
     _checked_fractions[key] = frac
+    _checked_ids.add(id(frac))
     return frac
 
 
+#: validated fraction arrays by content, and their ids: an id is in the set only while the dict keeps
+#: its array alive, so it cannot belong to another object
 _checked_fractions: dict[bytes, np.ndarray] = {}
+_checked_ids: set[int] = set()
 
 
 def outer_radius_along(robot: Robot, s_mm: np.ndarray, ends_mm: np.ndarray) -> np.ndarray:
@@ -67,6 +75,18 @@ def outer_radius(s, ends, radii, out):
                 if s[b, p] <= ends[b, i] + 1e-9:
                     r = radii[i]
             out[b, p] = r
+
+
+class Body(NamedTuple):
+    """What a collision check needs of B backbones at P points (robot frame): positions (B, P, 3) mm,
+    outer radius (B, P) mm, whether each row may be used (B,) -- converged, and stable where
+    stability is computed -- and the states at s = 0 (B, 2N + 9) for warm starts (None from a backend
+    that takes none)."""
+
+    positions_mm: np.ndarray
+    radius_mm: np.ndarray
+    usable: np.ndarray
+    initial_state: np.ndarray | None = None
 
 
 class Backend(ABC):
@@ -104,6 +124,14 @@ class Backend(ABC):
         ``guess``: initial states (B, 2N + 9) to start from (used only if ``warm_startable``).
         With ``check``, joints are validated against the robot (`Robot.check_joints`).
         """
+
+    def body(self, q: np.ndarray, points: int | np.ndarray, *, guess: np.ndarray | None = None,
+             check: bool = True) -> Body:
+        """The `Body` of configurations q (B, 2N) at ``points`` (as `forward`): a planner's validity
+        check needs no more. Default: from `forward`; a backend may compute less."""
+        bb = self.forward(q, points, guess=guess, check=check)
+        return Body(bb.positions_mm, bb.radius_mm, bb.stable,
+                    bb.initial_state if self.warm_startable else None)
 
     def describe(self) -> dict:
         """Settings that shape this backend's backbones (JSON-ready), reported next to its timings."""

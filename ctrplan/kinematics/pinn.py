@@ -29,9 +29,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from ctrplan.kinematics._pinn_infer import backbone_fields, backbones, backbones_chunked, infer
+from ctrplan.kinematics._pinn_infer import backbone_fields, backbones, backbones_chunked, body_points, infer
 from ctrplan.kinematics.backbone import Backbone
-from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, arc_fractions, tangent_of
+from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Body, arc_fractions, tangent_of
 from ctrplan.kinematics.blas import one_blas_thread
 from ctrplan.kinematics.cosserat import RodArrays
 from ctrplan.robot import Robot
@@ -192,6 +192,7 @@ class PinnBackend(Backend):
         self._evaluate(q0[:1], np.zeros((1, 1)))
         self.forward(q0, 2, check=False)                  # more than one chunk: the parallel kernel
         self.forward(q0[:1], DEFAULT_POINTS, check=False)
+        self.body(q0[:1], DEFAULT_POINTS, check=False)
 
     @staticmethod
     def _export(net: PinnNet) -> tuple:
@@ -228,6 +229,11 @@ class PinnBackend(Backend):
     def error_bound(self) -> dict | None:
         return self.card.get(ERROR_BOUND_KEY)
 
+    @staticmethod
+    def _writable_fractions(points: int | np.ndarray) -> np.ndarray:
+        """`arc_fractions` as a writable array: one compiled kernel type."""
+        return arc_fractions(points).copy()
+
     def _evaluate(self, q: np.ndarray, frac: np.ndarray) -> np.ndarray:
         """The network's states (B, F, 2N + 9) at arc fractions frac (B, F) for joints q (B, 2N) with
         offsets applied."""
@@ -241,7 +247,7 @@ class PinnBackend(Backend):
                 guess: np.ndarray | None = None, check: bool = True) -> Backbone:
         q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
         qm = np.ascontiguousarray(q + self._offset if self._has_offset else q, dtype=float)
-        frac = arc_fractions(points).copy()  # always writable: one compiled kernel type
+        frac = self._writable_fractions(points)
         n = frac.size
         nt, ns = self.robot.n_tubes, self.robot.n_states
         # network rows per backbone: at most the nodes, or every point plus the N tube ends and s = 0
@@ -252,7 +258,7 @@ class PinnBackend(Backend):
         chunk = max(1, CHUNK_ROWS // rows)
         with one_blas_thread():
             if len(qm) <= chunk:
-                backbones(qm, frac, intervals, self._compiled, self._rod, self._loaded, states, at_ends)
+                backbones(qm, frac, intervals, self._compiled, self._rod, self._loaded, states, at_ends, True)
             else:
                 backbones_chunked(qm, frac, intervals, self._compiled, self._rod, self._loaded, states,
                                   at_ends, chunk)
@@ -265,6 +271,18 @@ class PinnBackend(Backend):
             radius_mm=radius, converged=finite, initial_state=at_ends[:, nt],
             iterations=np.zeros(len(qm), dtype=np.int64), residual=residual, backend=self.name,
         )
+
+    def body(self, q: np.ndarray, points: int | np.ndarray, *, guess: np.ndarray | None = None,
+             check: bool = True) -> Body:
+        """The network at the nodes the points need and nothing else (no tube ends, no s = 0): a
+        planner's single-state checks spend most of their time here. One thread (no chunking)."""
+        q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
+        qm = np.ascontiguousarray(q + self._offset if self._has_offset else q, dtype=float)
+        intervals = self.nodes - 1 if self.nodes is not None else 0
+        with one_blas_thread():
+            pos, radius, finite = body_points(qm, self._writable_fractions(points), intervals, self._compiled,
+                                              self._rod, self._loaded, self.robot.outer_radii_mm)
+        return Body(pos, radius, finite)
 
     def tip_and_tangent(self, q: np.ndarray, *, check: bool = True
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

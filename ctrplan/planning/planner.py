@@ -22,7 +22,7 @@ from ompl import util as ou
 from ctrplan.errors import InputError
 from ctrplan.kinematics import make_backend
 from ctrplan.kinematics.backbone import Backbone
-from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, arc_fractions
+from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Body, arc_fractions
 from ctrplan.kinematics.blas import single_threaded_blas
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY
@@ -410,6 +410,11 @@ class RegionMarginBackend(Backend):
         bb = self.inner.forward(q, points, guess=guess, check=check)
         return bb.with_radius(bb.radius_mm + self._margins(arc_fractions(points)))
 
+    def body(self, q: np.ndarray, points: int | np.ndarray, *, guess: np.ndarray | None = None,
+             check: bool = True) -> Body:
+        body = self.inner.body(q, points, guess=guess, check=check)
+        return body._replace(radius_mm=body.radius_mm + self._margins(arc_fractions(points)))
+
     def _margins(self, s_fraction: np.ndarray) -> np.ndarray:
         """`region_margins_mm` at arc fractions (P,) of l1, once per set of fractions (a planner asks
         for the same few again and again)."""
@@ -420,6 +425,13 @@ class RegionMarginBackend(Backend):
 
     def tip_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return self.inner.tip_jacobian(q)
+
+    def tip_and_tangent(self, q: np.ndarray, *, check: bool = True
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.inner.tip_and_tangent(q, check=check)
+
+    def tips(self, q: np.ndarray, *, check: bool = True) -> np.ndarray:
+        return self.inner.tips(q, check=check)
 
     def describe(self) -> dict:
         return {**self.inner.describe(), "coverage": self.coverage}

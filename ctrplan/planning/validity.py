@@ -20,7 +20,7 @@ from ompl import base as ob
 
 from ctrplan.collision import CollisionWorld, RobotCollisionChecker
 from ctrplan.kinematics.backbone import Backbone
-from ctrplan.kinematics.base import Backend, arc_fractions
+from ctrplan.kinematics.base import Backend, Body, arc_fractions
 from ctrplan.planning.space import BoxSpace
 from ctrplan.scene import Scene
 
@@ -44,7 +44,7 @@ class Counters:
 @dataclass
 class _Entry:
     valid: bool
-    tip: np.ndarray  # scene frame, mm (NaN when not converged)
+    tip_robot: np.ndarray  # robot frame, mm (NaN when not converged); `ConfigurationChecker.tip` maps it
     initial_state: np.ndarray | None = None
 
 
@@ -97,7 +97,7 @@ class ConfigurationChecker:
         if not self.backend.partial_backbones_cheap:
             return (frac,)
         k = self.points // 2
-        return frac[k:], frac[:k + 1]
+        return arc_fractions(frac[k:]), arc_fractions(frac[:k + 1])
 
     # ---- kinematics ------------------------------------------------------------------------------
     def _counted(self, call: Callable[[], Any], n_states: int) -> Any:
@@ -126,41 +126,47 @@ class ConfigurationChecker:
         q = np.atleast_2d(q)
         return self._counted(lambda: self.backend.tip_and_tangent(q, check=False), q.shape[0])
 
-    def validate(self, q: np.ndarray, guess: np.ndarray | None = None,
-                 stop_at_first: bool = False) -> tuple[np.ndarray, Backbone]:
-        """Validity (B,) of configurations q (B, 2N), checked in `stages`, and the backbones of the
-        first stage (their tips and initial states serve the cache). With ``stop_at_first`` (an edge:
-        only whether all rows are valid matters) the rows are tested in order, the work stops at the
-        first invalid one and then every row is reported invalid."""
-        stages = self.stages
-        order = range(len(q)) if stop_at_first else None
-        bb = self.forward(q, guess=guess, points=stages[0])
-        valid = self.backbones_valid(bb, order, stop_at_first)
-        if stop_at_first and not valid.all():
-            return np.zeros(len(q), dtype=bool), bb
-        rows = np.flatnonzero(valid)
-        if len(stages) > 1 and rows.size:
-            rest = self.forward(q[rows], guess=None if guess is None else guess[rows], points=stages[1],
-                                new_states=False)
-            valid[rows] = self.backbones_valid(rest, range(rows.size) if stop_at_first else None,
-                                               stop_at_first)
-            if stop_at_first and not valid.all():
-                valid[:] = False
-        return valid, bb
+    def _body(self, q: np.ndarray, stage: np.ndarray, guess: np.ndarray | None, new_states: bool) -> Body:
+        """`Backend.body` of joints (B, 2N) at the arc fractions ``stage``, counted like `forward`."""
+        return self._counted(lambda: self.backend.body(q, stage, guess=guess, check=False),
+                             len(q) if new_states else 0)
 
-    def backbones_valid(self, bb: Backbone, order=None, stop_at_first: bool = False) -> np.ndarray:
-        """Validity of the rows of a backbone batch (B,), tested in ``order`` (default: all);
-        with ``stop_at_first`` rows after the first invalid one stay False."""
+    def validate(self, q: np.ndarray, guess: np.ndarray | None = None,
+                 stop_at_first: bool = False) -> tuple[np.ndarray, Body]:
+        """Validity (B,) of configurations q (B, 2N), checked in `stages`, and the `Body` of the
+        first stage (its tips -- the first stage ends at the tip -- and initial states serve the
+        cache). With ``stop_at_first`` (an edge: only whether all rows are valid matters) the rows are
+        tested in order, the work stops at the first invalid one and then every row is reported
+        invalid."""
+        first = None
+        rows = np.arange(len(q))
+        valid = np.zeros(len(q), dtype=bool)
+        for k, stage in enumerate(self.stages):
+            body = self._body(q[rows], stage, None if guess is None else guess[rows], new_states=k == 0)
+            first = body if first is None else first
+            ok = self.body_valid(body, stop_at_first)
+            if stop_at_first and not ok.all():
+                return np.zeros(len(q), dtype=bool), first
+            rows = rows[ok]
+            if not rows.size:
+                break
+        valid[rows] = True
+        return valid, first
+
+    def body_valid(self, body: Body, stop_at_first: bool = False) -> np.ndarray:
+        """Validity of the rows of a `Body` (B,), tested in order; with ``stop_at_first`` rows after
+        the first invalid one stay False."""
         t = time.perf_counter()
-        pos = bb.positions_mm
-        if not bb.converged.all():
-            pos = np.where(bb.converged[:, None, None], pos, np.nan)
-        free = self.collision.free_batch(pos, bb.radius_mm, order=order, stop_at_first=stop_at_first)
+        pos = body.positions_mm
+        if not body.usable.all():
+            pos = np.where(body.usable[:, None, None], pos, np.nan)
+        order = range(len(pos)) if stop_at_first else None
+        free = self.collision.free_batch(pos, body.radius_mm, order=order, stop_at_first=stop_at_first)
         self.counters.collision_s += time.perf_counter() - t
-        self.counters.collision_checks += len(bb) if order is None else len(order)
+        self.counters.collision_checks += len(pos)
         self.counters.narrow_checks = self.collision.narrow_checks
         self.counters.fcl_tests = self.collision.chain.tests
-        return free & bb.stable
+        return free
 
     # ---- cache ---------------------------------------------------------------------------------
     @staticmethod
@@ -173,7 +179,7 @@ class ConfigurationChecker:
     def _store(self, key: bytes, q: np.ndarray, entry: _Entry) -> None:
         if entry.valid and key not in self._cache:
             self.valid_q.append(np.array(q, dtype=float))
-            self.valid_tips.append(entry.tip)
+            self.valid_tips.append(self.scene.to_scene(entry.tip_robot))
             if len(self.valid_q) > 20_000:
                 del self.valid_q[:5_000], self.valid_tips[:5_000]
         self._cache[key] = entry
@@ -188,9 +194,9 @@ class ConfigurationChecker:
         entries = [self._cache.get(k) for k in keys]
         miss = [i for i, e in enumerate(entries) if e is None]
         if miss:
-            valid, bb = self.validate(q[miss])
+            valid, body = self.validate(q[miss])
             for j, i in enumerate(miss):
-                entries[i] = self._new_entry(keys[i], q[i], bb, j, bool(valid[j]))
+                entries[i] = self._new_entry(keys[i], q[i], body, j, bool(valid[j]))
         return np.array([e.valid for e in entries])
 
     def is_valid(self, q: np.ndarray) -> bool:
@@ -199,14 +205,15 @@ class ConfigurationChecker:
         e = self._cache.get(key)
         if e is None:
             q1 = np.asarray(q, dtype=float)[None]
-            valid, bb = self.validate(q1)
-            e = self._new_entry(key, q1[0], bb, 0, bool(valid[0]))
+            valid, body = self.validate(q1)
+            e = self._new_entry(key, q1[0], body, 0, bool(valid[0]))
         return e.valid
 
-    def _new_entry(self, key: bytes, q: np.ndarray, bb: Backbone, i: int, valid: bool) -> _Entry:
-        """Cache row i of a backbone batch under ``key``."""
-        if bb.converged[i]:
-            e = _Entry(valid, self.scene.to_scene(bb.tip_mm[i]), bb.initial_state[i].copy())
+    def _new_entry(self, key: bytes, q: np.ndarray, body: Body, i: int, valid: bool) -> _Entry:
+        """Cache row i of a first-stage `Body` under ``key``."""
+        if body.usable[i]:
+            init = None if body.initial_state is None else body.initial_state[i].copy()
+            e = _Entry(valid, body.positions_mm[i, -1].copy(), init)
         else:
             e = _Entry(valid, np.full(3, np.nan))
         self._store(key, q, e)
@@ -218,7 +225,7 @@ class ConfigurationChecker:
         if e is None:
             self.check(q)
             e = self.lookup(q)
-        return e.tip
+        return self.scene.to_scene(e.tip_robot)
 
     def check_motion(self, q1: np.ndarray, q2: np.ndarray, resolution: float) -> bool:
         """Whether the straight coordinate line q1 -> q2 is valid at ``resolution`` (mm in the
