@@ -204,11 +204,12 @@ def _pack_frames(centres, R, length, radii):
 
 @njit(cache=True)
 def _one_backbone(positions, radius, T, margin, lo, cell, step, band, values, spacing, aabb_lo, aabb_hi):
-    """`_world_and_near` then `_candidate_frames` for a single backbone (1, N, 3) in one compiled
-    call (the planner's single-state hot path): whether it is finite, and the frames and pairs of
-    the capsules the broadphase cannot clear (none: the backbone is free)."""
-    p, radii, finite, order, count = _world_and_near(positions, radius, T, margin, lo, cell, step, band,
-                                                     values, spacing)
+    """`_world_and_near` then `_candidate_frames` for a single backbone (N, 3) with radii (N,) in
+    one compiled call (the planner's single-state hot path): whether it is finite, and the frames and
+    pairs of the capsules the broadphase cannot clear (none: the backbone is free)."""
+    n = positions.shape[0]
+    p, radii, finite, order, count = _world_and_near(positions.reshape((1, n, 3)), radius.reshape((1, n)),
+                                                     T, margin, lo, cell, step, band, values, spacing)
     frames, pairs = _candidate_frames(p[0], radii[0], order[0, :count[0]], aabb_lo, aabb_hi)
     return finite[0], frames, pairs
 
@@ -481,7 +482,7 @@ def warm_kernels() -> None:
     args = (a, np.ones((1, 2)), np.eye(4), 0.0, grid.lo, grid.cell_mm, grid.step_mm, grid.band_mm,
             grid.values, grid.spacing_mm)
     _world_and_near(*args)
-    _one_backbone(*args, np.zeros((1, 3)), np.ones((1, 3)))
+    _one_backbone(a[0], np.ones(2), *args[2:], np.zeros((1, 3)), np.ones((1, 3)))
     _WARM = True
 
 
@@ -518,8 +519,25 @@ class RobotCollisionChecker:
         self.chain.set(transform_points(self.base_pose, positions), segment_radii(radius, margin))
 
     def is_free(self, positions: np.ndarray, radius: np.ndarray) -> bool:
-        """Boolean check of one backbone: positions (N, 3) robot frame, tube radius (N,)."""
-        return bool(self.free_batch(positions[None], radius[None])[0])
+        """Boolean check of one backbone: positions (N, 3) robot frame, tube radius (N,) mm; NaN
+        positions are not free. With the broadphase grid: one compiled call, then FCL on the capsules
+        it cannot clear (the planner's single-state hot path)."""
+        grid = self.world.grid
+        if grid is None or not len(self.world):
+            return bool(self.free_batch(positions[None], radius[None])[0])
+        self.checks += 1
+        finite, frames, pairs = _one_backbone(np.ascontiguousarray(positions, dtype=float),
+                                              np.ascontiguousarray(radius, dtype=float), self.base_pose,
+                                              self.margin_mm, grid.lo, grid.cell_mm, grid.step_mm,
+                                              grid.band_mm, grid.values, grid.spacing_mm, self.world.aabb_lo,
+                                              self.world.aabb_hi)
+        if not finite:
+            return False
+        if len(frames):
+            self.narrow_checks += 1
+            self.chain.load_frames(frames)
+            return not self.chain.collides(self.world, pairs)
+        return True
 
     def free_batch(self, positions: np.ndarray, radius: np.ndarray,
                    order: Sequence[int] | None = None, stop_at_first: bool = False) -> np.ndarray:
@@ -527,12 +545,8 @@ class RobotCollisionChecker:
         The broadphase runs on the whole batch at once; FCL then tests each row's remaining capsules,
         likeliest contact first. With ``stop_at_first``, rows after the first collision (in
         ``order``) are left not free."""
-        positions = np.ascontiguousarray(positions, dtype=float)
-        radius = np.ascontiguousarray(radius, dtype=float)
-        grid = self.world.grid
-        if len(positions) == 1 and grid is not None and len(self.world):
-            return self._free_one(positions, radius, grid)
-        p, radii, finite, caps, count = self._world_and_near(positions, radius)
+        p, radii, finite, caps, count = self._world_and_near(np.ascontiguousarray(positions, dtype=float),
+                                                             np.ascontiguousarray(radius, dtype=float))
         cleared = finite & (count == 0)
         if order is None and not stop_at_first and cleared.all():
             self.checks += len(cleared)
@@ -549,21 +563,6 @@ class RobotCollisionChecker:
             if stop_at_first and not ok:
                 break
         return free
-
-    def _free_one(self, positions: np.ndarray, radius: np.ndarray, grid: DistanceGrid) -> np.ndarray:
-        """`free_batch` of a single backbone (1, N, 3) with the broadphase grid: one compiled call,
-        then FCL on the capsules it cannot clear."""
-        self.checks += 1
-        finite, frames, pairs = _one_backbone(positions, radius, self.base_pose, self.margin_mm, grid.lo,
-                                              grid.cell_mm, grid.step_mm, grid.band_mm, grid.values,
-                                              grid.spacing_mm, self.world.aabb_lo, self.world.aabb_hi)
-        if not finite:
-            return np.zeros(1, dtype=bool)
-        if len(frames):
-            self.narrow_checks += 1
-            self.chain.load_frames(frames)
-            return np.array([not self.chain.collides(self.world, pairs)])
-        return np.ones(1, dtype=bool)
 
     def _world_and_near(self, positions: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, ...]:
         """Backbones (B, N, 3) robot frame with tube radii (B, N) -> world points (B, N, 3), capsule

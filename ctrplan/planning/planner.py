@@ -8,9 +8,11 @@ inside function scope (DESIGN §4: module-level OMPL objects leak at exit).
 
 from __future__ import annotations
 
+import gc
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -194,6 +196,20 @@ def _progress_hook(problem: PlanningProblem, clock: _Clock, progress: Progress) 
     return hook
 
 
+@contextmanager
+def gc_paused() -> Iterator[None]:
+    """Python's cyclic garbage collector off inside: a search creates hundreds of thousands of small
+    acyclic objects (cache entries, arrays), and every full collection would rescan the whole state
+    cache."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
 def _sample_goals(sampler: GoalSampler, clock: _Clock) -> None:
     """Goal configurations first: they tell early whether the target is reachable at all."""
     for _ in range(6):
@@ -272,7 +288,7 @@ def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, p
     checker = problem.checker
     sampler = problem.sampler
     checker.hook = _progress_hook(problem, clock, progress)
-    with single_threaded_blas():  # tens of thousands of small products: no per-call switching
+    with single_threaded_blas(), gc_paused():  # tens of thousands of small products and objects
         try:
             region_goal = isinstance(problem.goal, TipGoal)
             if region_goal:

@@ -126,11 +126,6 @@ class ConfigurationChecker:
         q = np.atleast_2d(q)
         return self._counted(lambda: self.backend.tip_and_tangent(q, check=False), q.shape[0])
 
-    def _body(self, q: np.ndarray, stage: np.ndarray, guess: np.ndarray | None, new_states: bool) -> Body:
-        """`Backend.body` of joints (B, 2N) at the arc fractions ``stage``, counted like `forward`."""
-        return self._counted(lambda: self.backend.body(q, stage, guess=guess, check=False),
-                             len(q) if new_states else 0)
-
     def validate(self, q: np.ndarray, guess: np.ndarray | None = None,
                  stop_at_first: bool = False) -> tuple[np.ndarray, Body]:
         """Validity (B,) of configurations q (B, 2N), checked in `stages`, and the `Body` of the
@@ -139,34 +134,61 @@ class ConfigurationChecker:
         tested in order, the work stops at the first invalid one and then every row is reported
         invalid."""
         first = None
-        rows = np.arange(len(q))
-        valid = np.zeros(len(q), dtype=bool)
-        for k, stage in enumerate(self.stages):
-            body = self._body(q[rows], stage, None if guess is None else guess[rows], new_states=k == 0)
+        rows = None  # rows still valid after the stages so far: None while all are
+        for stage in self.stages:
+            qk, gk = (q, guess) if rows is None else (q[rows], None if guess is None else guess[rows])
+            t0 = time.perf_counter()
+            body = self.backend.body(qk, stage, guess=gk, check=False)
+            t1 = time.perf_counter()
+            pos = body.positions_mm
+            if not body.usable.all():
+                pos = np.where(body.usable[:, None, None], pos, np.nan)
+            order = range(len(qk)) if stop_at_first else None
+            ok = self.collision.free_batch(pos, body.radius_mm, order=order, stop_at_first=stop_at_first)
+            self._count(t0, t1, len(qk), first is None)
             first = body if first is None else first
-            ok = self.body_valid(body, stop_at_first)
-            if stop_at_first and not ok.all():
+            if ok.all():
+                continue
+            if stop_at_first:
                 return np.zeros(len(q), dtype=bool), first
-            rows = rows[ok]
+            rows = np.flatnonzero(ok) if rows is None else rows[ok]
             if not rows.size:
                 break
-        valid[rows] = True
+        valid = np.ones(len(q), dtype=bool)
+        if rows is not None:
+            valid[:] = False
+            valid[rows] = True
         return valid, first
 
-    def body_valid(self, body: Body, stop_at_first: bool = False) -> np.ndarray:
-        """Validity of the rows of a `Body` (B,), tested in order; with ``stop_at_first`` rows after
-        the first invalid one stay False."""
-        t = time.perf_counter()
-        pos = body.positions_mm
-        if not body.usable.all():
-            pos = np.where(body.usable[:, None, None], pos, np.nan)
-        order = range(len(pos)) if stop_at_first else None
-        free = self.collision.free_batch(pos, body.radius_mm, order=order, stop_at_first=stop_at_first)
-        self.counters.collision_s += time.perf_counter() - t
-        self.counters.collision_checks += len(pos)
-        self.counters.narrow_checks = self.collision.narrow_checks
-        self.counters.fcl_tests = self.collision.chain.tests
-        return free
+    def _validate_one(self, q1: np.ndarray) -> tuple[bool, Body]:
+        """`validate` of a single configuration (1, 2N) without per-row arrays (the planner's hot
+        path): the same stages, each checked by `RobotCollisionChecker.is_free`."""
+        first = None
+        for stage in self.stages:
+            t0 = time.perf_counter()
+            body = self.backend.body(q1, stage, check=False)
+            t1 = time.perf_counter()
+            free = bool(body.usable[0]) and self.collision.is_free(body.positions_mm[0], body.radius_mm[0])
+            self._count(t0, t1, 1, first is None)
+            first = body if first is None else first
+            if not free:
+                return False, first
+        return True, first
+
+    def _count(self, t0: float, t1: float, states: int, new: bool) -> None:
+        """Count one validation stage of ``states`` configurations: kinematics from t0 to t1 and
+        collision from t1 to now (`time.perf_counter` s); ``new``: their first stage."""
+        c = self.counters
+        c.kinematics_s += t1 - t0
+        c.collision_s += time.perf_counter() - t1
+        c.kinematics_batches += 1
+        c.collision_checks += states
+        if new:
+            c.kinematics_calls += states
+        c.narrow_checks = self.collision.narrow_checks
+        c.fcl_tests = self.collision.chain.tests
+        if self.hook is not None:
+            self.hook()
 
     # ---- cache ---------------------------------------------------------------------------------
     @staticmethod
@@ -205,8 +227,8 @@ class ConfigurationChecker:
         e = self._cache.get(key)
         if e is None:
             q1 = np.asarray(q, dtype=float)[None]
-            valid, body = self.validate(q1)
-            e = self._new_entry(key, q1[0], body, 0, bool(valid[0]))
+            valid, body = self._validate_one(q1)
+            e = self._new_entry(key, q1[0], body, 0, valid)
         return e.valid
 
     def _new_entry(self, key: bytes, q: np.ndarray, body: Body, i: int, valid: bool) -> _Entry:
