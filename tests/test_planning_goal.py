@@ -79,3 +79,24 @@ def test_plan_reaches_the_target_along_the_direction(open_scene, exact):
     assert res.solved, res.message
     assert res.validated.tip_angle_deg <= 15
     assert res.to_json()["validated"]["tip_angle_deg"] <= 15
+
+
+def test_rrtconnect_keeps_asking_for_goals_while_none_is_found(open_scene):
+    """While no goal configuration is known, the goal region promises OMPL one more sample than it
+    has drawn, so RRTConnect keeps running inverse-kinematics batches instead of waiting out its
+    budget after the first empty one (a skullbase_strict run once did: 10 s, unsolved)."""
+    from ompl import geometric as og
+
+    from ctrplan.kinematics import make_backend
+    from ctrplan.planning.planner import build_problem
+
+    far = replace(open_scene.target, center=open_scene.target.center + np.array([0.0, 0.0, 500.0]))
+    scene = replace(open_scene, target=far)  # out of reach: every batch comes back empty
+    problem = build_problem(scene, make_backend("pinn", scene.robot), rng=np.random.default_rng(0))
+    planner = og.RRTConnect(problem.si)
+    planner.setProblemDefinition(problem.pdef)
+    planner.setup()
+    planner.solve(1.0)
+    assert not problem.sampler.goals and problem.goal.calls >= 3
+    assert problem.sampler.stats.batches == problem.goal.calls  # each draw ran a batch
+    assert problem.goal.maxSampleCount() > problem.goal.calls

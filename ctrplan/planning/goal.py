@@ -246,7 +246,10 @@ class TipGoal(ob.GoalSampleableRegion):
 
     def maxSampleCount(self) -> int:  # noqa: N802 - OMPL API
         # absolute, like OMPL's own goals: planners compare it with their count of samples drawn
-        return len(self.sampler.goals) + (1 if self._may_refill() else 0)
+        # (every `sampleGoal` call), so while a batch may run, one more than drawn so far -- with no
+        # goal yet, RRTConnect would otherwise wait out its whole budget for one
+        goals = len(self.sampler.goals)
+        return max(goals, self.calls + 1) if self._may_refill() else goals
 
     def couldSample(self) -> bool:  # noqa: N802 - OMPL API
         return bool(self.sampler.goals) or self._may_refill()
