@@ -428,8 +428,8 @@ class RegionMarginBackend(Backend):
 
     def body(self, q: np.ndarray, points: int | np.ndarray, *, guess: np.ndarray | None = None,
              check: bool = True) -> Body:
-        body = self.inner.body(q, points, guess=guess, check=check)
-        return body._replace(radius_mm=body.radius_mm + self._margins(arc_fractions(points)))
+        pos, radius, usable, init = self.inner.body(q, points, guess=guess, check=check)
+        return Body(pos, radius + self._margins(arc_fractions(points)), usable, init)
 
     def _margins(self, s_fraction: np.ndarray) -> np.ndarray:
         """`region_margins_mm` at arc fractions (P,) of l1, once per set of fractions (a planner asks
