@@ -47,12 +47,34 @@ def _states_near_start(checker: ConfigurationChecker, n: int, seed: int) -> np.n
     return sp.to_joints(sp.clip(y))
 
 
+def _one_by_one(checker: ConfigurationChecker, q: np.ndarray) -> np.ndarray:
+    """`is_valid` (the planner's single-state path) of every row, on a checker with an empty cache."""
+    fresh = ConfigurationChecker(checker.scene, checker.backend, margin_mm=checker.margin_mm,
+                                 world=checker.world)
+    return np.array([fresh.is_valid(qi) for qi in q])
+
+
 def test_staged_state_checks_agree_with_fcl_on_the_whole_backbone(skull, pinn_checker):
     assert len(pinn_checker.stages) == 2  # the PINN makes part of a backbone cheaper
     q = _states_near_start(pinn_checker, 400, seed=7)
     valid = pinn_checker.check(q)
     assert 0.1 < valid.mean() < 0.9, valid.mean()  # both kinds are tested
     np.testing.assert_array_equal(valid, _fcl_valid(pinn_checker, q))
+    np.testing.assert_array_equal(_one_by_one(pinn_checker, q), valid)
+
+
+def test_a_body_is_the_backbone_a_collision_check_needs(skull, pinn_checker):
+    """`Backend.body` (what a validity check asks for) equals the corresponding parts of `forward`:
+    the PINN's own kernel, and the planning margin added by region."""
+    q = _states_near_start(pinn_checker, 50, seed=3)
+    stage = pinn_checker.stages[0]
+    for be in (pinn_checker.backend, pinn_checker.backend.inner, CosseratBackend(skull.robot)):
+        body, bb = be.body(q, stage, check=False), be.forward(q, stage, check=False)
+        np.testing.assert_allclose(body.positions_mm, bb.positions_mm, atol=1e-6)  # float32 network
+        np.testing.assert_allclose(body.radius_mm, bb.radius_mm, atol=1e-12)
+        np.testing.assert_array_equal(body.usable, bb.stable)
+    planning, plain = pinn_checker.backend, pinn_checker.backend.inner
+    assert (planning.body(q, stage).radius_mm - plain.body(q, stage).radius_mm).min() > 0  # the bound
 
 
 def test_contacts_on_the_proximal_half_alone_are_found():
@@ -69,6 +91,7 @@ def test_contacts_on_the_proximal_half_alone_are_found():
     valid = checker.check(q)
     assert 0.05 < 1 - valid.mean() < 0.95, valid.mean()
     np.testing.assert_array_equal(valid, _fcl_valid(checker, q))
+    np.testing.assert_array_equal(_one_by_one(checker, q), valid)
 
 
 def test_staged_edge_checks_agree_with_fcl_on_every_state(skull, pinn_checker):
