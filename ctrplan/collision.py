@@ -375,7 +375,8 @@ class CapsuleChain:
         self.seg_lo, self.seg_hi = np.minimum(p[:-1], p[1:]) - r, np.maximum(p[:-1], p[1:]) + r
 
     def load_frames(self, frames: np.ndarray) -> None:
-        """New configuration from capsule frames (K, 14) (see `_pack_frames`)."""
+        """New configuration from capsule frames (K, 14) (see `_pack_frames`): for `collides` with
+        its candidate pairs; `contacts`, `distance` and `collides` without pairs need `set`."""
         self._frames = frames
         self._placed[:] = False
 

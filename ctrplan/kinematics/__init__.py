@@ -11,7 +11,7 @@ from pathlib import Path
 
 from ctrplan.errors import InputError
 from ctrplan.kinematics.backbone import STATE_NAMES, STATE_UNITS, Backbone
-from ctrplan.kinematics.base import Backend
+from ctrplan.kinematics.base import Backend, Body
 from ctrplan.kinematics.cosserat import CosseratBackend, SolverSettings
 from ctrplan.robot import Robot
 
@@ -34,5 +34,5 @@ def make_backend(name: str, robot: Robot | None = None, model: str | Path | None
     raise InputError(f"backend: unknown backend {name!r} (available: {', '.join(BACKENDS)})")
 
 
-__all__ = ["BACKENDS", "STATE_NAMES", "STATE_UNITS", "Backbone", "Backend", "CosseratBackend",
+__all__ = ["BACKENDS", "STATE_NAMES", "STATE_UNITS", "Backbone", "Backend", "Body", "CosseratBackend",
            "SolverSettings", "make_backend"]
