@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ctrplan.errors import InputError
-from ctrplan.kinematics import CosseratBackend
+from ctrplan.kinematics import CosseratBackend, make_backend
 from ctrplan.planning import ConfigurationChecker, GoalSampler, plan, validate_path
 from ctrplan.planning.goal import tip_tangents
 from ctrplan.scene import load_scene
@@ -100,3 +100,25 @@ def test_rrtconnect_keeps_asking_for_goals_while_none_is_found(open_scene):
     assert not problem.sampler.goals and problem.goal.calls >= 3
     assert problem.sampler.stats.batches == problem.goal.calls  # each draw ran a batch
     assert problem.goal.maxSampleCount() > problem.goal.calls
+
+
+def test_goal_sampling_starts_from_hints(open_scene, exact):
+    """Hints (e.g. the PINN's goals, for an exact repair) are the first batch's only seeds, and goals
+    next to them come back from few exact solves; later batches sample as usual."""
+    pinn = ConfigurationChecker(open_scene, make_backend("pinn", open_scene.robot))
+    pinn_goals = GoalSampler(pinn, open_scene.target, np.random.default_rng(0),
+                             start=open_scene.start).sample_batch()
+    assert len(pinn_goals) >= 2
+    checker = ConfigurationChecker(open_scene, exact)
+    hinted = GoalSampler(checker, open_scene.target, np.random.default_rng(1), start=open_scene.start,
+                         hints=np.stack(pinn_goals))
+    found = hinted.sample_batch()
+    assert hinted.stats.seeds == len(pinn_goals) and len(found) >= 1 and not len(hinted.hints)
+    assert checker.check(np.stack(found)).all()
+    calls = checker.counters.kinematics_calls
+    hinted.sample_batch()  # hints are used once: a usual batch now
+    assert hinted.stats.seeds - len(pinn_goals) >= hinted.seeds_per_batch
+    plain = GoalSampler(ConfigurationChecker(open_scene, exact), open_scene.target,
+                        np.random.default_rng(1), start=open_scene.start)
+    plain.sample_batch()
+    assert calls < plain.checker.counters.kinematics_calls  # cheaper than a batch from scratch

@@ -54,12 +54,14 @@ class GoalSampler:
         candidates_per_seed: random configurations drawn per seed to pick seeds near the target.
         start: the start configuration (seeds are derived from it).
         rotation_weight: IK cost of rotations relative to translations (see `solve_ik`).
+        hints: configurations (K, 2N) near the target to start the first batches from, e.g. the goals
+            another backend found (an exact repair starts from the PINN's).
     """
 
     def __init__(self, checker: ConfigurationChecker, region: TargetRegion, rng: np.random.Generator,
                  jacobian: TipJacobian | None = None, seeds_per_batch: int = 24,
                  candidates_per_seed: int = 10, start: np.ndarray | None = None,
-                 rotation_weight: float = 8.0):
+                 rotation_weight: float = 8.0, hints: np.ndarray | None = None):
         self.checker = checker
         self.region = region
         self.rng = rng
@@ -73,6 +75,7 @@ class GoalSampler:
         self._near: list[np.ndarray] = []  # IK solutions that reached the region but collide
         self.start = None if start is None else np.asarray(start, dtype=float)
         self.rotation_weight = float(rotation_weight)
+        self.hints = np.zeros((0, checker.scene.robot.n_joints)) if hints is None else np.atleast_2d(hints)
 
     def _random_seeds(self, n: int) -> np.ndarray:
         m = n * self.candidates_per_seed
@@ -113,9 +116,10 @@ class GoalSampler:
         y = y + self.rng.normal(scale=sigma, size=y.shape)
         return self.space.to_joints(self.space.clip(y))
 
-    def sample_batch(self) -> list[np.ndarray]:
-        """Run one IK batch; return the new valid goal configurations (also kept in ``goals``)."""
-        n = self.seeds_per_batch
+    def _seeds(self, n: int) -> np.ndarray:
+        """IK seeds (about n, 2N) for a batch: perturbed goals (or near misses), turned and redrawn
+        copies of the start, the frontier of valid states nearest the target, random configurations
+        whose tips lie nearest it."""
         parts = []
         if self.goals:
             parts.append(self._perturbed(self.goals, n // 3, sigma=3.0))
@@ -154,7 +158,15 @@ class GoalSampler:
             parts.append(frontier)
         k = max(n // 6, n - sum(len(p) for p in parts))
         parts.append(self._random_seeds(k))
-        seeds = np.concatenate(parts)
+        return np.concatenate(parts)
+
+    def sample_batch(self) -> list[np.ndarray]:
+        """Run one IK batch; return the new valid goal configurations (also kept in ``goals``). While
+        ``hints`` remain, a batch starts from them alone (unperturbed)."""
+        if len(self.hints):
+            seeds, self.hints = self.hints[:self.seeds_per_batch], self.hints[self.seeds_per_batch:]
+        else:
+            seeds = self._seeds(self.seeds_per_batch)
         targets_scene = self.region.sample(len(seeds), self.rng)
         shrink = 0.7  # aim well inside the region
         targets_scene = self.region.center + shrink * (targets_scene - self.region.center)

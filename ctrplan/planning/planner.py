@@ -93,6 +93,7 @@ class SearchOutcome:
     time_s: float
     goal_stats: dict
     message: str = ""
+    goals: list[np.ndarray] = field(default_factory=list)  # goal configurations the search found
 
 
 @dataclass
@@ -129,11 +130,12 @@ class PlanningProblem:
 def build_problem(scene: Scene, backend: Backend, *, start: np.ndarray | None = None,
                   rng: np.random.Generator | None = None,
                   checker: ConfigurationChecker | None = None,
-                  goal_q: np.ndarray | None = None) -> PlanningProblem:
+                  goal_q: np.ndarray | None = None, goal_hints: np.ndarray | None = None) -> PlanningProblem:
     """State space, validity checker, motion validator, start and goal wired into OMPL objects.
 
-    The goal is the scene's target region (a `TipGoal` sampled by IK), or the single configuration
-    ``goal_q`` (an ``ob.GoalState``, e.g. to reconnect two states of a path)."""
+    The goal is the scene's target region (a `TipGoal` sampled by IK, its first batches from
+    ``goal_hints`` if given), or the single configuration ``goal_q`` (an ``ob.GoalState``, e.g. to
+    reconnect two states of a path)."""
     checker = checker or ConfigurationChecker(scene, backend)
     box = checker.space
     space = box.make_ompl_space()
@@ -149,7 +151,7 @@ def build_problem(scene: Scene, backend: Backend, *, start: np.ndarray | None = 
     pdef.addStartState(st)
     sampler = GoalSampler(checker, scene.target, rng or np.random.default_rng(),
                           seeds_per_batch=max(4, 3 * scene.settings.goal_samples),
-                          start=scene.start if start is None else start)
+                          start=scene.start if start is None else start, hints=goal_hints)
     if goal_q is None:
         goal = TipGoal(si, sampler)
     else:
@@ -272,9 +274,11 @@ def _failure_message(problem: PlanningProblem, limit_s: float, to_configuration:
 def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, planner: str | None = None,
            time_limit_s: float | None = None, seed: int | None = None, progress: Progress = _quiet,
            simplify: bool | None = None, checker: ConfigurationChecker | None = None,
-           goal_q: np.ndarray | None = None) -> tuple[SearchOutcome, ConfigurationChecker]:
+           goal_q: np.ndarray | None = None,
+           goal_hints: np.ndarray | None = None) -> tuple[SearchOutcome, ConfigurationChecker]:
     """One OMPL search from ``start`` (default: the scene's) to the target region (or to the
-    configuration ``goal_q``) with ``backend``, within ``time_limit_s`` (goal sampling included).
+    configuration ``goal_q``) with ``backend``, within ``time_limit_s`` (goal sampling included);
+    ``goal_hints`` (K, 2N): where goal sampling starts (see `GoalSampler`).
 
     Steps: build the problem, sample goal configurations, set up the planner, solve, simplify."""
     s = scene.settings
@@ -284,7 +288,7 @@ def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, p
     clock = _Clock(time_limit_s if time_limit_s is not None else s.time_limit_s)
     seed_ompl(seed)
     problem = build_problem(scene, backend, start=start, rng=np.random.default_rng(seed), checker=checker,
-                            goal_q=goal_q)
+                            goal_q=goal_q, goal_hints=goal_hints)
     checker = problem.checker
     sampler = problem.sampler
     checker.hook = _progress_hook(problem, clock, progress)
@@ -299,7 +303,7 @@ def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, p
 
             def outcome(path_q: np.ndarray | None, status: str, exact: bool, message: str) -> SearchOutcome:
                 return SearchOutcome(path_q, status, exact, clock.elapsed(),
-                                     {**vars(sampler.stats), **timings}, message)
+                                     {**vars(sampler.stats), **timings}, message, list(sampler.goals))
 
             if region_goal and not sampler.goals and sampler.stats.ik_reached == 0:
                 return outcome(None, "INVALID_GOAL", False,
@@ -519,10 +523,12 @@ def exact_goal(path_q: np.ndarray, checker: ConfigurationChecker, exact: Backend
 
 def _validate_and_repair(scene: Scene, path_q: np.ndarray, be: Backend, exact: Backend,
                          checker: ConfigurationChecker, result: PlanResult, repair: bool,
-                         progress: Progress) -> tuple[ValidatedPath, np.ndarray]:
+                         progress: Progress, goals: list[np.ndarray]) -> tuple[ValidatedPath, np.ndarray]:
     """Exact validation of a planned path; if it fails and ``repair``, the failing stretches are
-    re-planned with the exact model and the repaired path is validated again. Records repair time
-    and calls in ``result``; returns the validated path and its joints."""
+    re-planned with the exact model and the repaired path is validated again -- an end re-planned
+    to the target samples its exact goals from the path's last state and the search's ``goals``
+    first (exact inverse kinematics from scratch costs most of a repair). Records repair time and
+    calls in ``result``; returns the validated path and its joints."""
     progress("validate")
     vp = validate_path(scene, path_q, be, exact=exact, world=checker.world)
     result.details["validation_time_s"] = vp.report.time_s
@@ -533,9 +539,12 @@ def _validate_and_repair(scene: Scene, path_q: np.ndarray, be: Backend, exact: B
     rep_checker = ConfigurationChecker(scene, exact, world=checker.world)
     rep_seed = None if result.seed is None else result.seed + 1
 
+    hints = np.stack([path_q[-1], *goals])
+
     def replan(start_q: np.ndarray, goal_q: np.ndarray | None, limit: float) -> np.ndarray | None:
         out, _ = search(scene, exact, start=start_q, goal_q=goal_q, planner="rrtconnect",
-                        time_limit_s=limit, seed=rep_seed, checker=rep_checker)
+                        time_limit_s=limit, seed=rep_seed, checker=rep_checker,
+                        goal_hints=hints if goal_q is None else None)
         return out.path_q
 
     fixed = repair_path(vp, replan, max(5.0, result.time_limit_s))
@@ -641,7 +650,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
                                         "time_s": time.perf_counter() - t_goal}
         result.planning_time_s += result.details["exact_goal"]["time_s"]
         vp, result.path = _validate_and_repair(scene, path_q, be, exact, checker, result, repair,
-                                               progress)
+                                               progress, outcome.goals)
         result.validated, result.dense = vp.report, vp
         result.tip_mm = np.asarray(vp.report.tip_mm)
         result.solved = vp.report.ok
