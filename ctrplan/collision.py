@@ -541,19 +541,19 @@ class RobotCollisionChecker:
         return True
 
     def free_batch(self, positions: np.ndarray, radius: np.ndarray,
-                   order: Sequence[int] | None = None, stop_at_first: bool = False) -> np.ndarray:
+                   stop_at_first: bool = False) -> np.ndarray:
         """Boolean checks of B backbones (B, N, 3) robot frame / radii (B, N) mm; NaN rows are not free.
         The broadphase runs on the whole batch at once; FCL then tests each row's remaining capsules,
-        likeliest contact first. With ``stop_at_first``, rows after the first collision (in
-        ``order``) are left not free."""
+        likeliest contact first, rows in order. With ``stop_at_first``, rows after the first collision
+        are left not free."""
         p, radii, finite, caps, count = self._world_and_near(np.ascontiguousarray(positions, dtype=float),
                                                              np.ascontiguousarray(radius, dtype=float))
         cleared = finite & (count == 0)
-        if order is None and not stop_at_first and cleared.all():
+        if cleared.all():
             self.checks += len(cleared)
             return cleared
         free = np.zeros(len(finite), dtype=bool)
-        for i in (range(len(finite)) if order is None else order):
+        for i in range(len(finite)):
             self.checks += 1
             if cleared[i] or not finite[i]:
                 ok = bool(cleared[i])

@@ -262,22 +262,27 @@ def backbones_chunked(q, out_frac, intervals, net, rod, loaded, states, at_ends,
 
 
 @njit(cache=True)
+def _along(qm, out_frac, lengths, outer_radii):
+    """Tube ends (B, N) mm of joints qm (B, 2N) (offsets applied), arc lengths (B, P) mm of the
+    fractions ``out_frac`` (P,) of l1, and the outer radius there (B, P) mm (outermost tube present)."""
+    ends = qm[:, :lengths.shape[0]] + lengths
+    s_mm = ends[:, :1] * out_frac.reshape((1, -1))
+    radius = np.empty(s_mm.shape)
+    outer_radius(s_mm, ends, outer_radii, radius)
+    return ends, s_mm, radius
+
+
+@njit(cache=True)
 def backbone_fields(qm, out_frac, lengths, outer_radii, residual_weights, states, at_ends):
     """The rest of a `Backbone` from `backbones`' output, in one pass: tube ends (B, N) mm, arc
     lengths (B, P) mm, outer radius along the backbone (B, P) mm (outermost tube present), whether
     each row is finite (B,) and the distal residual max |residual_weights * at_ends| (B,)."""
-    nb, n = states.shape[0], out_frac.shape[0]
-    nt = lengths.shape[0]
-    ends = np.empty((nb, nt))
-    s_mm = np.empty((nb, n))
-    radius = np.empty((nb, n))
+    nb = states.shape[0]
+    ends, s_mm, radius = _along(qm, out_frac, lengths, outer_radii)
     finite = np.ones(nb, dtype=np.bool_)
     residual = np.zeros(nb)
     for b in range(nb):
-        for i in range(nt):
-            ends[b, i] = qm[b, i] + lengths[i]
-        for p in range(n):
-            s_mm[b, p] = out_frac[p] * ends[b, 0]
+        for p in range(states.shape[1]):
             for k in range(states.shape[2]):
                 if not math.isfinite(states[b, p, k]):
                     finite[b] = False
@@ -286,7 +291,6 @@ def backbone_fields(qm, out_frac, lengths, outer_radii, residual_weights, states
                 v = abs(at_ends[b, i, k] * residual_weights[i, k])
                 if v > residual[b] or not math.isfinite(v):
                     residual[b] = v
-    outer_radius(s_mm, ends, outer_radii, radius)
     return ends, s_mm, radius, finite, residual
 
 
@@ -295,25 +299,15 @@ def body_points(q, out_frac, intervals, net, rod, loaded, outer_radii):
     """What a collision check needs, from the network at the nodes the points need only (no tube
     ends, no s = 0): positions (B, P, 3) mm and outer radius (B, P) mm at arc fractions ``out_frac``
     (P,) of l1, and whether each row is finite (B,). Arguments as `backbones`."""
-    lengths = rod[0]
-    nb, n, nt = q.shape[0], out_frac.shape[0], lengths.shape[0]
-    ns, i_p = 2 * nt + 9, 2 + 2 * nt
-    states = np.empty((nb, n, ns))
+    nt = rod[0].shape[0]
+    i_p = 2 + 2 * nt
+    states = np.empty((q.shape[0], out_frac.shape[0], 2 * nt + 9))
     backbones(q, out_frac, intervals, net, rod, loaded, states, states, False)
-    positions = np.empty((nb, n, 3))
-    finite = np.ones(nb, dtype=np.bool_)
-    s_mm = np.empty((nb, n))
-    ends = np.empty((nb, nt))
-    for b in range(nb):
-        for i in range(nt):
-            ends[b, i] = q[b, i] + lengths[i]
-        for p in range(n):
-            s_mm[b, p] = out_frac[p] * ends[b, 0]
-            for k in range(3):
-                v = states[b, p, i_p + k]
-                positions[b, p, k] = v
-                if not math.isfinite(v):
-                    finite[b] = False
-    radius = np.empty((nb, n))
-    outer_radius(s_mm, ends, outer_radii, radius)
+    positions = np.ascontiguousarray(states[:, :, i_p:i_p + 3])
+    finite = np.ones(q.shape[0], dtype=np.bool_)
+    for b in range(q.shape[0]):
+        for v in positions[b].ravel():
+            if not math.isfinite(v):
+                finite[b] = False
+    _, _, radius = _along(q, out_frac, rod[0], outer_radii)
     return positions, radius, finite

@@ -179,6 +179,7 @@ class PinnBackend(Backend):
         self._loaded = not robot.loads.is_free
         self._offset = np.asarray(robot.joint_offset, dtype=float)
         self._has_offset = bool(np.any(self._offset))
+        self._intervals = nodes - 1 if nodes is not None else 0  # 0: the network at every point
         self._i_p = self.net.i_p
         # distal residual, as moment over tube-1 stiffness in 1/m, is max |weights * at_ends| with
         # at_ends the (N + 1, 2N + 9) states at l1 … lN and s = 0: u_iz(l_i) GJ_i / GJ_1, m_b(l1) / EI_1
@@ -229,6 +230,12 @@ class PinnBackend(Backend):
     def error_bound(self) -> dict | None:
         return self.card.get(ERROR_BOUND_KEY)
 
+    def _joints(self, q: np.ndarray, check: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Joints (B, 2N) as given (checked against the robot with ``check``) and as the model sees
+        them (offsets applied, contiguous)."""
+        q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
+        return q, np.ascontiguousarray(q + self._offset if self._has_offset else q, dtype=float)
+
     @staticmethod
     def _writable_fractions(points: int | np.ndarray) -> np.ndarray:
         """`arc_fractions` as a writable array: one compiled kernel type."""
@@ -245,22 +252,21 @@ class PinnBackend(Backend):
 
     def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
                 guess: np.ndarray | None = None, check: bool = True) -> Backbone:
-        q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
-        qm = np.ascontiguousarray(q + self._offset if self._has_offset else q, dtype=float)
+        q, qm = self._joints(q, check)
         frac = self._writable_fractions(points)
         n = frac.size
         nt, ns = self.robot.n_tubes, self.robot.n_states
         # network rows per backbone: at most the nodes, or every point plus the N tube ends and s = 0
         rows = self.nodes if self.nodes is not None else n + nt + 1
-        intervals = self.nodes - 1 if self.nodes is not None else 0
         states = np.empty((len(qm), n, ns))
         at_ends = np.empty((len(qm), nt + 1, ns))
         chunk = max(1, CHUNK_ROWS // rows)
         with one_blas_thread():
             if len(qm) <= chunk:
-                backbones(qm, frac, intervals, self._compiled, self._rod, self._loaded, states, at_ends, True)
+                backbones(qm, frac, self._intervals, self._compiled, self._rod, self._loaded, states, at_ends,
+                          True)
             else:
-                backbones_chunked(qm, frac, intervals, self._compiled, self._rod, self._loaded, states,
+                backbones_chunked(qm, frac, self._intervals, self._compiled, self._rod, self._loaded, states,
                                   at_ends, chunk)
         ends, s_mm, radius, finite, residual = backbone_fields(
             qm, frac, self.robot.lengths_mm, self.robot.outer_radii_mm, self._residual_weights, states,
@@ -276,27 +282,25 @@ class PinnBackend(Backend):
              check: bool = True) -> Body:
         """The network at the nodes the points need and nothing else (no tube ends, no s = 0): a
         planner's single-state checks spend most of their time here. One thread (no chunking)."""
-        q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
-        qm = np.ascontiguousarray(q + self._offset if self._has_offset else q, dtype=float)
-        intervals = self.nodes - 1 if self.nodes is not None else 0
+        _, qm = self._joints(q, check)
         with one_blas_thread():
-            pos, radius, finite = body_points(qm, self._writable_fractions(points), intervals, self._compiled,
-                                              self._rod, self._loaded, self.robot.outer_radii_mm)
+            pos, radius, finite = body_points(qm, self._writable_fractions(points), self._intervals,
+                                              self._compiled, self._rod, self._loaded,
+                                              self.robot.outer_radii_mm)
         return Body(pos, radius, finite)
 
     def tip_and_tangent(self, q: np.ndarray, *, check: bool = True
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The network at the tip alone: one row per configuration, where a backbone costs a row
         for every tube end too (see `Backend.tip_and_tangent`)."""
-        q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
-        qm = np.ascontiguousarray(q + self._offset if self._has_offset else q, dtype=float)
+        _, qm = self._joints(q, check)
         x = self._evaluate(qm, np.ones((len(qm), 1)))[:, 0]
         ip = self._i_p
         return x[:, ip:ip + 3], tangent_of(x[:, ip + 3:ip + 7]), np.isfinite(x).all(axis=1)
 
     def initial_states(self, q: np.ndarray) -> np.ndarray:
         """Predicted state at s = 0 (B, 2N + 9) for joints q (B, 2N): a warm start for shooting."""
-        qm = self.robot.apply_offset(np.atleast_2d(q))
+        _, qm = self._joints(q, check=False)
         return self._evaluate(qm, np.zeros((len(qm), 1)))[:, 0]
 
     def tip_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -212,6 +212,16 @@ def gc_paused() -> Iterator[None]:
             gc.enable()
 
 
+@contextmanager
+def _hooked(checker: ConfigurationChecker, hook: Callable[[], None]) -> Iterator[None]:
+    """``checker`` calls ``hook`` after every kinematics call inside (progress reports)."""
+    checker.hook = hook
+    try:
+        yield
+    finally:
+        checker.hook = None
+
+
 def _sample_goals(sampler: GoalSampler, clock: _Clock) -> None:
     """Goal configurations first: they tell early whether the target is reachable at all."""
     for _ in range(6):
@@ -291,49 +301,45 @@ def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, p
                             goal_q=goal_q, goal_hints=goal_hints)
     checker = problem.checker
     sampler = problem.sampler
-    checker.hook = _progress_hook(problem, clock, progress)
-    with single_threaded_blas(), gc_paused():  # tens of thousands of small products and objects
-        try:
-            region_goal = isinstance(problem.goal, TipGoal)
-            if region_goal:
-                problem.goal.deadline = clock.deadline
-                progress("goal", elapsed=0.0, limit=clock.limit_s)
-                _sample_goals(sampler, clock)
-            timings = {"goal_sampling_s": clock.elapsed()}
+    with single_threaded_blas(), gc_paused(), _hooked(checker, _progress_hook(problem, clock, progress)):
+        region_goal = isinstance(problem.goal, TipGoal)
+        if region_goal:
+            problem.goal.deadline = clock.deadline
+            progress("goal", elapsed=0.0, limit=clock.limit_s)
+            _sample_goals(sampler, clock)
+        timings = {"goal_sampling_s": clock.elapsed()}
 
-            def outcome(path_q: np.ndarray | None, status: str, exact: bool, message: str) -> SearchOutcome:
-                return SearchOutcome(path_q, status, exact, clock.elapsed(),
-                                     {**vars(sampler.stats), **timings}, message, list(sampler.goals))
+        def outcome(path_q: np.ndarray | None, status: str, exact: bool, message: str) -> SearchOutcome:
+            return SearchOutcome(path_q, status, exact, clock.elapsed(),
+                                 {**vars(sampler.stats), **timings}, message, list(sampler.goals))
 
-            if region_goal and not sampler.goals and sampler.stats.ik_reached == 0:
-                return outcome(None, "INVALID_GOAL", False,
-                               f"target unreachable: inverse kinematics got the tip no closer than "
-                               f"{sampler.stats.closest_mm:.1f} mm to the target region after "
-                               f"{sampler.stats.seeds} seeds"), checker
-            if clock.remaining() <= 0:
-                reached = sampler.stats.ik_reached
-                why = f": {reached} IK solutions reached the target, all in collision" \
-                    if reached and not sampler.goals else ""
-                return outcome(None, "TIMEOUT", False,
-                               f"time limit of {clock.limit_s:g} s reached while sampling goal "
-                               f"configurations ({len(sampler.goals)} found{why})"), checker
-            if spec.fixed_goal_set and region_goal:
-                _fix_goal_set(problem, clock)
-            pl = _setup_planner(planner, problem, s.range_mm)
-            progress("search", elapsed=clock.elapsed(), limit=clock.limit_s,
-                     kinematics_calls=checker.counters.kinematics_calls, goals=len(sampler.goals))
-            t_solve = time.perf_counter()
-            status = pl.solve(max(clock.remaining(), 1e-3))
-            timings["search_s"] = time.perf_counter() - t_solve
-            status_name = status.asString() if hasattr(status, "asString") else str(status)
-            if not problem.pdef.hasExactSolution():
-                return outcome(None, status_name, False,
-                               _failure_message(problem, clock.limit_s, goal_q is not None)), checker
-            if simplify:
-                progress("simplify", elapsed=clock.elapsed())
-            return outcome(_simplified_path(problem, simplify, timings), status_name, True, ""), checker
-        finally:
-            checker.hook = None
+        if region_goal and not sampler.goals and sampler.stats.ik_reached == 0:
+            return outcome(None, "INVALID_GOAL", False,
+                           f"target unreachable: inverse kinematics got the tip no closer than "
+                           f"{sampler.stats.closest_mm:.1f} mm to the target region after "
+                           f"{sampler.stats.seeds} seeds"), checker
+        if clock.remaining() <= 0:
+            reached = sampler.stats.ik_reached
+            why = f": {reached} IK solutions reached the target, all in collision" \
+                if reached and not sampler.goals else ""
+            return outcome(None, "TIMEOUT", False,
+                           f"time limit of {clock.limit_s:g} s reached while sampling goal "
+                           f"configurations ({len(sampler.goals)} found{why})"), checker
+        if spec.fixed_goal_set and region_goal:
+            _fix_goal_set(problem, clock)
+        pl = _setup_planner(planner, problem, s.range_mm)
+        progress("search", elapsed=clock.elapsed(), limit=clock.limit_s,
+                 kinematics_calls=checker.counters.kinematics_calls, goals=len(sampler.goals))
+        t_solve = time.perf_counter()
+        status = pl.solve(max(clock.remaining(), 1e-3))
+        timings["search_s"] = time.perf_counter() - t_solve
+        status_name = status.asString() if hasattr(status, "asString") else str(status)
+        if not problem.pdef.hasExactSolution():
+            return outcome(None, status_name, False,
+                           _failure_message(problem, clock.limit_s, goal_q is not None)), checker
+        if simplify:
+            progress("simplify", elapsed=clock.elapsed())
+        return outcome(_simplified_path(problem, simplify, timings), status_name, True, ""), checker
 
 
 @dataclass

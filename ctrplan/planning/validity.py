@@ -104,21 +104,26 @@ class ConfigurationChecker:
         """``call()`` of the backend, timed and counted (``n_states`` new configurations)."""
         t = time.perf_counter()
         out = call()
-        self.counters.kinematics_s += time.perf_counter() - t
-        self.counters.kinematics_calls += n_states
-        self.counters.kinematics_batches += 1
-        if self.hook is not None:
-            self.hook()
+        self._count_kinematics(time.perf_counter() - t, n_states)
         return out
 
+    def _count_kinematics(self, seconds: float, new_states: int) -> None:
+        """Count one backend call of ``seconds`` on ``new_states`` configurations not counted yet,
+        and report progress."""
+        c = self.counters
+        c.kinematics_s += seconds
+        c.kinematics_calls += new_states
+        c.kinematics_batches += 1
+        if self.hook is not None:
+            self.hook()
+
     def forward(self, q: np.ndarray, guess: np.ndarray | None = None,
-                points: int | np.ndarray | None = None, *, new_states: bool = True) -> Backbone:
-        """Backbones of joints (B, 2N) (no joint checks: planner states lie in the domain);
-        ``new_states=False`` does not count them again (a later stage of the same states)."""
+                points: int | np.ndarray | None = None) -> Backbone:
+        """Backbones of joints (B, 2N) (no joint checks: planner states lie in the domain)."""
         q = np.atleast_2d(q)
         return self._counted(lambda: self.backend.forward(
             q, points=self.points if points is None else points,
-            guess=guess if self.warm_start else None, check=False), q.shape[0] if new_states else 0)
+            guess=guess if self.warm_start else None, check=False), q.shape[0])
 
     def tips(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Tips (B, 3) mm, unit tip tangents (B, 3) -- robot frame -- and convergence (B,) of joints
@@ -143,8 +148,7 @@ class ConfigurationChecker:
             pos = body.positions_mm
             if not body.usable.all():
                 pos = np.where(body.usable[:, None, None], pos, np.nan)
-            order = range(len(qk)) if stop_at_first else None
-            ok = self.collision.free_batch(pos, body.radius_mm, order=order, stop_at_first=stop_at_first)
+            ok = self.collision.free_batch(pos, body.radius_mm, stop_at_first=stop_at_first)
             self._count(t0, t1, len(qk), first is None)
             first = body if first is None else first
             if ok.all():
@@ -179,16 +183,11 @@ class ConfigurationChecker:
         """Count one validation stage of ``states`` configurations: kinematics from t0 to t1 and
         collision from t1 to now (`time.perf_counter` s); ``new``: their first stage."""
         c = self.counters
-        c.kinematics_s += t1 - t0
         c.collision_s += time.perf_counter() - t1
-        c.kinematics_batches += 1
         c.collision_checks += states
-        if new:
-            c.kinematics_calls += states
         c.narrow_checks = self.collision.narrow_checks
         c.fcl_tests = self.collision.chain.tests
-        if self.hook is not None:
-            self.hook()
+        self._count_kinematics(t1 - t0, states if new else 0)
 
     # ---- cache ---------------------------------------------------------------------------------
     @staticmethod
