@@ -81,6 +81,12 @@ class Loads:
     def is_free(self) -> bool:
         return not any(self.gravity_m_s2) and not any(self.tip_force_n)
 
+    @property
+    def axisymmetric(self) -> bool:
+        """Loads along z only (or none): rotating every tube by the same angle then rotates the whole
+        robot about z, a symmetry the PINN's equivariant encoding builds in."""
+        return not any(self.gravity_m_s2[:2]) and not any(self.tip_force_n[:2])
+
 
 def joint_names(n_tubes: int) -> tuple[str, ...]:
     """``(beta1 … betaN, alpha1 … alphaN)``: joint and CSV column names for N tubes."""

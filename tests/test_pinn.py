@@ -73,11 +73,12 @@ def test_boundary_loss_is_zero_on_exact_boundary_values(robot, pinn):
 
 def test_short_training_lowers_the_loss(robot, tmp_path):
     recipe = get_recipe("fast", steps=60, dense_configs=300, dense_batch=256, collocation=128, boundary=32)
-    losses = []
+    calls = []
     train(robot, recipe, tmp_path / "tiny", seed=3,
-          progress=lambda step, total, stats: losses.append(stats["loss"]))
-    assert len(losses) == 6
-    assert losses[-1] < 0.8 * losses[0]
+          progress=lambda step, total, stats: calls.append((step, total, stats["loss"])))
+    assert [c[0] for c in calls] == [10, 20, 30, 40, 50, 60, 60]  # every 10 steps, then the final count
+    assert calls[-1][:2] == (60, 60)
+    assert calls[-1][2] < 0.8 * calls[0][2]
     card = json.loads((tmp_path / "tiny.json").read_text())
     assert card["robot_fingerprint"] == robot.fingerprint and card["steps"] == 60
     assert PinnBackend.load(tmp_path / "tiny", robot).forward(robot.sample_joints(2, rng=1)).converged.all()

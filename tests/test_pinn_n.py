@@ -42,9 +42,10 @@ domain:
 """
 
 
-def random_net(robot: Robot, seed: int) -> PinnNet:
+def random_net(robot: Robot, seed: int, harmonics: int = 1) -> PinnNet:
     torch.manual_seed(seed)
-    return PinnNet(robot, hidden=32, layers=3, scales=np.linspace(0.5, 1.5, robot.n_states))
+    return PinnNet(robot, hidden=32, layers=3, scales=np.linspace(0.5, 1.5, robot.n_states),
+                   harmonics=harmonics)
 
 
 def test_three_tube_encoding_is_the_papers(robot):
@@ -59,6 +60,22 @@ def test_three_tube_encoding_is_the_papers(robot):
                           torch.cos(d), torch.sin(d)], -1)
     assert net.n_inputs == 8 and net.n_states == 15
     torch.testing.assert_close(net.features(sigma, q), expected)
+
+
+def test_harmonic_encoding_adds_multiples_of_the_relative_rotations(robot):
+    """harmonics K: cos(k d) for k = 1…K, then sin(k d), d = alpha2/3 - alpha1; still 2 pi-periodic."""
+    net = PinnNet(robot, harmonics=3)
+    q = torch.tensor(robot.sample_joints(7, rng=4), dtype=torch.float32)
+    sigma = torch.rand(7)
+    d = q[:, 4:6] - q[:, 3:4]
+    plain = PinnNet(robot).features(sigma, q)
+    expected = torch.cat([plain[:, :4], torch.cos(d), torch.cos(2 * d), torch.cos(3 * d),
+                          torch.sin(d), torch.sin(2 * d), torch.sin(3 * d)], -1)
+    assert net.n_inputs == 4 + 12
+    torch.testing.assert_close(net.features(sigma, q), expected)
+    turned = q.clone()
+    turned[:, 4] += 2 * torch.pi
+    torch.testing.assert_close(net.features(sigma, turned), expected, atol=2e-5, rtol=0)
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 4])
@@ -106,10 +123,10 @@ def test_fixed_joints_give_constant_zero_features(tmp_path):
     np.testing.assert_allclose(fast, net(torch.full((6,), 0.5), q).detach().numpy(), atol=2e-4)
 
 
-@pytest.mark.parametrize("n", [1, 2, 3, 4])
-def test_compiled_inference_matches_torch_for_n_tubes(n):
+@pytest.mark.parametrize(("n", "harmonics"), [(1, 1), (2, 3), (3, 1), (3, 4), (4, 2)])
+def test_compiled_inference_matches_torch_for_n_tubes(n, harmonics):
     robot = robot_of(n, LOADS if n == 2 else Loads())
-    net = random_net(robot, 10 + n)
+    net = random_net(robot, 10 + n, harmonics)
     q = robot.sample_joints(40, rng=n)  # more than one cache-sized chunk of nodes
     frac = np.random.default_rng(n).uniform(0, 1, (40, 4))
     pinn = PinnBackend(robot, net, nodes=None)
@@ -165,7 +182,8 @@ def test_short_two_tube_training_lowers_the_loss(tmp_path):
                    progress=lambda step, total, stats: losses.append(stats["loss"]))
     assert losses[-1] < 0.8 * losses[0]
     network = json.loads((tmp_path / "two.json").read_text())["network"]
-    assert result.steps == 60 and network["inputs"] == 5 and network["outputs"] == 13
+    # s, beta2, beta2 - beta1, then cos and sin of k (alpha2 - alpha1) for k = 1…K
+    assert result.steps == 60 and network["inputs"] == 3 + 2 * recipe.harmonics and network["outputs"] == 13
     bb = PinnBackend.load(tmp_path / "two", robot).forward(robot.sample_joints(3, rng=1), 30)
     assert bb.state.shape == (3, 30, 13) and bb.converged.all()
 
@@ -226,3 +244,32 @@ def test_shipped_two_tube_model_meets_accuracy_targets():
     assert set(metrics["tip_error_mm"]) == {"tube1", "tube2"}
     with pytest.raises(InputError, match="trained for robot"):
         PinnBackend.load("pinn_two_tube", Robot.nominal())
+
+
+def test_encoding_keeps_the_rotation_symmetry_only_where_the_loads_do():
+    """Rotating every tube by c rotates the robot about z only when the loads are along z: the exact
+    solver says so, and the default encoding adds absolute angles exactly when it does not."""
+    axial, lateral = Loads(gravity_m_s2=(0.0, 0.0, -9.81)), Loads(gravity_m_s2=(0.0, -9.81, 0.0))
+    q = robot_of(2).sample_joints(3, rng=2)
+    turned = q.copy()
+    turned[:, 2:] += 0.7
+    rz = np.array([[math.cos(0.7), -math.sin(0.7), 0.0], [math.sin(0.7), math.cos(0.7), 0.0], [0, 0, 1]])
+    for loads, symmetric in ((axial, True), (lateral, False)):
+        robot = robot_of(2, loads)
+        exact = CosseratBackend(robot)
+        moved, before = exact.forward(turned, points=2), exact.forward(q, points=2)
+        assert moved.converged.all() and before.converged.all()
+        gap = np.abs(moved.tips_mm - before.tips_mm @ rz.T).max()
+        assert (gap < 1e-6) == symmetric and (symmetric or gap > 1e-3)
+        assert PinnNet(robot).absolute_angles == (not symmetric)
+    assert not PinnNet(Robot.nominal()).absolute_angles
+
+
+def test_absolute_angles_start_as_the_same_function():
+    robot = robot_of(3)
+    net = random_net(robot, 5, harmonics=2)
+    wider = net.with_absolute_angles(robot)
+    q = torch.tensor(robot.sample_joints(16, rng=6), dtype=torch.float32)
+    sigma = torch.rand(16)
+    assert wider.absolute_angles and wider.n_inputs == net.n_inputs + 6
+    torch.testing.assert_close(wider(sigma, q), net(sigma, q))

@@ -18,11 +18,15 @@ from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
 from ctrplan.kinematics.pinn import PinnBackend
 from ctrplan.robot import Robot
 from ctrplan.training.evaluate import compare
-from ctrplan.training.trainer import RECIPES, get_recipe
+from ctrplan.training.trainer import DEFAULT_RECIPE, RECIPES, get_recipe
 from ctrplan.training.trainer import train as run_training
 
 if TYPE_CHECKING:
     from ctrplan.training.fewshot import FewShot
+
+#: Unseen configurations the model card's accuracy is measured on at the end of `ctrplan train`.
+CARD_EVAL_CONFIGURATIONS = 2000
+
 
 @app.command()
 def train(
@@ -31,11 +35,13 @@ def train(
                        "(default: ROBOT_RECIPE).")] = None,
     robot: RobotOpt = None,
     recipe: Annotated[str | None, typer.Option(
-        "--recipe", help=f"Recipe: {' | '.join(RECIPES)} (default: fast; finetune with --measured).")] = None,
+        "--recipe", help=f"Recipe: {' | '.join(RECIPES)} (default: {DEFAULT_RECIPE}, "
+                         f"{RECIPES[DEFAULT_RECIPE].minutes:g} min; finetune with --measured).")] = None,
     steps: Annotated[int | None, typer.Option(
         "--steps", help="Optimiser steps (recipe default).")] = None,
     time_limit: Annotated[float | None, typer.Option(
-        "--time-limit", help="Stop after this many minutes (the learning-rate schedule fits it).")] = None,
+        "--time-limit", help="Stop after this many minutes, data generation included (default: the "
+                             "recipe's budget); the learning-rate schedule fits it.")] = None,
     seed: Annotated[int, typer.Option("--seed")] = 0,
     device: Annotated[str, typer.Option("--device", help="cpu | cuda | cuda:N")] = "cpu",
     threads: Annotated[int | None, typer.Option("--threads", help="CPU threads for torch.")] = None,
@@ -60,9 +66,12 @@ def train(
 ) -> None:
     """Train a PINN on the Cosserat-rod equations (paper III) and write it with its model card.
 
-    Checkpoints go to NAME.ckpt.* beside the model every two minutes; `--resume` picks them up.
-    The card records the robot (and its fingerprint), recipe, sample counts, wall time, hardware and
-    accuracy on 100 unseen configurations.
+    The default recipe solves an exact pool, then trains with hard-example mining for its time
+    budget; the bar shows the loss and, after each mining round, the network's tube-1 tip error on
+    that round's fresh configurations. Checkpoints go to NAME.ckpt.* beside the model every two
+    minutes; `--resume` picks them up. The card records the robot (and its fingerprint), recipe,
+    sample counts, the configurations the exact solver could not solve, wall time, hardware and
+    accuracy on 2,000 unseen configurations.
 
     With `--measured DATA.csv --shots N` it continues training a model (default: the shipped one) on
     N measured training rows plus the physics residuals, and prints the held-out tip error of the
@@ -80,7 +89,7 @@ def train(
     model_robot = Robot.load(robot)
     if measured is None:
         model_robot.calibration.refuse(model_robot.name, "train")
-    recipe = recipe or ("fast" if measured is None else "finetune")
+    recipe = recipe or (DEFAULT_RECIPE if measured is None else "finetune")
     try:
         rec = get_recipe(recipe, steps=steps, **_parse_settings(settings or []))
     except InputError as exc:
@@ -92,13 +101,22 @@ def train(
     start = PinnBackend.load(init, model_robot) if init else None
     out = output_dir(out_dir, "--out-dir") / (name or f"{model_robot.name}_{rec.name}")
     console = Console(stderr=True)
-    bar = Progress(TextColumn("train {task.fields[recipe]}"), BarColumn(), MofNCompleteColumn(),
-                   TimeElapsedColumn(), TextColumn("loss {task.fields[loss]}"), console=console)
+    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                   TimeElapsedColumn(), TextColumn("{task.fields[info]}"), console=console)
     with bar:
-        task = bar.add_task("train", total=rec.steps, recipe=rec.name, loss="-")
+        data_task = bar.add_task("exact solutions", total=None, info="")
+        task = bar.add_task(f"train {rec.name}", total=None, info="", visible=False)
+
+        def data_progress(done: int, total: int) -> None:
+            rate = done / max(bar.tasks[data_task].elapsed or 1e-9, 1e-9)
+            bar.update(data_task, completed=done, total=total, info=f"{rate:,.0f} solutions/s")
 
         def progress(step: int, total: int, stats: dict) -> None:
-            bar.update(task, completed=step, loss=f"{stats['loss']:.4g}")
+            info = f"loss {stats.get('loss', float('nan')):.4g}"
+            if "fresh_tip_max_mm" in stats:
+                info += (f" | fresh tip p99.9 {stats['fresh_tip_p99_9_mm']:.2f} max "
+                         f"{stats['fresh_tip_max_mm']:.2f} mm")
+            bar.update(task, completed=step, total=total, info=info, visible=True)
 
         common = dict(seed=seed, device=device, resume=resume, progress=progress,
                       time_limit_s=time_limit * 60 if time_limit else None)
@@ -109,15 +127,27 @@ def train(
         else:
             result = run_training(
                 model_robot, rec, out, init_from=start.net if start else None, **common,
+                data_progress=data_progress,
                 extra_card={"stages": training_stages(start.card)} if start else None,
-                evaluate=lambda net: compare(PinnBackend(model_robot, net), model_robot).metrics())
-    m = result.card["metrics"]["backbone_error_pct"]
+                evaluate=lambda net: compare(PinnBackend(model_robot, net), model_robot,
+                                             n=CARD_EVAL_CONFIGURATIONS).metrics())
+    card = result.card
+    m = card["metrics"]
+    tip = m["tip_error_pct_length"]
     console.print(f"wrote {out.with_suffix('.safetensors')} and {out.with_suffix('.json')}: "
-                  f"{result.steps} steps in {result.wall_time_s / 60:.1f} min; backbone error on 100 "
-                  f"unseen configurations: mean {m['mean']:.3f} % (vs the robot file's Cosserat model), "
-                  f"max {m['max']:.3f} %")
+                  f"{result.steps} steps in {result.wall_time_s / 60:.1f} min (exact data "
+                  f"{card['data_generation_s']:.0f} s); on {m['configurations']} unseen configurations "
+                  f"(vs the robot file's Cosserat model): tube-1 tip error mean {tip['mean']:.3f} %, "
+                  f"max {tip['max']:.3f} % of arc length, backbone error mean "
+                  f"{m['backbone_error_pct']['mean']:.3f} %")
+    unsolved = card.get("unsolved_configurations", {}).get("count", 0) + m["unsolved"]["count"]
+    if unsolved:
+        console.print(f"note: the exact solver could not solve {unsolved} configuration(s) of the domain "
+                      f"(left out of training and of every statistic; listed in the card). Check the "
+                      f"domain with `ctrplan stability --robot ...`: unsolvable configurations usually lie "
+                      f"where the robot snaps.")
     if fewshot is not None:
-        console.print(table_text(result.card["metrics"]["measured_heldout"]))
+        console.print(table_text(card["metrics"]["measured_heldout"]))
     if as_json:
         typer.echo(out.with_suffix(".json").read_text())  # the card as written, with robot and hash
 
@@ -188,16 +218,22 @@ def eval_model(
     training["stages"] = [{"recipe": s["recipe"]["name"], "wall_time_s": s["wall_time_s"],
                            "hardware": s["hardware"], "steps": s["steps"]} for s in card.get("stages", [])]
     training["recipe"] = (training["recipe"] or {}).get("name")
-    metrics = {"model": str(model or DEFAULT_MODEL), **cmp.metrics(), "inference": pinn.describe(),
+    name = str(model) if model else Path(str(card.get("weights_file", DEFAULT_MODEL))).stem
+    metrics = {"model": name, **cmp.metrics(), "inference": pinn.describe(),
                "training": training, "figures": [str(f) for f in figures]}
     with atomic_write(out / "metrics.json") as fh:
-        json.dump(metrics, fh, indent=2)
+        json.dump(metrics, fh, indent=2, allow_nan=False)
     if as_json:
-        typer.echo(json.dumps(metrics, indent=2))
+        typer.echo(json.dumps(metrics, indent=2, allow_nan=False))
         return
     e, tip = metrics["backbone_error_pct"], metrics["tip_error_mm"]
     console = Console()
-    console.print(f"[bold]{metrics['model']}[/] on {n} unseen configurations:")
+    console.print(f"[bold]{metrics['model']}[/] on {metrics['configurations']} unseen configurations:")
+    unsolved = metrics["unsolved"]
+    if unsolved["count"]:
+        console.print(f"  ({unsolved['count']} of {unsolved['of']} configurations left out: the exact solver "
+                      f"could not solve them, so there is nothing to compare with; see `unsolved` in "
+                      f"{out / 'metrics.json'} and check the domain with `ctrplan stability`)")
     console.print(f"  backbone error / arc length: mean {e['mean']:.3f} %, p95 {e['p95']:.3f} %, "
                   f"max {e['max']:.3f} %")
     for tube, v in tip.items():

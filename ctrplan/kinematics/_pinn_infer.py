@@ -53,11 +53,13 @@ def _tanh_inplace(a):
 
 
 @njit(cache=True, fastmath=True)
-def infer(q, frac, box_M, box_lo, box_hi, length1, scales, loaded, equivariant, W0, b0, Wh, bh, Wo, bo, out):
+def infer(q, frac, box_M, box_lo, box_hi, length1, scales, loaded, equivariant, harmonics, absolute,
+          W0, b0, Wh, bh, Wo, bo, out):
     """States ``out`` (B, F, 2N + 9) at arc fractions ``frac`` (B, F) for joints ``q`` (B, 2N).
 
     Weights are float32 and laid out for ``x @ W`` (in, out). ``equivariant`` selects the input
-    encoding (see `ctrplan.kinematics.pinn`); a fixed box coordinate (``box_lo == box_hi``) enters as 0.
+    encoding, ``harmonics`` K its relative-rotation harmonics and ``absolute`` its absolute-angle
+    features (see `ctrplan.kinematics.pinn`); a fixed box coordinate (``box_lo == box_hi``) enters as 0.
     """
     nb, nf = frac.shape
     nt = box_lo.shape[0] // 2
@@ -77,12 +79,19 @@ def infer(q, frac, box_M, box_lo, box_hi, length1, scales, loaded, equivariant, 
         for i in range(2 * nt):
             width = box_hi[i] - box_lo[i]
             box[i] = 2.0 * (box[i] - box_lo[i]) / width - 1.0 if width > 0.0 else 0.0
-        if equivariant:
+        if equivariant:  # betas, then cos(k da_i) for k = 1…K (k-major), then the sines
             for i in range(nt):
                 zq[b, i] = box[i]
-            for i in range(1, nt):
-                zq[b, nt + i - 1] = math.cos(q[b, nt + i] - q[b, nt])
-                zq[b, 2 * nt + i - 2] = math.sin(q[b, nt + i] - q[b, nt])
+            n_ang = harmonics * (nt - 1)
+            for k in range(harmonics):
+                for i in range(1, nt):
+                    angle = (k + 1) * (q[b, nt + i] - q[b, nt])
+                    zq[b, nt + k * (nt - 1) + i - 1] = math.cos(angle)
+                    zq[b, nt + n_ang + k * (nt - 1) + i - 1] = math.sin(angle)
+            if absolute:
+                for i in range(nt):
+                    zq[b, nt + 2 * n_ang + i] = math.cos(q[b, nt + i])
+                    zq[b, nt + 2 * n_ang + nt + i] = math.sin(q[b, nt + i])
         else:
             for i in range(2 * nt):
                 zq[b, i] = box[i]

@@ -235,6 +235,16 @@ def initial_state(x, beta, alpha, EI, GJ, loaded, y):
 
 
 @njit(cache=True)
+def _normalise_quaternion(y, i_q):
+    """Normalise the quaternion ``y[i_q:i_q + 4]`` in place; NaN where it has diverged (zero,
+    infinite or NaN norm), so a diverging trial step is rejected instead of dividing by zero."""
+    nq = math.sqrt(y[i_q] ** 2 + y[i_q + 1] ** 2 + y[i_q + 2] ** 2 + y[i_q + 3] ** 2)
+    ok = 0.0 < nq < np.inf
+    for i in range(i_q, i_q + 4):
+        y[i] = y[i] / nq if ok else np.nan
+
+
+@njit(cache=True)
 def integrate(x, beta, alpha, kappa, EI, GJ, ends, force, weight, loaded, with_pose,
               nodes, seg_of, present, kc, bend, end_node, store, Y, Fl, Fr, y_end):
     """RK4 over the grid. ``y_end`` (N, 2N + 9) receives the states at the tube ends ``l_i``.
@@ -277,10 +287,7 @@ def integrate(x, beta, alpha, kappa, EI, GJ, ends, force, weight, loaded, with_p
         for i in range(ns):
             y[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
         if with_pose:
-            i_q = ns - 4
-            nq = math.sqrt(y[i_q] ** 2 + y[i_q + 1] ** 2 + y[i_q + 2] ** 2 + y[i_q + 3] ** 2)
-            for i in range(i_q, ns):
-                y[i] /= nq
+            _normalise_quaternion(y, ns - 4)
         if store:
             Y[j + 1, :] = y
             Fl[j, :] = k1
@@ -480,9 +487,7 @@ def hermite(nodes, seg_of, Y, Fl, Fr, s_out, out):
         h11 = t3 - t2
         for i in range(ns):
             out[n, i] = h00 * Y[j, i] + h10 * h * Fl[j, i] + h01 * Y[j + 1, i] + h11 * h * Fr[j, i]
-        nq = math.sqrt(out[n, i_q] ** 2 + out[n, i_q + 1] ** 2 + out[n, i_q + 2] ** 2 + out[n, i_q + 3] ** 2)
-        for i in range(i_q, ns):
-            out[n, i] /= nq
+        _normalise_quaternion(out[n], i_q)
 
 
 @njit(cache=True)
@@ -499,6 +504,44 @@ def _free_to_loaded(xf, GJ):
 
 
 @njit(cache=True)
+def _solve_free_cold(beta, alpha, kappa, EI, GJ, ends, force, weight,
+                     nodes, seg_of, present, kc, bend, end_node, tol, max_iter):
+    """Cold start in free space: Newton from zero torsion; where that fails (long transmissions and
+    strongly curved overlaps make the first steps leave the region Newton converges in), continuation
+    in the relative rotations. With every ``alpha_i = alpha_1`` the curvatures lie in one plane and
+    zero torsion is the exact solution; the rotations ``alpha_i - alpha_1`` (wrapped to (-pi, pi])
+    are then grown to their values in 4 or 16 steps, each warm-started from the last. In a
+    snap-free domain this reaches the one equilibrium; elsewhere it follows the branch connected to
+    the aligned robot. Returns ``(x, converged, iterations, |r|)``."""
+    nt = len(kappa)
+    x, conv, it, rn = shoot(np.zeros(nt - 1), beta, alpha, kappa, EI, GJ, ends, force, weight, False,
+                            nodes, seg_of, present, kc, bend, end_node, tol, max_iter)
+    if conv or nt == 1:
+        return x, conv, it, rn
+    rel = np.empty(nt)
+    for i in range(nt):
+        rel[i] = (alpha[i] - alpha[0] + math.pi) % (2.0 * math.pi) - math.pi
+    a = alpha.copy()
+    n = 4
+    while n <= 16:
+        x = np.zeros(nt - 1)
+        for k in range(1, n + 1):
+            for i in range(1, nt):
+                a[i] = alpha[0] + rel[i] * k / n
+            x, conv, itk, rn = shoot(x, beta, a, kappa, EI, GJ, ends, force, weight, False,
+                                     nodes, seg_of, present, kc, bend, end_node, tol, max_iter)
+            it += itk
+            if not conv:
+                break
+        if conv:  # the wrapped rotations differ from alpha by multiples of 2 pi: polish at alpha itself
+            x, conv, itk, rn = shoot(x, beta, alpha, kappa, EI, GJ, ends, force, weight, False,
+                                     nodes, seg_of, present, kc, bend, end_node, tol, max_iter)
+            return x, conv, it + itk, rn
+        n *= 4
+    return x, False, it, rn
+
+
+@njit(cache=True)
 def _solve_loaded_cold(beta, alpha, kappa, EI, GJ, ends, force, weight,
                        nodes, seg_of, present, kc, bend, end_node, tol, max_iter):
     """Cold start under load: free-space solution first, then continuation in load magnitude.
@@ -506,9 +549,8 @@ def _solve_loaded_cold(beta, alpha, kappa, EI, GJ, ends, force, weight,
     This picks the equilibrium branch connected to the unloaded robot (a loaded CTR can have
     several). Returns ``(x, converged, iterations, |r|)``.
     """
-    nt = len(kappa)
-    xf, conv, it, rn = shoot(np.zeros(nt - 1), beta, alpha, kappa, EI, GJ, ends, force, weight, False,
-                             nodes, seg_of, present, kc, bend, end_node, tol, max_iter)
+    xf, conv, it, rn = _solve_free_cold(beta, alpha, kappa, EI, GJ, ends, force, weight,
+                                        nodes, seg_of, present, kc, bend, end_node, tol, max_iter)
     x_start = _free_to_loaded(xf, GJ)
     if not conv:
         return x_start, False, it, rn
@@ -573,8 +615,8 @@ def solve_one(q, x0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weig
                                                   nodes, seg_of, present, kc, bend, end_node, tol,
                                                   max_iter)
         else:
-            x, conv, itc, rn = shoot(np.zeros(nt - 1), beta, alpha, kappa, EI, GJ, ends, force, weight,
-                                     False, nodes, seg_of, present, kc, bend, end_node, tol, max_iter)
+            x, conv, itc, rn = _solve_free_cold(beta, alpha, kappa, EI, GJ, ends, force, weight,
+                                                nodes, seg_of, present, kc, bend, end_node, tol, max_iter)
         it += itc
     m = nodes.shape[0] - 1
     ns = 2 * nt + 9

@@ -92,8 +92,9 @@ def save_model(net: PinnNet, robot: Robot, path: str | Path, card: dict[str, Any
         "format": CARD_FORMAT,
         "robot": robot.to_dict(),
         "robot_fingerprint": robot.fingerprint,
-        "network": {"inputs": net.n_inputs, "features": net.features_mode, "hidden": net.hidden,
-                    "layers": net.layers, "outputs": net.n_states, "activation": "tanh"},
+        "network": {"inputs": net.n_inputs, "features": net.features_mode, "harmonics": net.harmonics,
+                    "absolute_angles": net.absolute_angles, "hidden": net.hidden, "layers": net.layers,
+                    "outputs": net.n_states, "activation": "tanh"},
         **card,
         "weights_file": weights.name,
         "weights_sha256": file_sha256(weights),
@@ -160,8 +161,12 @@ def load_model(model: str | Path | None, robot: Robot) -> tuple[PinnNet, dict[st
     features = netcfg.get("features", "paper")
     if features not in FEATURES:
         raise InputError(f"{weights.with_suffix('.json')}: unknown network features {features!r}")
-    net = PinnNet(robot, hidden=int(netcfg.get("hidden", 100)), layers=int(netcfg.get("layers", 6)),
-                  features=features)
+    try:
+        net = PinnNet(robot, hidden=int(netcfg.get("hidden", 100)), layers=int(netcfg.get("layers", 6)),
+                      features=features, harmonics=int(netcfg.get("harmonics", 1)),
+                      absolute_angles=bool(netcfg.get("absolute_angles", False)))
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{weights.with_suffix('.json')}: network section unusable ({exc})") from None
     try:
         net.load_state_dict(tensors)
     except RuntimeError as exc:

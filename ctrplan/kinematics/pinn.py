@@ -12,7 +12,17 @@ Two input encodings (``features``), for N = 1…4 tubes:
   order ``cos(alpha2 - alpha1) … cos(alphaN - alpha1), sin(alpha2 - alpha1) …``; positions and
   orientation it predicts are rotated by ``Rz(alpha1)`` and the twist angles are
   ``theta_i = alpha_i - alpha1 + (learned deviation)``. 3N - 1 inputs (8 for three tubes), one
-  dimension fewer to learn.
+  dimension fewer to learn. With ``harmonics`` K > 1 the network also sees ``cos, sin`` of
+  ``k (alpha_i - alpha1)`` for k = 2…K (``cos`` for every k, then ``sin``): where two tubes are nearly
+  opposed the shape changes over a few hundredths of a radian of their relative rotation, and the
+  harmonics let the first layer resolve that. They cost nothing per node at inference (the first
+  layer's per-configuration part is computed once per backbone).
+
+The symmetry holds only when the loads are along z (`Loads.axisymmetric`). Otherwise (gravity across
+the robot), and for what measured data shows beyond the mechanics (a tracker offset fixed in the
+base frame, encoder errors), ``absolute_angles`` appends ``cos alpha_i, sin alpha_i`` for every tube:
+`PinnNet.with_absolute_angles` adds them to a trained network with zero weights, so it starts as the
+same function and can learn what breaks the symmetry.
 
 A fixed joint (zero-width box interval) enters as the constant feature 0.
 
@@ -23,6 +33,7 @@ The output transform builds the known structure in exactly (hard constraints):
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import numpy as np
@@ -50,9 +61,13 @@ DEFAULT_NODES = 15
 CHUNK_ROWS = 512
 
 
-def n_inputs(features: str, n_tubes: int) -> int:
-    """Network inputs of an encoding for N tubes: 1 + 2N (``paper``) or 3N - 1 (``equivariant``)."""
-    return 1 + 2 * n_tubes if features == "paper" else 3 * n_tubes - 1
+def n_inputs(features: str, n_tubes: int, harmonics: int = 1, absolute_angles: bool = False) -> int:
+    """Network inputs of an encoding for N tubes: 1 + 2N (``paper``) or 3N - 1 (``equivariant``)
+    plus 2 (K - 1)(N - 1) for ``harmonics`` K and 2N for ``absolute_angles``."""
+    if features == "paper":
+        return 1 + 2 * n_tubes
+    extra = 2 * n_tubes if absolute_angles else 0
+    return 3 * n_tubes - 1 + 2 * (harmonics - 1) * (n_tubes - 1) + extra
 
 
 class PinnNet(nn.Module):
@@ -63,13 +78,22 @@ class PinnNet(nn.Module):
     """
 
     def __init__(self, robot: Robot, hidden: int = 100, layers: int = 6,
-                 scales: np.ndarray | None = None, features: str = "equivariant"):
+                 scales: np.ndarray | None = None, features: str = "equivariant", harmonics: int = 1,
+                 absolute_angles: bool | None = None):
         super().__init__()
         if features not in FEATURES:
             raise ValueError(f"features must be one of {sorted(FEATURES)}, got {features!r}")
-        self.features_mode = features
+        if harmonics < 1 or (harmonics > 1 and features != "equivariant"):
+            raise ValueError(f"harmonics must be >= 1 (and > 1 only with equivariant features), "
+                             f"got {harmonics}")
+        if absolute_angles is None:  # what the robot's loads need
+            absolute_angles = features == "equivariant" and not robot.loads.axisymmetric
+        if absolute_angles and features != "equivariant":
+            raise ValueError("absolute_angles extends the equivariant encoding (paper features are "
+                             "absolute already)")
+        self.features_mode, self.harmonics, self.absolute_angles = features, harmonics, absolute_angles
         self.n_tubes, self.n_states = robot.n_tubes, robot.n_states
-        self.n_inputs = n_inputs(features, robot.n_tubes)
+        self.n_inputs = n_inputs(features, robot.n_tubes, harmonics, absolute_angles)
         dims = [self.n_inputs] + [hidden] * layers
         mods: list[nn.Module] = []
         for a, b in zip(dims[:-1], dims[1:], strict=True):
@@ -118,7 +142,25 @@ class PinnNet(nn.Module):
         if self.features_mode == "paper":
             return torch.cat([zs, zq], -1)
         dalpha = q[:, n + 1:] - q[:, n:n + 1]
-        return torch.cat([zs, zq[:, :n], torch.cos(dalpha), torch.sin(dalpha)], -1)
+        k = torch.arange(1, self.harmonics + 1, dtype=q.dtype, device=q.device)
+        angles = (k[:, None, None] * dalpha[None]).transpose(0, 1).reshape(len(q), -1)  # (B, K (N - 1))
+        parts = [zs, zq[:, :n], torch.cos(angles), torch.sin(angles)]
+        if self.absolute_angles:
+            parts += [torch.cos(q[:, n:]), torch.sin(q[:, n:])]
+        return torch.cat(parts, -1)
+
+    def with_absolute_angles(self, robot: Robot) -> PinnNet:
+        """A copy that also sees ``cos, sin alpha_i`` (equivariant encoding only), with zero weights
+        on them: the same function, free to learn what breaks the rotation symmetry."""
+        if self.absolute_angles:
+            return copy.deepcopy(self)
+        net = PinnNet(robot, self.hidden, self.layers, self.scales.cpu().numpy(), self.features_mode,
+                      self.harmonics, absolute_angles=True)
+        state = {k: v.clone() for k, v in self.state_dict().items()}
+        w = state["mlp.0.weight"]
+        state["mlp.0.weight"] = torch.cat([w, torch.zeros(w.shape[0], 2 * self.n_tubes, dtype=w.dtype)], 1)
+        net.load_state_dict(state)
+        return net.to(w.device)
 
     def forward(self, sigma: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
         n, ip = self.n_tubes, self.i_p
@@ -210,7 +252,8 @@ class PinnBackend(Backend):
         return (net.box_from_joints.numpy().astype(float),
                 net.box_lower.numpy().astype(float), net.box_upper.numpy().astype(float),
                 float(net.lengths[0]), net.scales.numpy().astype(float), float(net.loaded),
-                net.features_mode == "equivariant", w(linear[0]), b(linear[0]),
+                net.features_mode == "equivariant", net.harmonics, net.absolute_angles,
+                w(linear[0]), b(linear[0]),
                 np.ascontiguousarray(np.stack([w(m) for m in hidden])), np.stack([b(m) for m in hidden]),
                 w(linear[-1]), b(linear[-1]))
 

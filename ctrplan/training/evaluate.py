@@ -46,41 +46,79 @@ def conformal_quantile(scores: np.ndarray, coverage: float) -> float:
 
 @dataclass(frozen=True)
 class Comparison:
-    """Backbones of one set of configurations from a surrogate and from the exact model."""
+    """Backbones of one set of configurations from a surrogate and from the exact model.
+
+    Configurations the exact solver could not solve have no truth to compare with: every statistic
+    leaves them out, and `unsolved` says how many there were and where they lie."""
 
     predicted: Backbone
     exact: Backbone
 
     @property
+    def solved(self) -> np.ndarray:
+        """(B,) the exact solver converged (a surrogate's prediction there is compared)."""
+        return self.exact.converged
+
+    @property
     def normalised_error_pct(self) -> np.ndarray:
-        """|p_pred - p_exact| / s * 100 (B, N-1), at every backbone point after s = 0."""
-        d = np.linalg.norm(self.predicted.positions_mm - self.exact.positions_mm, axis=-1)
-        return 100.0 * d[:, 1:] / self.exact.s_mm[:, 1:]
+        """|p_pred - p_exact| / s * 100 (B_solved, N-1), at every backbone point after s = 0."""
+        ok = self.solved
+        d = np.linalg.norm(self.predicted.positions_mm[ok] - self.exact.positions_mm[ok], axis=-1)
+        return 100.0 * d[:, 1:] / self.exact.s_mm[ok, 1:]
+
+    def unsolved(self) -> dict:
+        """How many configurations the exact solver could not solve, and where (joints, mm/rad)."""
+        bad = ~self.solved
+        q = self.exact.q[bad]
+        return {"count": int(bad.sum()), "of": len(self.exact),
+                "joints": [[round(float(v), 4) for v in row] for row in q[:20]]}
 
     def metrics(self) -> dict:
         """Backbone error (% of arc length), tip errors of tubes 1…N (mm), u_z RMSE (1/m), RMSE of
-        the twists theta_2…N (rad; 0 for one tube), orientation error (deg)."""
+        the twists theta_2…N (rad; 0 for one tube), orientation error (deg), over the configurations
+        the exact solver solved (`unsolved` lists the others). Every value is finite: a surrogate
+        that returns non-finite states where a truth exists counts as `nonfinite_predictions`."""
+        ok = self.solved
+        if not ok.any():
+            raise InputError(f"the exact solver solved none of the {len(ok)} evaluation configurations: "
+                             f"nothing to compare with (check the robot's domain with `ctrplan stability`)")
         n = self.exact.n_tubes
+        pred, exact = self.predicted, self.exact
+        finite = np.isfinite(pred.state[ok]).all(axis=(1, 2))
         e = self.normalised_error_pct
-        tip = np.linalg.norm(self.predicted.tips_mm - self.exact.tips_mm, axis=-1)  # (B, N)
-        pq, eq = self.predicted.quaternions, self.exact.quaternions
+        tip = np.linalg.norm(pred.tips_mm[ok] - exact.tips_mm[ok], axis=-1)  # (B, N)
+        pq, eq = pred.quaternions[ok], exact.quaternions[ok]
         angle = np.degrees(2 * np.arccos(np.clip(np.abs((pq * eq).sum(-1)), 0, 1)))
-        ps, es = self.predicted.state, self.exact.state
-        return {
-            "configurations": len(self.exact),
+        ps, es = pred.state[ok], exact.state[ok]
+        return _finite({
+            "configurations": int(ok.sum()),
+            "unsolved": self.unsolved(),
+            "nonfinite_predictions": int((~finite).sum()),
             "backbone_error_pct": {"mean": float(e.mean()), "max": float(e.max()),
                                    "p95": float(np.percentile(e, 95))},
             "tip_error_mm": {f"tube{i + 1}": _tail(tip[:, i]) for i in range(n)},
+            "tip_error_pct_length": _tail(100.0 * tip[:, 0] / exact.tube_ends_mm[ok, 0]),
             "u_z_rmse_1_per_m": float(np.sqrt(((ps[..., 2:2 + n] - es[..., 2:2 + n]) ** 2).mean()) * 1e3),
             "theta_rmse_rad": float(np.sqrt(((ps[..., 3 + n:2 + 2 * n] - es[..., 3 + n:2 + 2 * n]) ** 2
                                              ).mean())) if n > 1 else 0.0,
             "orientation_error_deg": _tail(angle),
-        }
+        })
+
+
+def _finite(obj):
+    """``obj`` with every non-finite float replaced by None (strict JSON has no NaN)."""
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
 
 
 def compare(model: Backend, robot: Robot, n: int = 100, points: int = 100,
             seed: int = EVAL_SEED) -> Comparison:
-    """Run ``model`` and the exact solver on ``n`` unseen snap-free configurations."""
+    """Run ``model`` and the exact solver on ``n`` unseen configurations of the robot's domain."""
     q = robot.sample_joints(n, rng=seed)
     exact = CosseratBackend(robot).forward(q, points)
     return Comparison(predicted=model.forward(q, points), exact=exact)

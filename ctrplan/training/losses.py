@@ -82,14 +82,15 @@ def observation_residual(net: PinnNet, q: torch.Tensor, tips: torch.Tensor, tt: 
     return (sq + 1e-30).sqrt().mean() if norm == "l2" else sq.mean()
 
 
-def supervised_residual(net: PinnNet, sigma: torch.Tensor, q: torch.Tensor, x_true: torch.Tensor
-                        ) -> torch.Tensor:
+def supervised_residual(net: PinnNet, sigma: torch.Tensor, q: torch.Tensor, x_true: torch.Tensor,
+                        orientation_weight: float = 1.0) -> torch.Tensor:
     """Dense supervision from exact Cosserat states x_true (B, 2N + 9), per group, mean squared and
-    scaled."""
+    scaled; the quaternion residual is multiplied by ``orientation_weight``."""
     ip = x_true.shape[1] - 7
     x = net(sigma, q)
     e = (x - x_true) / net.scales
     s = (sigma * (q[:, 0] + net.lengths[0]))[:, None]
     # positions as the evaluation sees them: error over arc length, in percent (5 mm softening at s=0)
     e[:, ip:ip + 3] = (x[:, ip:ip + 3] - x_true[:, ip:ip + 3]) * 100.0 / (s + 5.0)
+    e[:, ip + 3:] = e[:, ip + 3:] * orientation_weight
     return group_norms(e, "mse")

@@ -1,9 +1,18 @@
-"""Training samples over the snap-free domain (paper Table II): collocation points, boundary
-configurations, tip observations and dense Cosserat states. Arrays are float64 numpy; q in mm/rad."""
+"""Training samples over the robot's joint domain (paper Table II): collocation points, boundary
+configurations, tip observations and dense exact Cosserat states. Arrays are float64 numpy; q in
+mm/rad.
+
+Exact states are nearly free (the shooting solver gives thousands of full solutions a second), so a
+pool of them is the backbone of every learned recipe. A configuration the solver cannot solve is
+never a training target: it is left out, counted and kept (`DenseStates.unsolved`) so the model card
+can say how many there were and where.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -11,31 +20,57 @@ from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.pinn import P_REF_MM
 from ctrplan.robot import Robot
 
+#: Configurations solved per call while a pool is built (progress is reported between chunks).
+SOLVE_CHUNK = 4096
+
 
 @dataclass(frozen=True)
 class DenseStates:
     """Exact solutions for N tubes: joints q (B, 2N), arc fractions sigma (P,), states (B, P, 2N + 9),
-    tips (B, N, 3) mm, tube ends (B, N) mm."""
+    tips (B, N, 3) mm, tube ends (B, N) mm; ``unsolved`` (U, 2N) the configurations the solver could
+    not solve (left out of the rest), ``seconds`` the time it took."""
 
     q: np.ndarray
     sigma: np.ndarray
     states: np.ndarray
     tips: np.ndarray
     ends: np.ndarray
+    unsolved: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
+    seconds: float = 0.0
 
     def __len__(self) -> int:
         return self.q.shape[0]
 
+    def unsolved_report(self, limit: int = 10) -> dict:
+        """How many configurations were left out, and the first ``limit`` of them (mm, rad)."""
+        return {"count": int(len(self.unsolved)), "of": int(len(self) + len(self.unsolved)),
+                "joints": [[round(float(v), 4) for v in row] for row in self.unsolved[:limit]]}
 
-def solve_dense(robot: Robot, q: np.ndarray, points: int) -> DenseStates:
-    """Exact states at ``points`` uniform arc fractions for configurations q (B, 2N).
 
-    Rows the solver could not converge on are dropped (and counted by the caller via ``len``).
-    """
-    bb = CosseratBackend(robot).forward(q, points=points)
-    ok = bb.converged
-    return DenseStates(q=q[ok], sigma=np.linspace(0.0, 1.0, points), states=bb.state[ok],
-                       tips=bb.tips_mm[ok], ends=bb.tube_ends_mm[ok])
+def solve_dense(robot: Robot, q: np.ndarray, points: int,
+                progress: Callable[[int, int], None] | None = None) -> DenseStates:
+    """Exact states at ``points`` uniform arc fractions for configurations q (B, 2N), solved in
+    chunks (``progress(done, total)`` after each). Rows the solver could not converge on are left out
+    and listed in ``unsolved``."""
+    t0 = time.perf_counter()
+    backend = CosseratBackend(robot)
+    parts = []
+    for a in range(0, len(q), SOLVE_CHUNK):
+        parts.append(backend.forward(q[a:a + SOLVE_CHUNK], points=points, check=False))
+        if progress is not None:
+            progress(min(a + SOLVE_CHUNK, len(q)), len(q))
+    ok = np.concatenate([bb.converged for bb in parts]) if parts else np.zeros(0, dtype=bool)
+
+    def joined(name: str) -> np.ndarray:
+        return np.concatenate([getattr(bb, name) for bb in parts])[ok]
+
+    sigma = np.linspace(0.0, 1.0, points)
+    if not parts:
+        n = robot.n_tubes
+        return DenseStates(q=q, sigma=sigma, states=np.empty((0, points, robot.n_states)),
+                           tips=np.empty((0, n, 3)), ends=np.empty((0, n)), unsolved=q)
+    return DenseStates(q=q[ok], sigma=sigma, states=joined("state"), tips=joined("tips_mm"),
+                       ends=joined("tube_ends_mm"), unsolved=q[~ok], seconds=time.perf_counter() - t0)
 
 
 def collocation(robot: Robot, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

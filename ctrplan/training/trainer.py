@@ -1,17 +1,22 @@
-"""Training loop for the PINN: recipes, on-device sampling, checkpoints and resume.
+"""Training loop for the PINN: recipes, on-device sampling, hard-example mining, checkpoints and
+resume (DeepXDE style: ``Trainer(robot, data, net).compile(recipe).train(out)``; data, losses,
+optimiser and schedule are separate small objects).
 
-Two recipes ship:
+Recipes:
 
+* ``fast`` (default) -- what a 2-core CPU can do well in half an hour: Adam on mini-batches of dense
+  supervision from exact Cosserat states (the shooting solver gives thousands of full solutions a
+  second, so exact data is nearly free), tip rows, hard-example mining (`ctrplan.training.mining`:
+  half of every batch comes from fresh configurations where the network was worst), the ODE and
+  boundary residuals kept as physics terms, hard constraints in the output (see `PinnNet`) and a
+  cosine learning-rate schedule fitted to the time budget.
 * ``paper`` -- the paper's setup: fixed 20,000 collocation / 1,000 boundary / 1,000 tip-observation
   samples, L2-norm group losses, L-BFGS with strong-Wolfe line search, full batch.
-* ``fast`` -- what fits a 2-core CPU: Adam on mini-batches resampled every step (collocation points,
-  boundary configurations) plus dense supervision from exact Cosserat states (cheap: the shooting
-  solver gives 5,000 full solutions a second), with the ODE and boundary residuals kept as physics
-  terms; hard output constraints (see `PinnNet`); cosine learning-rate decay.
-
-``polish`` continues ``fast`` with full-batch L-BFGS and tip observations; ``finetune`` is the paper's
-stage (b): it continues a trained model on measured tube tips (`train(observations=...)`) with the ODE
-and boundary residuals kept on a fixed collocation set, so the model stays physical.
+* ``polish`` -- full-batch L-BFGS on dense supervision and tip observations, after another recipe
+  (``--init``).
+* ``finetune`` -- the paper's stage (b): continues a trained model on measured tube tips
+  (`train(observations=...)`) with the ODE and boundary residuals kept on a fixed collocation set, so
+  the model stays physical.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ from ctrplan.training.losses import (
     ode_residual,
     supervised_residual,
 )
+from ctrplan.training.mining import HardExamples, Mining
 from ctrplan.training.physics import TubeTensors
 from ctrplan.training.samples import DenseStates, solve_dense, state_scales
 
@@ -46,7 +52,8 @@ GROUP_WEIGHTS = (1.0, 1.0, 1.0, 1.0, 1.0)
 
 @dataclass(frozen=True)
 class Recipe:
-    """A training recipe. Counts are samples; ``steps`` are optimiser steps (L-BFGS: outer steps)."""
+    """A training recipe. Counts are samples; ``steps`` are optimiser steps (L-BFGS: outer steps);
+    ``minutes`` is the default time budget (``--time-limit`` overrides it)."""
 
     name: str
     optimizer: str                  # "adam" | "lbfgs"
@@ -65,14 +72,24 @@ class Recipe:
     warmup_steps: int = 0           # Adam: linear learning-rate ramp (keeps a trained model's state)
     lbfgs_history: int = 50
     features: str = "equivariant"   # network input encoding, see `PinnNet`
+    harmonics: int = 1              # relative-rotation harmonics of the encoding, see `PinnNet`
+    hidden: int = 100               # network width and depth (the paper's 6 x 100)
+    layers: int = 6
+    tip_rows: float = 0.0           # extra supervised rows at the tip (s = l1), per dense row
+    orientation_weight: float = 1.0  # weight of the quaternion residual in the dense supervision
+    physics_every: int = 1          # compute the ODE / boundary terms every k steps
+    mining: Mining | None = None    # hard-example mining (`ctrplan.training.mining`)
+    minutes: float | None = None    # default time budget
 
 
 RECIPES = {
+    "fast": Recipe(name="fast", optimizer="adam", steps=1_000_000, lr=2e-3, collocation=1024, boundary=256,
+                   observations=0, dense_configs=100_000, dense_points=17, dense_batch=4096,
+                   resample=True, weights={"ode": 0.05, "bc": 0.05, "obs": 0.0, "dense": 1.0},
+                   harmonics=4, tip_rows=1.0, orientation_weight=3.0, physics_every=4,
+                   mining=Mining(), minutes=25.0),
     "paper": Recipe(name="paper", optimizer="lbfgs", steps=300_000, lr=1.0, norm="l2", features="paper"),
-    "fast": Recipe(name="fast", optimizer="adam", steps=40_000, lr=2e-3, collocation=2048, boundary=512,
-                   observations=0, dense_configs=20_000, dense_points=65, dense_batch=4096,
-                   resample=True, weights={"ode": 0.05, "bc": 0.05, "obs": 0.0, "dense": 1.0}),
-    # second stage after `fast` (use with init_from): full-batch L-BFGS with tip observations
+    # full-batch L-BFGS with tip observations, after another recipe (use with init_from)
     "polish": Recipe(name="polish", optimizer="lbfgs", steps=1000, lr=1.0, collocation=2048, boundary=512,
                      observations=2000, dense_configs=3_000, dense_points=65, dense_batch=8192,
                      weights={"ode": 0.05, "bc": 0.05, "obs": 0.05, "dense": 1.0}),
@@ -83,6 +100,7 @@ RECIPES = {
                        boundary=512, observations=0, warmup_steps=50,
                        weights={"ode": 0.05, "bc": 0.05, "obs": 1.0}),
 }
+DEFAULT_RECIPE = "fast"
 
 
 def get_recipe(name: str, **overrides) -> Recipe:
@@ -93,7 +111,16 @@ def get_recipe(name: str, **overrides) -> Recipe:
     if unknown:
         raise InputError(f"overrides: unknown recipe field(s) {', '.join(sorted(unknown))} "
                          f"(fields: {', '.join(Recipe.__dataclass_fields__)})")
-    return replace(RECIPES[name], **{k: v for k, v in overrides.items() if v is not None})
+    values = {k: v for k, v in overrides.items() if v is not None}
+    if values.get("mining") is False:
+        values["mining"] = None
+    if isinstance(values.get("mining"), dict):
+        try:
+            values["mining"] = Mining(**{**asdict(RECIPES[name].mining or Mining()), **values["mining"]})
+        except TypeError as exc:
+            raise InputError(f"overrides: mining: {exc} (fields: {', '.join(Mining.__dataclass_fields__)})"
+                             ) from None
+    return replace(RECIPES[name], **values)
 
 
 def hardware(device: torch.device) -> str:
@@ -153,8 +180,9 @@ class TrainResult:
 @dataclass
 class TrainingData:
     """What the losses draw on, on the training device: exact Cosserat solutions (dense supervision,
-    tip observations, output scales), the sampler and, without resampling, the fixed collocation and
-    boundary sets."""
+    tip observations, output scales), the hard examples found by mining, the sampler and, without
+    resampling, the fixed collocation and boundary sets. Joints are as the network sees them (the
+    robot's joint offsets applied)."""
 
     pool: DenseStates
     sampler: Sampler
@@ -165,58 +193,85 @@ class TrainingData:
     obs_tips: torch.Tensor
     fixed_colloc: tuple[torch.Tensor, torch.Tensor] | None
     fixed_bc: torch.Tensor | None
+    hard: HardExamples | None
 
     @classmethod
     def build(cls, robot: Robot, recipe: Recipe, seed: int, device: torch.device,
-              observations: tuple[np.ndarray, np.ndarray] | None = None) -> TrainingData:
+              observations: tuple[np.ndarray, np.ndarray] | None = None,
+              progress: Callable[[int, int], None] | None = None) -> TrainingData:
         """Solve the exact pool (its size: the largest of dense configurations, observations and
-        2000) and draw the fixed sets; ``observations`` (see `train`) replace the pool's tips."""
+        2000; ``progress(done, total)`` while it is solved) and draw the fixed sets; ``observations``
+        (see `train`) replace the pool's tips."""
         n_exact = max(recipe.dense_configs, recipe.observations, 2000)
         pool = solve_dense(robot, robot.sample_joints(n_exact, np.random.default_rng(seed)),
-                           recipe.dense_points)
+                           recipe.dense_points, progress)
+        if not len(pool):
+            raise InputError(f"robot {robot.name!r}: the exact solver solved none of {n_exact} random "
+                             f"configurations of its domain; check the domain with `ctrplan stability`")
 
         def to_dev(a: np.ndarray) -> torch.Tensor:
             return torch.as_tensor(np.asarray(a, dtype=np.float32), device=device)
 
-        obs = (pool.q[:recipe.observations], pool.tips[:recipe.observations]) \
+        q_model = robot.apply_offset(pool.q)
+        obs = (q_model[:recipe.observations], pool.tips[:recipe.observations]) \
             if observations is None else observations
         sampler = Sampler(robot, seed, device)
         fixed_colloc = None if recipe.resample else sampler.collocation(recipe.collocation,
                                                                         sampler.generator(0, 1))
         fixed_bc = None if recipe.resample else sampler.joints(recipe.boundary, sampler.generator(0, 2))
-        return cls(pool=pool, sampler=sampler, dense_q=to_dev(pool.q), dense_x=to_dev(pool.states),
+        hard = (HardExamples(robot, recipe.mining, recipe.dense_points, seed, device)
+                if recipe.mining else None)
+        return cls(pool=pool, sampler=sampler, dense_q=to_dev(q_model), dense_x=to_dev(pool.states),
                    sigma_grid=to_dev(pool.sigma), obs_q=to_dev(obs[0]), obs_tips=to_dev(obs[1]),
-                   fixed_colloc=fixed_colloc, fixed_bc=fixed_bc)
+                   fixed_colloc=fixed_colloc, fixed_bc=fixed_bc, hard=hard)
 
 
 class Losses:
-    """The weighted loss terms of a recipe: ODE and boundary residuals, tip observations, dense
-    supervision. ``losses(net, step) -> (total, {term: value})``; step ``k`` always draws the same
-    batches."""
+    """The weighted loss terms of a recipe: ODE and boundary residuals (every ``physics_every``
+    steps), tip observations, dense supervision (a ``mining.share`` of it from the hard examples, plus
+    ``tip_rows`` rows at the tip). ``losses(net, step) -> (total, {term: value})``; step ``k`` always
+    draws the same batches from the same data."""
 
     def __init__(self, recipe: Recipe, data: TrainingData, tubes: TubeTensors):
         self.recipe, self.data, self.tubes = recipe, data, tubes
         self.group_weights = torch.tensor(GROUP_WEIGHTS, device=data.dense_q.device)
 
+    def _dense_batch(self, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Arc fractions (R,), joints (R, 2N) and exact states (R, 2N + 9) of one supervised batch."""
+        r, d = self.recipe, self.data
+        dev = d.dense_q.device
+        n_hard = int(r.mining.share * r.dense_batch) if d.hard is not None and len(d.hard) else 0
+        ci = torch.randint(0, d.dense_q.shape[0], (r.dense_batch - n_hard,), generator=g, device=dev)
+        q, x = d.dense_q[ci], d.dense_x[ci]
+        if n_hard:
+            hq, hx = d.hard.draw(n_hard, g)
+            q, x = torch.cat([q, hq]), torch.cat([x, hx])
+        pi = torch.randint(0, d.sigma_grid.shape[0], (len(q),), generator=g, device=dev)
+        rows = torch.arange(len(q), device=dev)
+        sigma, xs = d.sigma_grid[pi], x[rows, pi]
+        n_tip = int(r.tip_rows * len(q))
+        if n_tip:
+            sigma = torch.cat([sigma, torch.ones(n_tip, device=dev)])
+            xs = torch.cat([xs, x[:n_tip, -1]])
+            q = torch.cat([q, q[:n_tip]])
+        return sigma, q, xs
+
     def __call__(self, net: PinnNet, k: int) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         r, d, gw, w = self.recipe, self.data, self.group_weights, self.recipe.weights
         terms: dict[str, torch.Tensor] = {}
-        if w.get("ode", 0):
+        physics = k % max(r.physics_every, 1) == 0
+        if w.get("ode", 0) and physics:
             sg, qc = d.fixed_colloc or d.sampler.collocation(r.collocation, d.sampler.generator(k, 1))
             terms["ode"] = (gw * ode_residual(net, sg, qc, self.tubes, r.norm)).sum()
-        if w.get("bc", 0):
+        if w.get("bc", 0) and physics:
             qb = d.fixed_bc if d.fixed_bc is not None else d.sampler.joints(r.boundary,
                                                                             d.sampler.generator(k, 2))
             terms["bc"] = (gw * boundary_residual(net, qb, self.tubes, r.norm)).sum()
         if w.get("obs", 0) and len(d.obs_q):
             terms["obs"] = observation_residual(net, d.obs_q, d.obs_tips, self.tubes, r.norm)
         if w.get("dense", 0) and r.dense_batch:
-            g = d.sampler.generator(k if r.resample else 0, 3)
-            dev = d.dense_q.device
-            ci = torch.randint(0, d.dense_q.shape[0], (r.dense_batch,), generator=g, device=dev)
-            pi = torch.randint(0, d.sigma_grid.shape[0], (r.dense_batch,), generator=g, device=dev)
-            terms["dense"] = (gw * supervised_residual(net, d.sigma_grid[pi], d.dense_q[ci],
-                                                       d.dense_x[ci, pi])).sum()
+            sigma, q, x = self._dense_batch(d.sampler.generator(k if r.resample else 0, 3))
+            terms["dense"] = (gw * supervised_residual(net, sigma, q, x, r.orientation_weight)).sum()
         total = sum(w[name] * v for name, v in terms.items())
         return total, {name: v.detach() for name, v in terms.items()}
 
@@ -348,18 +403,42 @@ class Trainer:
                          {"step": self.step, "elapsed_s": elapsed_s, "recipe": asdict(self.recipe),
                           "seed": self.seed, "history": self.history})
 
+    def _expected_steps(self) -> int:
+        """The step count the run will reach: the recipe's, or fewer where the time limit ends it
+        first (estimated from the pace so far)."""
+        steps = self.recipe.steps
+        if self.time_limit_s is None or self.step == 0:
+            return steps
+        pace = self._elapsed_s() / self.step
+        return min(steps, max(self.step, int(self.time_limit_s / pace)))
+
+    def _mine(self) -> dict:
+        """A mining round (`HardExamples.mine`) when one is due; its fresh-configuration tail."""
+        hard, m = self.data.hard, self.recipe.mining
+        if hard is None or self.step % m.every:
+            return {}
+        rnd = hard.mine(self.net, self.step)
+        return {"fresh_tip_p99_9_mm": rnd.tip_mm["p99_9"], "fresh_tip_max_mm": rnd.tip_mm["max"],
+                "fresh_orientation_max_deg": rnd.orientation_deg["max"]}
+
     def train(self, out: Path, *, checkpoint_every_s: float = 120.0,
               progress: Callable[[int, int, dict], None] | None = None) -> Trainer:
-        """Run to the recipe's step budget or the time limit, checkpointing beside ``out``.
-        ``progress(step, total, stats)`` is called every 10 steps."""
+        """Run to the recipe's step budget or the time limit, checkpointing beside ``out`` and mining
+        hard examples as the recipe says. ``progress(step, expected_steps, stats)`` is called every 10
+        steps (and once at the end); ``stats`` carries the loss terms and, after mining rounds, the
+        network's tail on the round's fresh configurations."""
         steps = self.recipe.steps
         one_step = self._adam_step if self.recipe.optimizer == "adam" else self._lbfgs_step
         self._t0 = last_ckpt = time.perf_counter()
+        fresh: dict = {}
+        values: dict = {}
         while self.step < steps:
             if self.time_limit_s is not None and self._elapsed_s() >= self.time_limit_s:
                 break
             total = one_step()
             self.step += 1
+            if self.step > 0:
+                fresh = self._mine() or fresh
             if self.step % 10 and self.step != steps:
                 continue  # host-device syncs only every 10 steps
             loss = float(total.detach())
@@ -367,15 +446,17 @@ class Trainer:
                 raise TrainingDivergedError(self.step, self.recipe,
                                             {k: float(v) for k, v in self._stats.items()})
             now = time.perf_counter()
-            values = {"loss": loss, **{k: float(v) for k, v in self._stats.items()}}
+            values = {"loss": loss, **{k: float(v) for k, v in self._stats.items()}, **fresh}
             if self.step % 50 == 0 or self.step == steps:
                 self.history.append({"step": self.step,
                                      "time_s": round(self.elapsed_before_s + now - self._t0, 2), **values})
             if progress is not None:
-                progress(self.step, steps, values)
+                progress(self.step, self._expected_steps(), values)
             if now - last_ckpt > checkpoint_every_s:
                 self._checkpoint(out, self.elapsed_before_s + now - self._t0)
                 last_ckpt = now
+        if progress is not None:
+            progress(self.step, self.step, values)
         self.wall_time_s = self._elapsed_s() + self.data_time_s
         self._checkpoint(out, self.wall_time_s - self.data_time_s)
         return self
@@ -404,10 +485,18 @@ class Trainer:
             },
             "wall_time_s": round(wall, 1),
             "data_generation_s": round(self.data_time_s, 1),
+            "unsolved_configurations": self.data.pool.unsolved_report(),
             "hardware": hardware(self.device),
             "metrics": metrics,
             "history_tail": self.history[-5:],
         }
+        hard = self.data.hard
+        if hard is not None:
+            card["mining"] = {"rounds": len(hard.rounds), "hard_pool": len(hard),
+                              "seconds": round(hard.seconds, 1),
+                              "unsolved_candidates": sum(r.unsolved for r in hard.rounds),
+                              "history": [r.to_json() for r in hard.rounds[::max(1, len(hard.rounds) // 20)]],
+                              "last": hard.rounds[-1].to_json() if hard.rounds else None}
         save_model(net, self.robot, out, card)
         return TrainResult(net=net, steps=step, wall_time_s=wall, history=self.history, card=card)
 
@@ -416,32 +505,39 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
           resume: bool = False, init_from: PinnNet | None = None, time_limit_s: float | None = None,
           checkpoint_every_s: float = 120.0,
           progress: Callable[[int, int, dict], None] | None = None,
+          data_progress: Callable[[int, int], None] | None = None,
           evaluate: Callable[[PinnNet], dict] | None = None,
           observations: tuple[np.ndarray, np.ndarray] | None = None,
           extra_card: dict | None = None) -> TrainResult:
     """Train a PINN for ``robot`` with ``recipe``; write ``out.safetensors`` + ``out.json``.
 
     ``init_from`` continues from an existing network (its input encoding and output scales are kept).
-    ``progress(step, total, stats)`` is called every few steps; ``evaluate(net) -> metrics`` at the
-    end (metrics go into the model card). Stops at ``recipe.steps`` or ``time_limit_s``.
-    ``observations`` = (q (B, 2N) with offsets applied, tips (B, N, 3) mm in the robot frame, NaN where
-    not measured) replaces the Cosserat tip observations (measured data, paper stage b); ``extra_card``
-    holds extra model-card fields. The card's ``stages`` lists the training stages that made the model:
-    ``extra_card["stages"]`` (those of the ``init_from`` model) followed by this one.
+    ``data_progress(done, total)`` reports while the exact pool is solved, ``progress(step, total,
+    stats)`` every few steps; ``evaluate(net) -> metrics`` runs at the end (metrics go into the model
+    card). Stops at ``recipe.steps`` or after ``time_limit_s`` (default: the recipe's ``minutes``),
+    data generation included. ``observations`` = (q (B, 2N) with offsets applied, tips (B, N, 3) mm
+    in the robot frame, NaN where not measured) replaces the Cosserat tip observations (measured
+    data, paper stage b); ``extra_card`` holds extra model-card fields. The card's ``stages`` lists
+    the training stages that made the model: ``extra_card["stages"]`` (those of the ``init_from``
+    model) followed by this one.
     """
     dev = torch.device(device)
     torch.manual_seed(seed)
     t_start = time.perf_counter()
-    data = TrainingData.build(robot, recipe, seed, dev, observations)
+    data = TrainingData.build(robot, recipe, seed, dev, observations, data_progress)
     if init_from is not None:
         net = init_from.to(dev).train()
         for p in net.parameters():
             p.requires_grad_(True)
     else:
-        net = PinnNet(robot, scales=state_scales(data.pool, recipe.features),
-                      features=recipe.features).to(dev)
-    trainer = Trainer(robot, data, net, data_time_s=time.perf_counter() - t_start)
-    trainer.compile(recipe, seed=seed, time_limit_s=time_limit_s)
+        net = PinnNet(robot, hidden=recipe.hidden, layers=recipe.layers,
+                      scales=state_scales(data.pool, recipe.features), features=recipe.features,
+                      harmonics=recipe.harmonics).to(dev)
+    data_time_s = time.perf_counter() - t_start
+    limit_s = time_limit_s if time_limit_s is not None else (recipe.minutes * 60 if recipe.minutes else None)
+    trainer = Trainer(robot, data, net, data_time_s=data_time_s)
+    loop_s = None if limit_s is None else max(limit_s - data_time_s, 0.0)
+    trainer.compile(recipe, seed=seed, time_limit_s=loop_s)
     if resume:
         trainer.resume(out)
     trainer.train(out, checkpoint_every_s=checkpoint_every_s, progress=progress)

@@ -55,8 +55,10 @@ def error_band_figure(cmp: Comparison, path: Path) -> Path:
     return path
 
 
-def states_figure(cmp: Comparison, path: Path, index: int = 0) -> Path:
-    """All state groups along s for one configuration: exact (solid) vs PINN (dashed)."""
+def states_figure(cmp: Comparison, path: Path) -> Path:
+    """All state groups along s for the first configuration the exact solver solved: exact (solid)
+    vs PINN (dashed)."""
+    index = int(np.argmax(cmp.solved))
     s = cmp.exact.s_mm[index]
     ex, pr = cmp.exact.state[index], cmp.predicted.state[index]
     n = cmp.exact.n_tubes

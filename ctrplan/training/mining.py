@@ -1,0 +1,123 @@
+"""Hard-example mining: fresh exact solutions where the network is currently worst.
+
+DeepXDE's residual-based adaptive refinement adds collocation points where the PDE residual is
+largest. Here the exact solver is cheap enough to score the network by its real error instead: every
+`Mining.every` optimiser steps, `Mining.candidates` fresh random configurations are solved (tips only),
+the network's tube-1 tip is compared with the exact one, and the worst `Mining.keep` of them are
+solved densely and join a pool that supplies `Mining.share` of every supervised batch. Where a CTR is
+hardest to learn -- tubes nearly opposed at their largest overlap, next to the elastic-stability
+boundary, where the shape changes over a few hundredths of a radian -- is found, not guessed.
+
+The candidates are fresh configurations the network has never seen, so the error distribution of a
+round is also an honest running estimate of the tail on unseen configurations (`Round.tip_mm`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ctrplan.kinematics.cosserat import CosseratBackend
+from ctrplan.kinematics.pinn import PinnNet
+from ctrplan.robot import Robot
+from ctrplan.training.samples import solve_dense
+
+#: A tip orientation error of this many degrees scores like 1 mm of tip position error.
+DEG_PER_MM = 3.0
+
+
+@dataclass(frozen=True)
+class Mining:
+    """How hard examples are found: rounds ``every`` optimiser steps, ``candidates`` fresh
+    configurations scored per round, the worst fraction ``keep`` solved densely into a pool of at
+    most ``pool`` configurations (newest kept), which supplies ``share`` of every supervised batch."""
+
+    every: int = 1000
+    candidates: int = 20_000
+    keep: float = 0.1
+    pool: int = 40_000
+    share: float = 0.5
+
+
+@dataclass(frozen=True)
+class Round:
+    """One mining round: at optimiser ``step``, tube-1 tip error (mm) and tip orientation error (deg)
+    of the network on ``candidates`` fresh configurations (tails), and how many the exact solver
+    could not solve (left out)."""
+
+    step: int
+    candidates: int
+    tip_mm: dict
+    orientation_deg: dict
+    unsolved: int
+
+    def to_json(self) -> dict:
+        return {"step": self.step, "candidates": self.candidates, "tip_mm": self.tip_mm,
+                "orientation_deg": self.orientation_deg, "unsolved": self.unsolved}
+
+
+def tail(x: np.ndarray) -> dict:
+    """mean, p99, p99.9 and max of ``x`` (any shape), rounded for the card."""
+    x = np.ravel(x)
+    return {"mean": round(float(x.mean()), 4), "p99": round(float(np.percentile(x, 99)), 4),
+            "p99_9": round(float(np.percentile(x, 99.9)), 4), "max": round(float(x.max()), 4)}
+
+
+def tip_errors(net: PinnNet, q: np.ndarray, tips_mm: np.ndarray, quats: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Tube-1 tip position error (B,) mm and tip orientation error (B,) deg of ``net`` against exact
+    tips (B, 3) and tip quaternions (B, 4) for joints q (B, 2N) (offsets applied)."""
+    dev = next(net.parameters()).device
+    ip = net.i_p
+    with torch.no_grad():
+        x = net(torch.ones(len(q), device=dev), torch.as_tensor(q, dtype=torch.float32, device=dev))
+    x = x.double().cpu().numpy()
+    pos = np.linalg.norm(x[:, ip:ip + 3] - tips_mm, axis=1)
+    dot = np.abs((x[:, ip + 3:ip + 7] * quats).sum(-1))
+    return pos, np.degrees(2 * np.arccos(np.clip(dot, 0.0, 1.0)))
+
+
+class HardExamples:
+    """The pool of hard configurations (joints (H, 2N) and dense exact states (H, P, 2N + 9) on the
+    training device) and the rounds that filled it."""
+
+    def __init__(self, robot: Robot, mining: Mining, points: int, seed: int, device: torch.device):
+        self.robot, self.mining, self.points, self.device = robot, mining, points, device
+        self.rng = np.random.default_rng([seed, 20_251_125])
+        self.q = torch.empty((0, 2 * robot.n_tubes), device=device)
+        self.x = torch.empty((0, points, robot.n_states), device=device)
+        self.rounds: list[Round] = []
+        self.seconds = 0.0
+
+    def __len__(self) -> int:
+        return self.q.shape[0]
+
+    def mine(self, net: PinnNet, step: int) -> Round:
+        """Score fresh candidates, add the worst to the pool, return the round's statistics."""
+        t0 = time.perf_counter()
+        m, robot = self.mining, self.robot
+        cand = robot.sample_joints(m.candidates, self.rng)
+        exact = CosseratBackend(robot).forward(cand, points=2, check=False)  # s = 0 and the tip
+        ok = exact.converged
+        qm = robot.apply_offset(cand[ok])
+        pos, ang = tip_errors(net, qm, exact.tips_mm[ok, 0], exact.state[ok, -1, net.i_p + 3:net.i_p + 7])
+        score = pos + ang / DEG_PER_MM
+        worst = cand[ok][np.argsort(score)[-max(1, int(m.keep * len(score))):]]
+        dense = solve_dense(robot, worst, self.points)
+        q = torch.as_tensor(robot.apply_offset(dense.q), dtype=torch.float32, device=self.device)
+        x = torch.as_tensor(dense.states, dtype=torch.float32, device=self.device)
+        self.q = torch.cat([q, self.q])[:m.pool]
+        self.x = torch.cat([x, self.x])[:m.pool]
+        rnd = Round(step=step, candidates=int(ok.sum()), tip_mm=tail(pos), orientation_deg=tail(ang),
+                    unsolved=int((~ok).sum()))
+        self.rounds.append(rnd)
+        self.seconds += time.perf_counter() - t0
+        return rnd
+
+    def draw(self, n: int, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        """``n`` pool rows (with replacement): joints (n, 2N) and their dense states (n, P, 2N + 9)."""
+        i = torch.randint(0, len(self), (n,), generator=g, device=self.device)
+        return self.q[i], self.x[i]
