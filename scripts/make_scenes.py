@@ -338,6 +338,7 @@ def design_task(p: dict) -> dict:
     in_front = SELLAR_WALL_Z - 2.0  # 2 mm in front of the sellar wall, in the sinus
     wall_x = FOSSA_HALF_WIDTH - 1.5  # 1.5 mm inside the fossa's side walls
     mirror = [-TARGET["center"][0], *TARGET["center"][1:]]
+    wall_z = float(PITUITARY[2]) - 0.5
     targets = [
         {"name": "pituitary_right", "ellipsoid": dict(TARGET),
          "reason": "right half of the gland, on the side of the approach nostril: a microadenoma seen there "
@@ -351,10 +352,10 @@ def design_task(p: dict) -> dict:
         {"name": "clivus", "point": [0.0, SINUS_Y - SINUS_HALF_HEIGHT + 4.0, in_front], "tolerance_mm": 2.0,
          "reason": "clival recess of the posterior sinus wall below the sella: biopsy of a clival chordoma "
                    "or chondrosarcoma"},
-        {"name": "cavernous_wall_right", "point": [-wall_x, FOSSA_Y, float(PITUITARY[2]) - 0.5], "tolerance_mm": 1.5,
+        {"name": "cavernous_wall_right", "point": [-wall_x, FOSSA_Y, wall_z], "tolerance_mm": 1.5,
          "reason": "right medial wall of the cavernous sinus (the fossa's side wall, the carotid beyond "
                    "it): functioning adenomas invade it, and resecting it raises remission"},
-        {"name": "cavernous_wall_left", "point": [wall_x, FOSSA_Y, float(PITUITARY[2]) - 0.5], "tolerance_mm": 1.5,
+        {"name": "cavernous_wall_left", "point": [wall_x, FOSSA_Y, wall_z], "tolerance_mm": 1.5,
          "reason": "left medial wall of the cavernous sinus, contralateral to the approach: the tip must "
                    "bend across the fossa"},
     ]

@@ -13,7 +13,8 @@ A design counts only what is proven. It is **feasible** when
    multiples of 1/8 turn -- a new tube set needs its own way in.
 
 A target is **reached** only when a cheap screen finds a collision-free goal configuration by inverse
-kinematics with the exact model (none: not reachable, no planning) and then `ctrplan.planning.plan`
+kinematics with the exact model (none within `SCREEN_BATCHES` batches: not reachable, no planning)
+and then `ctrplan.planning.plan`
 with the exact Cosserat backend finds a path from the start that its exact validation confirms
 (collision-free, stable, tip in the target, approach direction respected). Planning seeds come from
 the study seed, the design's fingerprint and the target's name: the same design gives the same record
@@ -40,8 +41,10 @@ from ctrplan.robot import Robot
 from ctrplan.scene import Scene
 from ctrplan.stability import certify, is_certified
 
-#: Goal-sampling batches of the reachability screen (each of 3 x the scene's goal_samples IK seeds).
+#: Goal-sampling batches of the reachability screen (each of 3 x the scene's goal_samples IK seeds);
+#: it gives up after SCREEN_GIVE_UP of them when no IK solution got the tip into the target at all.
 SCREEN_BATCHES = 4
+SCREEN_GIVE_UP = 2
 #: Tube rotations tried for a design's start: multiples of 1/START_TURNS turn.
 START_TURNS = 8
 #: Candidate starts checked per batched call.
@@ -243,8 +246,8 @@ def _reach(task: DesignTask, scene: Scene, checker, record: dict, seed: int) -> 
         t = time.perf_counter()
         sampler = GoalSampler(checker, target.region, np.random.default_rng(out["seed"]),
                               seeds_per_batch=max(4, 3 * scene.settings.goal_samples), start=scene.start)
-        for _ in range(SCREEN_BATCHES):
-            if sampler.sample_batch():
+        for k in range(1, SCREEN_BATCHES + 1):
+            if sampler.sample_batch() or (k >= SCREEN_GIVE_UP and sampler.stats.ik_reached == 0):
                 break
         screen_s += time.perf_counter() - t
         out["goals"] = len(sampler.goals)

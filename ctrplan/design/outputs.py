@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 import optuna
 
+from ctrplan.bench import machine_info
 from ctrplan.dataio import atomic_write
 from ctrplan.design.space import build_robot
 from ctrplan.design.study import NOMINAL, RECORD, dominates, finished_trials, objective_value, ranking_key
@@ -70,6 +71,12 @@ def pareto_front(designs: list[Design], task: DesignTask) -> list[Design]:
             if not any(dominates(o.record, d.record, task.objectives) for o in feasible)]
 
 
+def targets_of(record: dict) -> dict[str, dict]:
+    """Per target: reached, the path's clearance (mm) and planning time (s), and what happened."""
+    keys = ("reached", "stage", "min_clearance_mm", "planning_time_s", "message")
+    return {t["name"]: {k: t[k] for k in keys} for t in record["targets"]}
+
+
 def objectives_of(record: dict, task: DesignTask) -> dict[str, float | int]:
     """The record's objectives by name (targets reached as a count)."""
     values = {o.name: objective_value(record, o.name) for o in task.objectives}
@@ -99,20 +106,21 @@ def write_outputs(task: DesignTask, study: optuna.Study, out: Path, *, storage: 
         "best": None if best is None else {
             "trial": best.trial, "robot_file": str(out / "best_robot.yaml"),
             "reached": best.record["reached"], "objectives": objectives_of(best.record, task),
-            "parameters": best.record["parameters"],
-            "paths": {name: str(p) for name, p in targets.items()}},
+            "parameters": best.record["parameters"], "robot": best.record["robot"],
+            "targets": targets_of(best.record), "paths": {name: str(p) for name, p in targets.items()}},
         "pareto": [{"trial": d.trial, "parameters": d.record["parameters"],
                     "objectives": objectives_of(d.record, task), "reached": d.record["reached"]}
                    for d in front],
         "nominal": None if nominal is None else {
             "reached": nominal.record["reached"], "feasible": nominal.record["feasible"],
-            "objectives": objectives_of(nominal.record, task),
-            "targets": {t["name"]: t["message"] for t in nominal.record["targets"]}},
+            "objectives": objectives_of(nominal.record, task), "robot": nominal.record["robot"],
+            "targets": targets_of(nominal.record)},
         "time_s": round(time_s, 2),
         "trial_time_s": None if not times else {
             "median": round(statistics.median(times), 2), "mean": round(statistics.fmean(times), 2),
             "max": round(max(times), 2), "total": round(sum(times), 2)},
         "executor": executor,
+        "machine": machine_info(),
         "outputs": {name: str(out / name) for name in
                     ("design.json", "designs.csv", "pareto.png", "report.html", "best_robot.yaml", "paths")
                     if best is not None or name not in ("best_robot.yaml", "paths")},
