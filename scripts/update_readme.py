@@ -230,10 +230,10 @@ def render_design(doc: dict[str, Any]) -> str:
         objectives = ", ".join(f"{k} {v:.4g}" for k, v in best["objectives"].items())
         parts.append(f"Objectives of the best design: {objectives}.")
     tt, m = doc["trial_time_s"], doc["machine"]
-    parts.append(f"{doc['trials']} trials ({doc['feasible']} feasible) in {doc['time_s'] / 60:.1f} min on "
-                 f"{doc['executor']}; wall time per trial median {tt['median']:.1f} s, mean "
-                 f"{tt['mean']:.1f} s, max {tt['max']:.1f} s. Machine: {m['cpu']}, {m['cores']} cores; "
-                 f"{m['platform']}.")
+    parts.append(f"{doc['trials']} trials ({doc['feasible']} feasible) in {doc['study_wall_s'] / 60:.1f} min "
+                 f"(first start to last end) on {doc['executor']}; wall time per trial median "
+                 f"{tt['median']:.1f} s, mean {tt['mean']:.1f} s, max {tt['max']:.1f} s. Machine: "
+                 f"{m['cpu']}, {m['cores']} cores; {m['platform']}.")
     out = Path(doc["outputs"]["pareto.png"]).parent
     rel = (README.parent / out).resolve().relative_to(README.parent)
     parts.append(f"![Pareto plot]({rel}/pareto.png)\n\nEvery trial, the paths and the anatomy: "

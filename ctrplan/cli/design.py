@@ -89,7 +89,7 @@ def design(
         raise as_option(exc, OPTIONS) from None
     budget = trials or task.trials
     err = Console(stderr=True, highlight=False)
-    t0 = time.perf_counter()
+    t0 = time.perf_counter()  # this run: its trials, not the outputs
     with _DesignProgress(err, task, budget) as progress:
         try:
             run_study(task, st, trials=budget, seed=seed, workers=workers, ray_address=ray,
@@ -168,6 +168,7 @@ def _summary(console, task, doc: dict) -> None:
         console.print("no feasible design")
     tt = doc["trial_time_s"]
     if tt:
-        console.print(f"time per trial: median {tt['median']:.1f} s, max {tt['max']:.1f} s; this run "
+        console.print(f"time per trial: median {tt['median']:.1f} s, max {tt['max']:.1f} s; the study's "
+                      f"trials {doc['study_wall_s']:.0f} s from first start to last end; this run "
                       f"{doc['time_s']:.0f} s on {doc['executor']}")
     console.print(f"wrote {', '.join(doc['outputs'].values())}")

@@ -99,6 +99,9 @@ def write_outputs(task: DesignTask, study: optuna.Study, out: Path, *, storage: 
     write_designs_csv(task, designs, out / "designs.csv")
     pareto_figure(task, designs, front, best, nominal, out / "pareto.png")
     times = [d.record["time_s"] for d in designs]
+    trials = finished_trials(study)
+    span = None if not trials else (max(t.datetime_complete for t in trials)
+                                    - min(t.datetime_start for t in trials)).total_seconds()
     doc = {
         "study": study.study_name, "storage": storage, "task": str(task.path), "seed": seed,
         "trials": len(designs), "feasible": sum(d.record["feasible"] for d in designs),
@@ -116,6 +119,7 @@ def write_outputs(task: DesignTask, study: optuna.Study, out: Path, *, storage: 
             "objectives": objectives_of(nominal.record, task), "robot": nominal.record["robot"],
             "targets": targets_of(nominal.record)},
         "time_s": round(time_s, 2),
+        "study_wall_s": None if span is None else round(span, 2),
         "trial_time_s": None if not times else {
             "median": round(statistics.median(times), 2), "mean": round(statistics.fmean(times), 2),
             "max": round(max(times), 2), "total": round(sum(times), 2)},

@@ -76,7 +76,7 @@ def pareto_figure(task: DesignTask, designs: list[Design], front: list[Design], 
         ax.set_ylim(-0.5, n_targets + 0.5)
         ax.set_yticks(range(n_targets + 1))
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="lower right")
+        ax.legend(fontsize=7, loc="best")
     fig.suptitle(f"{task.name}: {len(designs)} trials, {len(feasible)} feasible", fontsize=11)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -96,8 +96,9 @@ def _region_outline(region, a: int, b: int) -> np.ndarray:
 
 
 def overview_figure(task: DesignTask, best: Design | None) -> bytes:
-    """PNG: side (z-y) and top (z-x) views of the anatomy around the targets, every target
-    labelled, and the best design's backbone at its start (dashed) and at the end of each path."""
+    """PNG: side (z-y) and top (z-x) views of the anatomy around the targets, every target in its
+    colour, and the best design's backbone at the end of its path to each reached target (same
+    colour)."""
     from matplotlib.collections import PolyCollection
 
     from ctrplan.design.space import build_robot
@@ -112,40 +113,37 @@ def overview_figure(task: DesignTask, best: Design | None) -> bytes:
     if best is not None:
         record = best.record
         robot = build_robot(record["robot"], "best design")
-        qs = [record["start"]] + [t["path"][-1] for t in record["targets"] if t["reached"]]
-        bb = CosseratBackend(robot).forward(np.array(qs), points=60, check=False)
-        pos = scene.to_scene(bb.positions_mm)
-        names = ["start"] + [t["name"] for t in record["targets"] if t["reached"]]
-        backbones = list(zip(names, pos, strict=True))
+        reached = [t for t in record["targets"] if t["reached"]]
+        if reached:
+            bb = CosseratBackend(robot).forward(np.array([t["path"][-1] for t in reached]), points=60,
+                                                check=False)
+            backbones = list(zip([t["name"] for t in reached], scene.to_scene(bb.positions_mm), strict=True))
     bounds = np.stack([lo, hi])
     tris = triangles_in(scene, bounds, max_triangles=15000)
     colours = plt.get_cmap("tab10")
-    fig, axes = plt.subplots(1, 2, figsize=(13, 5.6))
+    names = [t.name for t in task.targets]
+    fig, axes = plt.subplots(1, 2, figsize=(14, 5.6))
     for ax, (a, b, title) in zip(axes, ((2, 1, "side view (z-y)"), (2, 0, "top view (z-x)")), strict=True):
         for _, t in tris:
             ax.add_collection(PolyCollection(t[:, :, [a, b]], facecolor="0.5", edgecolor="none", alpha=0.07))
         for i, target in enumerate(task.targets):
             outline = _region_outline(target.region, a, b)
-            ax.fill(outline[:, 0], outline[:, 1], color=colours(i % 10), alpha=0.45, lw=0)
-            ax.annotate(target.name, target.region.center[[a, b]], fontsize=7, xytext=(4, 4),
-                        textcoords="offset points")
+            ax.fill(outline[:, 0], outline[:, 1], color=colours(i % 10), alpha=0.45, lw=0,
+                    label=f"target {target.name}")
         for name, p in backbones:
-            if name == "start":
-                ax.plot(p[:, a], p[:, b], "k--", lw=1.2, label="best design: start")
-            else:
-                i = [t.name for t in task.targets].index(name)
-                ax.plot(p[:, a], p[:, b], color=colours(i % 10), lw=2.0, label=f"at {name}")
+            ax.plot(p[:, a], p[:, b], color=colours(names.index(name) % 10), lw=2.0,
+                    label=f"best design at {name}")
         ax.set_xlim(lo[a], hi[a])
         ax.set_ylim(lo[b], hi[b])
         ax.set_aspect("equal")
         ax.set_xlabel("xyz"[a] + " (mm)")
         ax.set_ylabel("xyz"[b] + " (mm)")
         ax.set_title(title, fontsize=10)
-    if backbones:
-        axes[0].legend(fontsize=7, loc="lower left")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="center right", fontsize=8, frameon=False)
     fig.suptitle(f"{scene.name}: the targets of {task.name} and the best design at each reached one",
                  fontsize=11)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 0.8, 1))
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
     plt.close(fig)
@@ -198,7 +196,8 @@ def write_report(task: DesignTask, doc: dict, designs: list[Design], best: Desig
     if doc["trial_time_s"]:
         tt = doc["trial_time_s"]
         parts.append(f"<p>Wall time per trial: median {tt['median']:.1f} s, mean {tt['mean']:.1f} s, max "
-                     f"{tt['max']:.1f} s (sum {tt['total']:.0f} s over all workers).</p>")
+                     f"{tt['max']:.1f} s (sum {tt['total']:.0f} s over all workers); from the first trial's "
+                     f"start to the last one's end {doc['study_wall_s']:.0f} s.</p>")
     rows = [[f"<b>{html.escape(t.name)}</b>", html.escape(t.reason),
              _reach_cell(None if nominal is None else nominal.record, t.name),
              _reach_cell(None if best is None else best.record, t.name)] for t in task.targets]
@@ -218,9 +217,10 @@ def write_report(task: DesignTask, doc: dict, designs: list[Design], best: Desig
         if png.is_file():
             parts += [f"<h3>{html.escape(t.name)}</h3>", _img(png.read_bytes(), f"path to {t.name}"),
                       f'<p><a href="paths/{html.escape(t.name)}/plan.html">interactive 3-D view</a></p>']
+    infeasible = [d for d in designs if not d.record["feasible"]]
     parts += ["<h2>Pareto front</h2>", _img((out / "pareto.png").read_bytes(), "Pareto plot"),
               "<h2>Every trial</h2><p>Feasible designs best first, then the infeasible ones.</p>",
-              _designs_table(task, ranked(designs, task) + [d for d in designs if not d.record["feasible"]])]
+              f'<div class="wide">{_designs_table(task, ranked(designs, task) + infeasible)}</div>']
     page = (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>ctrplan design "
             f"{html.escape(task.name)}</title><style>{_CSS}</style></head><body>{''.join(parts)}</body></html>")
     with atomic_write(out / "report.html") as fh:
@@ -265,5 +265,5 @@ table{border-collapse:collapse;margin:8px 0;font-size:12px}
 th,td{border:1px solid #ddd;padding:3px 7px;vertical-align:top;text-align:left}
 th{background:#f3f3f3}img{max-width:100%;border:1px solid #eee}
 .yes{color:#1a7f37;font-weight:600}.no{color:#b42318;font-weight:600}small{color:#555}
-code{background:#f5f5f5;padding:0 3px}
+code{background:#f5f5f5;padding:0 3px}.wide{overflow-x:auto}
 """
