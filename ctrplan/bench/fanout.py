@@ -11,6 +11,7 @@ them, so an interrupted run ends with one line, not one traceback per worker.
 
 from __future__ import annotations
 
+import gc
 import multiprocessing as mp
 import os
 import signal
@@ -136,6 +137,11 @@ class LocalPool(Pool):
         for process in list((self.executor._processes or {}).values()):  # no public way before 3.14
             process.terminate()
         self.executor.shutdown(wait=True, cancel_futures=True)
+        # free its queues' semaphores now: after Ctrl-C the CLI leaves with os._exit, skipping the
+        # finalisers, and multiprocessing's resource tracker would report them as leaked
+        self.executor = None
+        self._futures.clear()
+        gc.collect()
 
 
 class RayPool(Pool):
