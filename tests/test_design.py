@@ -10,6 +10,7 @@ import json
 import math
 import re
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,9 @@ from ctrplan.bench.fanout import run_jobs
 from ctrplan.cli import main
 from ctrplan.design.evaluate import DesignJob, evaluate, evaluate_job
 from ctrplan.design.task import load_task
+from ctrplan.kinematics import CosseratBackend
+from ctrplan.kinematics.cosserat import SolverSettings
+from ctrplan.planning import BoxSpace
 from ctrplan.robot import Robot
 from ctrplan.stability import critical_length_mm, is_certified
 
@@ -197,7 +201,8 @@ def test_over_strained_designs_are_never_best(tmp_path, capsys):
     assert best["objectives"]["max_strain"] <= 0.0075
 
 
-def write_pair_task(folder: Path) -> tuple[Path, float]:
+def write_pair_task(folder: Path, target: tuple[float, ...] = (0.0, 0.0, 40.0), tolerance: float = 15.0,
+                    constraints: str = "") -> tuple[Path, float]:
     """Two fully overlapping curved tubes (50 mm, tube 2 at 20 1/m), only rotations; tube 1's
     curvature varies across the closed-form snapping threshold. Returns the task and that threshold
     (1/m)."""
@@ -213,8 +218,9 @@ def write_pair_task(folder: Path) -> tuple[Path, float]:
         "target: {point: [0.0, 0.0, 40.0], tolerance_mm: 15.0}\nstart: [0.0, 0.0, 0.0, 0.0]\n"
         "planner: {time_limit_s: 2.0, points: 20}\n")
     (folder / "task.yaml").write_text(
-        "scene: scene.yaml\ntargets:\n  - {name: ahead, point: [0.0, 0.0, 40.0], tolerance_mm: 15.0}\n"
-        "vary:\n  1: {curvature_1_per_m: [5.0, 65.0]}\n"
+        "scene: scene.yaml\ntargets:\n"
+        f"  - {{name: ahead, point: {list(target)}, tolerance_mm: {tolerance}}}\n"
+        f"vary:\n  1: {{curvature_1_per_m: [5.0, 65.0]}}\n{constraints}"
         "objectives: [targets_reached, max_strain]\nbudget: {trials: 10, plan_time_s: 2.0}\n")
     robot = Robot.load(folder / "robot.yaml")
     # L sqrt((1 + nu) k1 k2) = pi / 2 at L = 50 mm: k1 = k2 (L_crit(k1 = k2) / L)^2
@@ -239,6 +245,36 @@ def test_snapping_designs_are_never_best(tmp_path, capsys):
                 if r["feasible"] == "1" and int(r["targets_reached"]) == most]
     assert kappa_of(best) == pytest.approx(max(feasible))  # the most strained of the feasible ones
     assert any(float(r["tube1.curvature_1_per_m"]) > kappa_of(best) and r["feasible"] == "0" for r in rows)
+
+
+def test_without_the_snap_free_constraint_paths_stay_stable(tmp_path):
+    """``snap_free: false``: a design that snaps somewhere in its domain is not refused, but planning
+    tests every state for stability: what it reaches, it reaches through stable equilibria only, and
+    a target only unstable configurations reach (tubes opposed) is not reached."""
+    _, critical = write_pair_task(tmp_path)
+    robot = Robot.load(tmp_path / "robot.yaml")
+    robot = robot.with_changes(tubes=(replace(robot.tubes[0], curvature_per_mm=1.5e-3 * critical),
+                                      robot.tubes[1]))
+    # the target: this design's tip with both tubes bent the same way (a stable equilibrium)
+    tip = CosseratBackend(robot).forward(np.array([0.0, 0.0, 0.0, 0.0]), points=2).tip_mm[0]
+    task_file, _ = write_pair_task(tmp_path, tuple(float(v) for v in tip), 3.0,
+                                   "constraints: {snap_free: false}\n")
+    record = evaluate(load_task(task_file), {"tube1.curvature_1_per_m": 1.5 * critical})
+    assert record["feasible"] and record["stability"] is None and record["reached"] == ["ahead"]
+    assert not is_certified(robot)
+    path = np.asarray(record["targets"][0]["path"])
+    dense = BoxSpace.for_robot(robot).densify(path, 0.5)
+    checking = CosseratBackend(robot, SolverSettings(stability=True))
+    bb = checking.forward(dense, points=2, check=False)
+    assert bb.converged.all() and bb.stable.all()
+    opposed = np.array([0.0, 0.0, 0.0, math.pi])
+    assert not checking.forward(opposed, points=2, check=False).stable[0]
+    tip = CosseratBackend(robot).forward(opposed, points=2).tip_mm[0]
+    task_file, _ = write_pair_task(tmp_path, tuple(float(v) for v in tip), 1.0,
+                                   "constraints: {snap_free: false}\n")
+    record = evaluate(load_task(task_file), {"tube1.curvature_1_per_m": 1.5 * critical})
+    assert record["feasible"] and record["reached"] == []
+    assert re.match(r"no collision-free goal configuration \([1-9]\d* of", record["targets"][0]["message"])
 
 
 @pytest.fixture(scope="module")

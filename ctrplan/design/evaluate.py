@@ -86,8 +86,9 @@ def evaluate(task: DesignTask, parameters: Parameters, seed: int = 0) -> dict:
     Keys: ``parameters``; ``feasible`` and, when not, ``infeasible`` ``{constraint, message}``
     (constraint one of ``robot``, ``max_strain``, ``domain``, ``snap_free``, ``start``);
     ``max_strain`` (fraction), ``total_length_mm``, ``robot`` (the robot file as a dict),
-    ``fingerprint``, ``stability`` ``{snap_free, source, checked, time_s}``, ``start`` (joints, mm and
-    rad); ``targets``: per target ``{name, reached, stage (screen | plan), message, goals, seed,
+    ``fingerprint``, ``stability`` ``{snap_free, source (certificate | sweep), checked, example_q,
+    example_reason}`` (with ``snap_free`` constraints), ``start`` (joints, mm and rad);
+    ``targets``: per target ``{name, reached, stage (screen | plan), message, goals, seed,
     planning_time_s, kinematics_calls, min_clearance_mm, path}`` (path: joints (K, 2N) of the
     validated path, reached targets only); ``reached`` (names); ``min_clearance_mm`` (smallest over
     the reached targets' paths, None if none); ``time_s`` and ``timings`` (s).
