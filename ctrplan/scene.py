@@ -220,6 +220,18 @@ class TargetRegion:
         r = rng.uniform(size=(n, 1)) ** (1.0 / 3.0)
         return (u * r * self.semi_axes) @ self.rotation.T + self.center
 
+    def to_yaml(self) -> dict[str, Any]:
+        """The region as a scene file's ``target`` mapping (see the module docstring)."""
+        if self.kind == "sphere":
+            d: dict[str, Any] = {"point": self.center.tolist(), "tolerance_mm": float(self.semi_axes[0])}
+        else:
+            d = {"ellipsoid": {"center": self.center.tolist(), "semi_axes_mm": self.semi_axes.tolist(),
+                               "rotation": {"matrix": self.rotation.tolist()}}}
+        if self.direction is not None:
+            d["direction"] = self.direction.tolist()
+            d["angle_tolerance_deg"] = math.degrees(self.angle_tolerance_rad)
+        return d
+
     def to_dict(self) -> dict[str, Any]:
         d = {"kind": self.kind, "center_mm": self.center.tolist(),
              "semi_axes_mm": self.semi_axes.tolist(), "rotation": self.rotation.tolist()}
@@ -557,8 +569,9 @@ def _obstacle(doc: YamlDoc, keys: tuple, raw: Any, index: int) -> Obstacle:
     return Obstacle(name=name, kind=kind, pose=make_pose(R, c), radius=r, length=length)
 
 
-def _target(doc: YamlDoc, raw: Any) -> TargetRegion:
-    keys = ("target",)
+def target_from_yaml(doc: YamlDoc, raw: Any, keys: tuple = ("target",)) -> TargetRegion:
+    """The target region of the mapping ``raw`` found at ``keys`` of ``doc`` (the scene's
+    ``target`` by default; see the module docstring); errors name the key and line."""
     spec = _mapping(doc, keys, raw, {"point", "tolerance_mm", "ellipsoid", "direction",
                                      "angle_tolerance_deg"})
     region = _target_region(doc, keys, {k: v for k, v in spec.items()
@@ -704,7 +717,7 @@ def scene_from_yaml(doc: YamlDoc) -> Scene:
                                                       f"(also obstacles[{seen[o.name]}])")
         seen[o.name] = i
 
-    target = _target(doc, d["target"])
+    target = target_from_yaml(doc, d["target"])
     reach = float(robot.lengths_mm[0] + robot.domain.box_upper[0])  # l1 at full extension
     gap = float(np.linalg.norm(target.center - base_pose[:3, 3]) - np.max(target.semi_axes))
     if gap > reach:

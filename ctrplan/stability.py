@@ -107,9 +107,11 @@ def sweep_rotation(backend: CosseratBackend, q0: np.ndarray, tube: int, steps: i
 
 
 def check_domain(robot: Robot, n: int = 64, steps: int = 73, seed: int = 0,
-                 progress=None) -> StabilityReport:
+                 progress=None, stop_at_first: bool = False) -> StabilityReport:
     """Sweep every rotatable tube from ``n`` random configurations of the domain (``steps``
-    configurations a sweep) and collect the verdict. ``progress()`` is called after each sweep."""
+    configurations a sweep) and collect the verdict. ``progress()`` is called after each sweep.
+    ``stop_at_first``: stop after the first sweep that flags a configuration (the verdict is then
+    known; the counts cover the sweeps done)."""
     backend = CosseratBackend(robot, SolverSettings(stability=True))
     nt = robot.n_tubes
     rotatable = [i for i in range(nt) if not robot.domain.fixed[nt + i]]
@@ -122,6 +124,8 @@ def check_domain(robot: Robot, n: int = 64, steps: int = 73, seed: int = 0,
         sweeps.append(sweep_rotation(backend, q0, rotatable[k % len(rotatable)], steps))
         if progress is not None:
             progress()
+        if stop_at_first and sweeps[-1].flagged.any():
+            break
     if not rotatable:  # nothing turns: check the sampled configurations themselves
         bb = backend.forward(starts, points=2, check=False)
         unstable = ~bb.stable
@@ -192,3 +196,13 @@ def write_certificate(report: StabilityReport, robot: Robot, settings: dict,
     with atomic_write(path) as fh:
         fh.write(json.dumps(doc, indent=2) + "\n")
     return path
+
+
+def certify(robot: Robot, n: int = 64, steps: int = 73, seed: int = 0, progress=None,
+            stop_at_first: bool = False) -> tuple[StabilityReport, Path | None]:
+    """`check_domain` with these settings (those of `ctrplan stability` by default), and the
+    certificate it earns (the file, or None when the domain is not snap-free)."""
+    report = check_domain(robot, n=n, steps=steps, seed=seed, progress=progress, stop_at_first=stop_at_first)
+    if not report.snap_free:
+        return report, None
+    return report, write_certificate(report, robot, {"n": n, "steps": steps, "seed": seed})

@@ -1,4 +1,5 @@
-"""YAML loading that remembers where every key came from, so errors can name the line."""
+"""YAML loading that remembers where every key came from, so errors can name the line; and the
+writing of the files ctrplan generates (scenes, robots)."""
 
 from __future__ import annotations
 
@@ -64,6 +65,28 @@ def _walk(node: yaml.Node, prefix: KeyPath, lines: dict[KeyPath, int], path: Pat
     elif isinstance(node, yaml.SequenceNode):
         for i, item in enumerate(node.value):
             _walk(item, prefix + (i,), lines, path)
+
+
+class _FlowListDumper(yaml.SafeDumper):
+    """Lists of numbers (and of lists of numbers) in flow style ([x, y, z]); everything else in block
+    style; no anchors and aliases (a value used twice is written twice)."""
+
+    def ignore_aliases(self, data: Any) -> bool:
+        return True
+
+
+def _represent_list(dumper: yaml.SafeDumper, data: list) -> yaml.Node:
+    flow = all(isinstance(v, (int, float)) for v in data) or \
+        all(isinstance(v, list) and all(isinstance(u, (int, float)) for u in v) for v in data)
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow and len(data) > 0)
+
+
+_FlowListDumper.add_representer(list, _represent_list)
+
+
+def dump_yaml(data: dict[str, Any], width: int = 110) -> str:
+    """YAML text of a mapping, keys in their order, vectors and matrices on one line each."""
+    return yaml.dump(data, Dumper=_FlowListDumper, sort_keys=False, width=width)
 
 
 def load_yaml(path: str | Path) -> YamlDoc:

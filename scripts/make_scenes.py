@@ -38,6 +38,12 @@ skullbase_approach.yaml -- skullbase with an approach direction: the tip must re
 20 deg of the sellar wall's normal (+z, posterior), as a surgeon would approach the sella (``APPROACH``;
 the goal configurations of skullbase point 18-24 deg below it, so about half of them qualify).
 
+skullbase_design.yaml -- the design task of `ctrplan design` on skullbase.yaml: six targets of
+transsphenoidal surgery (both halves of the pituitary, the tuberculum sellae, the clivus, both medial
+cavernous-sinus walls), each placed in the free space from the anatomy above and given its clinical
+reason; the nominal robot as the base design, its curvatures and innermost curved length varied, tube
+sizes from a stock catalogue (``design_task``).
+
 open.yaml -- open workspace with one sphere and one box between the retracted start and the target.
 pipe.yaml -- a curved pipe (12 mm bore, 70 mm long) the robot has to thread to a target at its closed end.
 """
@@ -50,7 +56,8 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-import yaml
+
+from ctrplan.yamlio import dump_yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "scenes"
@@ -117,6 +124,14 @@ def _bump(y, centre, sigma, depth):
     return depth * np.exp(-(((y - centre) / sigma) ** 2))
 
 
+#: Sphenoid sinus (z = 62 .. SELLAR_WALL_Z - 0.1): superellipse centred at y = SINUS_Y, half-width 15,
+#: half-height SINUS_HALF_HEIGHT; the sellar wall at SELLAR_WALL_Z; the pituitary fossa behind it,
+#: centred at y = FOSSA_Y, half-width FOSSA_HALF_WIDTH, half-height 4.2, back wall at FOSSA_END_Z (mm).
+SINUS_Y, SINUS_HALF_HEIGHT = 18.0, 13.0
+SELLAR_WALL_Z = 75.6
+FOSSA_Y, FOSSA_HALF_WIDTH, FOSSA_END_Z = 22.0, 7.0, 85.5
+
+
 def skullbase_stations(p: dict) -> list[tuple[float, np.ndarray, str]]:
     """Stations (z, section (K, 2), label) from the nostril to the back of the pituitary fossa.
 
@@ -145,12 +160,12 @@ def skullbase_stations(p: dict) -> list[tuple[float, np.ndarray, str]]:
         (56.0, superellipse_section(0.0, 18.0, p["posterior_width"] / 2, p["posterior_height"] / 2, 3.0),
          "septectomy"),
         (61.9, superellipse_section(0.0, 18.0, sw / 2, sh / 2, 3.0), "septectomy"),
-        (62.0, superellipse_section(0.0, 18.0, 15.0, 13.0, 4.0), "sphenoid_face"),
-        (75.5, superellipse_section(0.0, 18.0, 15.0, 13.0, 4.0), "sinus"),
-        (75.6, superellipse_section(0.0, 22.0, p["sella_width"] / 2, p["sella_height"] / 2, 3.0),
+        (62.0, superellipse_section(0.0, SINUS_Y, 15.0, SINUS_HALF_HEIGHT, 4.0), "sphenoid_face"),
+        (SELLAR_WALL_Z - 0.1, superellipse_section(0.0, SINUS_Y, 15.0, SINUS_HALF_HEIGHT, 4.0), "sinus"),
+        (SELLAR_WALL_Z, superellipse_section(0.0, FOSSA_Y, p["sella_width"] / 2, p["sella_height"] / 2, 3.0),
          "sellar_wall"),
-        (76.6, superellipse_section(0.0, 22.0, 7.0, 4.2, 2.5), "fossa"),
-        (85.5, superellipse_section(0.0, 22.0, 7.0, 4.2, 2.5), "fossa"),
+        (SELLAR_WALL_Z + 1.0, superellipse_section(0.0, FOSSA_Y, FOSSA_HALF_WIDTH, 4.2, 2.5), "fossa"),
+        (FOSSA_END_Z, superellipse_section(0.0, FOSSA_Y, FOSSA_HALF_WIDTH, 4.2, 2.5), "fossa"),
     ]
     return st
 
@@ -309,6 +324,53 @@ def approach_variant(scene: dict) -> dict:
             "description": scene["description"] + " The tip must approach the sella within "
                            f"{APPROACH['angle_tolerance_deg']:g} deg of the sellar wall's normal.",
             "target": {**scene["target"], **APPROACH}}
+
+
+#: Stock nitinol tube sizes of the design task (inner/outer diameter, mm): the three of the paper's
+#: robot and three in between or beyond.
+CATALOGUE = ((0.40, 0.50), (0.55, 0.70), (0.70, 0.90), (0.95, 1.20), (1.20, 1.50), (1.55, 1.90))
+
+
+def design_task(p: dict) -> dict:
+    """skullbase_design.yaml: which tube set reaches the targets of transsphenoidal surgery through
+    skullbase.yaml. Every target lies in the free space of the scene, placed from its anatomy."""
+    sella_top = FOSSA_Y + p["sella_height"] / 2  # upper edge of the sellar opening
+    in_front = SELLAR_WALL_Z - 2.0  # 2 mm in front of the sellar wall, in the sinus
+    wall_x = FOSSA_HALF_WIDTH - 1.5  # 1.5 mm inside the fossa's side walls
+    mirror = [-TARGET["center"][0], *TARGET["center"][1:]]
+    wall_z = float(PITUITARY[2]) - 0.5
+    targets = [
+        {"name": "pituitary_right", "ellipsoid": dict(TARGET),
+         "reason": "right half of the gland, on the side of the approach nostril: a microadenoma seen there "
+                   "is resected here"},
+        {"name": "pituitary_left", "ellipsoid": {**TARGET, "center": mirror},
+         "reason": "left half of the gland: a contralateral microadenoma; the tip must cross the midline "
+                   "behind the 10 mm sellar opening"},
+        {"name": "tuberculum_sellae", "point": [0.0, sella_top + 2.5, in_front], "tolerance_mm": 1.5,
+         "reason": "the bony ridge above the sella, opened in the extended approach to suprasellar "
+                   "tumours (tuberculum sellae meningioma), just below the optic chiasm"},
+        {"name": "clivus", "point": [0.0, SINUS_Y - SINUS_HALF_HEIGHT + 4.0, in_front], "tolerance_mm": 2.0,
+         "reason": "clival recess of the posterior sinus wall below the sella: biopsy of a clival chordoma "
+                   "or chondrosarcoma"},
+        {"name": "cavernous_wall_right", "point": [-wall_x, FOSSA_Y, wall_z], "tolerance_mm": 1.5,
+         "reason": "right medial wall of the cavernous sinus (the fossa's side wall, the carotid beyond "
+                   "it): functioning adenomas invade it, and resecting it raises remission"},
+        {"name": "cavernous_wall_left", "point": [wall_x, FOSSA_Y, wall_z], "tolerance_mm": 1.5,
+         "reason": "left medial wall of the cavernous sinus, contralateral to the approach: the tip must "
+                   "bend across the fossa"},
+    ]
+    return {
+        "scene": "skullbase.yaml",
+        "targets": targets,
+        "robot": "nominal",
+        "vary": {1: {"curvature_1_per_m": [0.0, 80.0], "curved_length_mm": [20.0, 90.0]},
+                 2: {"curvature_1_per_m": [0.0, 30.0]},
+                 3: {"curvature_1_per_m": [0.0, 15.0]}},
+        "catalogue": [{"inner_diameter_mm": i, "outer_diameter_mm": o} for i, o in CATALOGUE],
+        "constraints": {"max_strain": 0.06, "snap_free": True},
+        "objectives": ["targets_reached", "min_clearance_mm", "-max_strain"],
+        "budget": {"trials": 200, "plan_time_s": 8.0},
+    }
 
 
 def write_mesh(mesh: trimesh.Trimesh, path: Path) -> str:
@@ -494,19 +556,6 @@ def pipe_scene(backend) -> dict:
     }
 
 
-class _FlowListDumper(yaml.SafeDumper):
-    """Lists of numbers in flow style ([x, y, z]); everything else in block style."""
-
-
-def _represent_list(dumper, data):
-    flow = all(isinstance(v, (int, float)) for v in data) or \
-        all(isinstance(v, list) and all(isinstance(u, (int, float)) for u in v) for v in data)
-    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow and len(data) > 0)
-
-
-_FlowListDumper.add_representer(list, _represent_list)
-
-
 def check_scene(path: Path, seeds: int = 3, time_limit: float = 10.0) -> None:  # pragma: no cover
     """Start valid, straight line start -> found goal collides, and RRTConnect solves it."""
     from ompl import util as ou
@@ -554,8 +603,12 @@ def main() -> None:  # pragma: no cover - script
     header = "# Generated by scripts/make_scenes.py -- edit the generator, not this file.\n"
     for name, d in scenes.items():
         path = SCENES / f"{name}.yaml"
-        path.write_text(header + yaml.dump(d, Dumper=_FlowListDumper, sort_keys=False, width=110))
+        path.write_text(header + dump_yaml(d))
         print(f"wrote {path.relative_to(ROOT)}")
+    path = SCENES / "skullbase_design.yaml"
+    note = "# The design task of `ctrplan design` (README); targets in the scene frame, mm.\n"
+    path.write_text(header + note + dump_yaml(design_task(SKULLBASE)))
+    print(f"wrote {path.relative_to(ROOT)}")
     if args.check:
         for name in scenes:
             check_scene(SCENES / f"{name}.yaml")

@@ -199,6 +199,48 @@ def render_plan(doc: dict[str, Any]) -> str:
     return "\n\n".join(parts)
 
 
+def render_design(doc: dict[str, Any]) -> str:
+    """Reach table, best design, timings and Pareto plot of `ctrplan design --json`."""
+    nominal, best = doc["nominal"], doc["best"]
+
+    def cell(design: dict[str, Any] | None, name: str) -> str:
+        if design is None:
+            return "–"
+        t = design["targets"][name]
+        if t["reached"]:
+            return f"yes ({t['min_clearance_mm']:.2f} mm clearance, {t['planning_time_s']:.1f} s)"
+        return "no: " + ("no collision-free goal configuration" if t["stage"] == "screen"
+                         else "no path within the budget")
+
+    best_head = "best design" if best is None else f"best design (trial {best['trial']})"
+    rows = [[name, cell(nominal, name), cell(best, name)] for name in doc["targets"]]
+    rows.append(["**total**", f"**{len(nominal['reached'])} of {len(doc['targets'])}**",
+                 "–" if best is None else f"**{len(best['reached'])} of {len(doc['targets'])}**"])
+    parts = [markdown_table(["target", "base design (nominal robot)", best_head], rows)]
+    if best is not None:
+        base = nominal["robot"]["tubes"]
+        tube_rows = []
+        for i, (b, t) in enumerate(zip(base, best["robot"]["tubes"], strict=True), 1):
+            tube_rows.append([str(i), f"{t['inner_diameter_mm']:g} / {t['outer_diameter_mm']:g}",
+                              f"{t['straight_length_mm']:.1f}", f"{t['curved_length_mm']:.1f} "
+                              f"({b['curved_length_mm']:g})", f"{t['curvature_1_per_m']:.2f} "
+                              f"({b['curvature_1_per_m']:g})"])
+        parts.append("Best design (nominal in brackets; diameters from the catalogue):\n\n" + markdown_table(
+            ["tube", "ID / OD mm", "straight mm", "curved mm", "curvature 1/m"], tube_rows))
+        objectives = ", ".join(f"{k} {v:.4g}" for k, v in best["objectives"].items())
+        parts.append(f"Objectives of the best design: {objectives}.")
+    tt, m = doc["trial_time_s"], doc["machine"]
+    parts.append(f"{doc['trials']} trials ({doc['feasible']} feasible) in {doc['study_wall_s'] / 60:.1f} min "
+                 f"(first start to last end) on {doc['executor']}; wall time per trial median "
+                 f"{tt['median']:.1f} s, mean {tt['mean']:.1f} s, max {tt['max']:.1f} s. Machine: "
+                 f"{m['cpu']}, {m['cores']} cores; {m['platform']}.")
+    out = Path(doc["outputs"]["pareto.png"]).parent
+    rel = (README.parent / out).resolve().relative_to(README.parent)
+    parts.append(f"![Pareto plot]({rel}/pareto.png)\n\nEvery trial, the paths and the anatomy: "
+                 f"[{rel}/report.html]({rel}/report.html).")
+    return "\n\n".join(parts)
+
+
 BLOCKS = {
     "kinematics": Block(marker="bench:kinematics", args=("bench", "kinematics"), render=render_kinematics),
     "pinn": Block(marker="pinn:accuracy", args=("eval-model", "--n", "5000"), render=render_pinn),
@@ -207,6 +249,8 @@ BLOCKS = {
     "plan-scenes": Block(marker="bench:plan-scenes",
                          args=("bench", "plan", "scenes/open.yaml", "scenes/pipe.yaml", "--out",
                                "docs/bench/plan_scenes"), render=render_plan),
+    "design": Block(marker="design:skullbase", args=("design", "scenes/skullbase_design.yaml", "--out",
+                                                     "docs/bench/design_skullbase"), render=render_design),
 }
 TRAINING_CARDS = README.parent / "docs" / "training"
 

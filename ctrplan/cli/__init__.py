@@ -51,6 +51,7 @@ def _register() -> None:
     # Command modules attach themselves to `app` on import.
     from ctrplan.cli import (  # noqa: F401
         bench,
+        design,
         diagnose,
         kinematics,
         model,

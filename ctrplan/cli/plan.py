@@ -112,15 +112,10 @@ def plan_command(
         be = load_backend(backend, sc.robot, model)
         result = plan(sc, be, planner=planner, time_limit_s=time_limit, seed=seed,
                       progress=progress.update)
-    doc = result.to_json()
-    doc["scene"] = str(scene)
     pinn = getattr(be, "pinn", be)  # hybrid keeps its PINN in .pinn
-    doc["model"] = getattr(pinn, "card", {}).get("weights_file")
-    doc["target"] = sc.target.to_dict()
-    if np.ptp(sc.target.semi_axes) > 0:  # one tolerance describes only a sphere; see doc["target"]
-        doc["goal_tolerance_mm"] = None
+    doc = plan_document(result, sc, scene, getattr(pinn, "card", {}).get("weights_file"))
     if out is not None:
-        _write_outputs(out, sc, result, doc)
+        write_plan_outputs(out, sc, result, doc)
     _summary(console, sc, result, out)
     if json_out:
         typer.echo(json.dumps(doc))
@@ -191,7 +186,19 @@ def _summary(console, sc, result, out: Path | None) -> None:
     console.print(t)
 
 
-def _write_outputs(out: Path, sc, result, doc: dict) -> None:
+def plan_document(result, sc, scene_file: Path, model: str | None) -> dict:
+    """The JSON document of a plan (DESIGN §3): the result, its scene file and PINN weights file
+    (or None), and the target region."""
+    doc = result.to_json()
+    doc["scene"] = str(scene_file)
+    doc["model"] = model
+    doc["target"] = sc.target.to_dict()
+    if np.ptp(sc.target.semi_axes) > 0:  # one tolerance describes only a sphere; see doc["target"]
+        doc["goal_tolerance_mm"] = None
+    return doc
+
+
+def write_plan_outputs(out: Path, sc, result, doc: dict) -> None:
     """path.json, obstacles.ply, plan.png, plan.html; each file is written completely or not at all."""
     from ctrplan.dataio import atomic_write
     from ctrplan.viz import plot_plan, viewer_data, write_viewer

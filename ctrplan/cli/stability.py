@@ -34,7 +34,7 @@ def stability(
     (conjugate-point test), where the continuation jumps (the branch folds: the robot snaps), or
     where two equilibria exist. The verdict is in the output (JSON `snap_free`); exit 2 on bad input.
     """
-    from ctrplan.stability import check_domain, write_certificate
+    from ctrplan.stability import certify
     from ctrplan.viz.stability_plot import plot_stability
 
     if n < 1 or steps < 3:
@@ -45,11 +45,12 @@ def stability(
     with Progress(TextColumn("stability sweeps"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=console, disable=as_json or not console.is_terminal) as bar:
         task = bar.add_task("sweeps", total=n)
-        report = check_domain(model, n=n, steps=steps, seed=seed, progress=lambda: bar.advance(task))
+        report, certificate = certify(model, n=n, steps=steps, seed=seed,
+                                      progress=lambda: bar.advance(task))
     doc = report.to_json()
     doc["plot"] = str(plot_stability(report, folder / "stability.png"))
-    if report.snap_free:  # planning then skips the per-state stability test for this robot
-        doc["certificate"] = str(write_certificate(report, model, {"n": n, "steps": steps, "seed": seed}))
+    if certificate is not None:  # planning then skips the per-state stability test for this robot
+        doc["certificate"] = str(certificate)
     (folder / "stability.json").write_text(json.dumps(doc, indent=2) + "\n")
     if as_json:
         typer.echo(json.dumps(doc, indent=2))

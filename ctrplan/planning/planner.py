@@ -596,7 +596,8 @@ def _report_overrun(result: PlanResult) -> None:
 
 def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | None = None,
          time_limit_s: float | None = None, seed: int | None = None, progress: Progress = _quiet,
-         exact: Backend | None = None, repair: bool | None = None) -> PlanResult:
+         exact: Backend | None = None, repair: bool | None = None,
+         goal_hints: np.ndarray | None = None) -> PlanResult:
     """Plan a collision-free motion from the scene's start to its target, then validate it exactly.
 
     With an approximate backend (the PINN) the capsules get extra radius while planning: its
@@ -607,7 +608,8 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     model) or reported as not solved. ``solved`` is True only if the exact model confirms a
     collision-free path that ends with the tip in the target. Kernels are compiled before the clock
     starts; a plan that takes longer than ``time_limit_s`` says so. Bad input (an unknown planner,
-    a start in collision) raises `InputError` naming the parameter.
+    a start in collision) raises `InputError` naming the parameter. ``goal_hints`` (K, 2N): goal
+    configurations known already (e.g. from a reachability screen), where goal sampling starts.
     """
     s = scene.settings
     planner = planner or s.planner
@@ -643,7 +645,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
         return result
 
     outcome, checker = search(scene, planning_be, planner=planner, time_limit_s=time_limit_s, seed=seed,
-                              progress=progress, checker=checker)
+                              progress=progress, checker=checker, goal_hints=goal_hints)
     result.planning_time_s = outcome.time_s
     result.kinematics_calls = checker.counters.kinematics_calls
     result.status, result.message = outcome.status, outcome.message

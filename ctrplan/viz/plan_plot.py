@@ -33,7 +33,7 @@ def _zoom_bounds(backbones: np.ndarray, scene: Scene, pad: float = 8.0) -> np.nd
     return np.stack([lo - pad, hi + pad])
 
 
-def _triangles_in(scene: Scene, bounds: np.ndarray, max_triangles: int = 6000):
+def triangles_in(scene: Scene, bounds: np.ndarray, max_triangles: int = 6000):
     """(name, triangles (T, 3, 3)) of every obstacle, clipped to triangles touching ``bounds``."""
     out = []
     for o in scene.obstacles:
@@ -85,7 +85,7 @@ def plan_figure(scene: Scene, backbones_scene: np.ndarray, *, title: str = "",
     k = bbs.shape[0]
     pick = np.unique(np.linspace(0, k - 1, min(k, max_backbones)).round().astype(int))
     bounds = _view_bounds(bbs, scene)
-    tris = _triangles_in(scene, bounds)
+    tris = triangles_in(scene, bounds)
     cmap = plt.get_cmap("coolwarm")
     names = [o.name for o in scene.obstacles]
     tab = plt.get_cmap("tab20")  # colours repeat after 20 obstacles; the legend names them all
@@ -120,7 +120,7 @@ def plan_figure(scene: Scene, backbones_scene: np.ndarray, *, title: str = "",
     ax3.set_title("overview", fontsize=10)
 
     zoom = _zoom_bounds(bbs, scene)
-    tris = _triangles_in(scene, zoom, max_triangles=12000)
+    tris = triangles_in(scene, zoom, max_triangles=12000)
     for row, (a, b, lab) in enumerate(((2, 1, "side view (z-y)"), (2, 0, "top view (z-x)"))):
         ax = fig.add_subplot(grid[row, 1:])
         for n, t in tris:

@@ -1,0 +1,174 @@
+"""`ctrplan design`: which tube set reaches every target of a procedure, stable and collision-free."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ctrplan.cli import app
+from ctrplan.cli.kinematics import as_option
+from ctrplan.errors import InputError
+
+OPTIONS = {"workers": "--workers", "ray": "--ray", "storage": "--storage", "study": "--study"}
+
+
+@app.command("design")
+def design(
+    task_file: Annotated[Path, typer.Argument(
+        metavar="TASK.yaml", show_default=False,
+        help="Design task: scene, named targets, base robot, what may vary, catalogue, constraints, "
+             "objectives, budget (README: ctrplan design).")],
+    trials: Annotated[int | None, typer.Option(
+        "--trials", metavar="N", show_default=False,
+        help="Finished trials the study should have (default: the task's budget); a continued study "
+             "runs only the missing ones.")] = None,
+    time_limit: Annotated[float | None, typer.Option(
+        "--time-limit", metavar="MIN", show_default=False,
+        help="Start no trial after this many minutes (trials in flight finish).")] = None,
+    workers: Annotated[int, typer.Option(
+        "--workers", metavar="W", help="Trials at a time: local worker processes, one per core "
+                                       "(1: in this process), or Ray tasks with --ray.")] = 1,
+    ray: Annotated[str | None, typer.Option(
+        "--ray", metavar="ADDRESS", show_default=False,
+        help="Run trials as Ray tasks on this cluster ('local' starts one here; needs the 'ray' "
+             "extra).")] = None,
+    storage: Annotated[str | None, typer.Option(
+        "--storage", metavar="URL", show_default=False,
+        help="Optuna storage, any SQLAlchemy URL (default: sqlite:///OUT/study.db).")] = None,
+    study: Annotated[str | None, typer.Option(
+        "--study", metavar="NAME", show_default=False,
+        help="Study name (default: the task file's name); an existing study of the same task and seed "
+             "is continued.")] = None,
+    seed: Annotated[int, typer.Option("--seed", metavar="S", help="Seed of the sampler and of every "
+                                                                  "trial's planning.")] = 0,
+    out: Annotated[Path | None, typer.Option(
+        "--out", metavar="DIR", show_default=False,
+        help="Output folder (default: runs/design/TASK).")] = None,
+    as_json: Annotated[bool, typer.Option(
+        "--json", help="Print the JSON summary on stdout (progress goes to stderr).")] = False,
+) -> None:
+    """Search the tube set that reaches the most targets of a procedure, stable and collision-free.
+
+    Optuna (multi-objective TPE) proposes designs within the task's ranges and stock sizes; each is
+    kept only if the robot loader accepts it, its strain is within the limit and its joint domain is
+    snap-free, and a target counts as reached only when the planner finds a path from the start that
+    the exact Cosserat model confirms. Writes best_robot.yaml, designs.csv, pareto.png, report.html,
+    design.json and paths/<target>/ (scene.yaml; path.json, plan.png, plan.html when reached).
+    """
+    from rich.console import Console
+
+    from ctrplan.bench.fanout import check_workers
+    from ctrplan.dataio import output_dir
+    from ctrplan.design.outputs import write_outputs
+    from ctrplan.design.study import default_storage, open_study, run_study
+    from ctrplan.design.task import load_task
+
+    if trials is not None and trials < 1:
+        raise InputError(f"--trials: need at least 1, got {trials}")
+    if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
+        raise InputError(f"--time-limit: must be a positive number of minutes, got {time_limit}")
+    if seed < 0:
+        raise InputError(f"--seed: must be >= 0, got {seed}")
+    if study is not None and not study.strip():
+        raise InputError("--study: must not be empty")
+    try:
+        check_workers(workers, ray)
+    except InputError as exc:
+        raise as_option(exc, OPTIONS) from None
+    task = load_task(task_file)
+    folder = output_dir(out or Path("runs/design") / task.name)
+    url = storage or default_storage(folder)
+    try:
+        st = open_study(task, url, study or task.name, seed)
+    except InputError as exc:
+        raise as_option(exc, OPTIONS) from None
+    budget = trials or task.trials
+    err = Console(stderr=True, highlight=False)
+    t0 = time.perf_counter()  # this run: its trials, not the outputs
+    with _DesignProgress(err, task, budget) as progress:
+        try:
+            run_study(task, st, trials=budget, seed=seed, workers=workers, ray_address=ray,
+                      time_limit_s=None if time_limit is None else 60.0 * time_limit, report=progress.update)
+        except InputError as exc:
+            raise as_option(exc, OPTIONS) from None
+    executor = f"ray {ray}" if ray else f"{workers} local worker(s), one core each"
+    doc = write_outputs(task, st, folder, storage=url, seed=seed, time_s=time.perf_counter() - t0,
+                        executor=executor)
+    if as_json:
+        typer.echo(json.dumps(doc, indent=2))
+    else:
+        _summary(Console(highlight=False), task, doc)
+
+
+class _DesignProgress:
+    """A rich progress bar of finished trials on stderr (on a terminal), and one line per event that
+    matters (the base design's reach, each new best) on stderr in any case."""
+
+    def __init__(self, console, task, total: int):
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self.console = console
+        self.task = task
+        self.best = -1
+        self.bar = Progress(TextColumn(f"design {task.name}"), BarColumn(), MofNCompleteColumn(),
+                            TimeElapsedColumn(), TextColumn("{task.fields[best]}"), console=console,
+                            disable=not console.is_terminal)
+        self.id = self.bar.add_task("trials", total=total, best="")
+
+    def __enter__(self):
+        self.bar.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        self.bar.__exit__(*exc)
+
+    def update(self, trial: int | None, record: dict, finished: int) -> None:
+        n = len(self.task.targets)
+        reached = record["reached"]
+        names = ", ".join(reached) or "none"
+        if trial is None:
+            why = "" if record["feasible"] else f" (infeasible: {record['infeasible']['message']})"
+            self.console.print(f"base design: reaches {len(reached)} of {n} targets ({names}){why}")
+        elif record["feasible"] and len(reached) > self.best:
+            self.best = len(reached)
+            self.console.print(f"trial {trial}: {len(reached)} of {n} targets ({names}) "
+                               f"in {record['time_s']:.0f} s")
+        self.bar.update(self.id, completed=finished,
+                        best="" if self.best < 0 else f"best {self.best}/{n} targets")
+
+
+def _summary(console, task, doc: dict) -> None:
+    from rich.table import Table
+
+    best, nominal = doc["best"], doc["nominal"]
+    t = Table(title=f"ctrplan design {task.name}: {doc['trials']} trials, {doc['feasible']} feasible, "
+                    f"{doc['time_s']:.0f} s", title_justify="left")
+    t.add_column("target")
+    t.add_column("base design")
+    t.add_column("best design" if best is None else f"best (trial {best['trial']})")
+    for target in doc["targets"]:
+        nom = "-" if nominal is None else ("yes" if target in nominal["reached"] else "no")
+        b = "-" if best is None else ("yes" if target in best["reached"] else "no")
+        t.add_row(target, nom, b)
+    t.add_row("total", "-" if nominal is None else str(len(nominal["reached"])),
+              "-" if best is None else str(len(best["reached"])))
+    console.print(t)
+    if best is not None:
+        params = (f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
+                  for k, v in best["parameters"].items())
+        console.print("best parameters: " + ", ".join(params))
+        values = (f"{k} = {v:.4g}" for k, v in best["objectives"].items())
+        console.print("best objectives: " + ", ".join(values))
+    else:
+        console.print("no feasible design")
+    tt = doc["trial_time_s"]
+    if tt:
+        console.print(f"time per trial: median {tt['median']:.1f} s, max {tt['max']:.1f} s; the study's "
+                      f"trials {doc['study_wall_s']:.0f} s from first start to last end; this run "
+                      f"{doc['time_s']:.0f} s on {doc['executor']}")
+    console.print(f"wrote {', '.join(doc['outputs'].values())}")

@@ -1,0 +1,14 @@
+"""`ctrplan design`: which tube set reaches every target of a procedure through an anatomy, stable and
+collision-free.
+
+One idea per module: `task` (the task file, DESIGN §5), `space` (study parameters <-> robot files),
+`evaluate` (feasibility and proven reach of one design), `study` (the Optuna study and its executors),
+`outputs` (best robot, per-target scenes and paths, designs.csv, design.json) and `report` (pareto.png,
+report.html).
+"""
+
+from ctrplan.design.evaluate import DesignJob, evaluate, evaluate_job
+from ctrplan.design.study import open_study, run_study
+from ctrplan.design.task import DesignTask, load_task
+
+__all__ = ["DesignJob", "DesignTask", "evaluate", "evaluate_job", "load_task", "open_study", "run_study"]

@@ -1,0 +1,278 @@
+"""Evaluate one design: is it buildable and snap-free, and which targets does it provably reach?
+
+A design counts only what is proven. It is **feasible** when
+
+1. the robot loader accepts its robot file (plausibility limits, nesting, pre-curvature strain);
+2. its largest pre-curvature strain is within the task's ``max_strain``;
+3. its joint domain (the base robot's: the actuator strokes) is physically possible for its tube
+   lengths in every corner (tube order, no tube reaching past an inner one);
+4. with ``snap_free`` its whole domain is snap-free by the stability sweep of `ctrplan stability`
+   (same settings; a certificate, keyed by the robot's fingerprint, is reused or written);
+5. a collision-free, stable start exists: the scene's start, or else the nearest (in the planning
+   metric) of the scene's start translations and the fully retracted ones with every tube turned by
+   multiples of 1/8 turn -- a new tube set needs its own way in.
+
+A target is **reached** only when a cheap screen finds a collision-free goal configuration by inverse
+kinematics with the exact model (none within `SCREEN_BATCHES` batches: not reachable, no planning)
+and then `ctrplan.planning.plan`
+with the exact Cosserat backend finds a path from the start that its exact validation confirms
+(collision-free, stable, tip in the target, approach direction respected). Planning seeds come from
+the study seed, the design's fingerprint and the target's name: the same design gives the same record
+on any executor (as long as every search ends before its time limit; only the times differ).
+
+The record is a JSON-ready dict (see `evaluate`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from ctrplan.design.space import Parameters, build_robot, max_strain, robot_dict, total_length_mm
+from ctrplan.design.task import DesignTask, NamedTarget, load_task
+from ctrplan.errors import InputError
+from ctrplan.kinematics import CosseratBackend
+from ctrplan.robot import Robot
+from ctrplan.scene import Scene
+from ctrplan.stability import certify, is_certified
+
+#: Goal-sampling batches of the reachability screen (each of 3 x the scene's goal_samples IK seeds);
+#: it gives up after SCREEN_GIVE_UP of them when no IK solution got the tip into the target at all.
+SCREEN_BATCHES = 4
+SCREEN_GIVE_UP = 2
+#: Tube rotations tried for a design's start: multiples of 1/START_TURNS turn.
+START_TURNS = 8
+#: Candidate starts checked per batched call.
+START_CHUNK = 64
+
+
+@dataclass(frozen=True)
+class DesignJob:
+    """One evaluation for `ctrplan.bench.fanout`: the task file, the design's parameters (``{}``: the
+    base design) and the study seed."""
+
+    task_file: str
+    parameters: Parameters = field(default_factory=dict)
+    seed: int = 0
+
+
+_TASKS: dict[str, DesignTask] = {}
+
+
+def evaluate_job(job: DesignJob) -> dict:
+    """`evaluate` a `DesignJob` (the task is loaded once per process)."""
+    from ompl import util as ou
+
+    ou.setLogLevel(ou.LOG_ERROR)
+    if job.task_file not in _TASKS:
+        _TASKS[job.task_file] = load_task(job.task_file)
+    return evaluate(_TASKS[job.task_file], job.parameters, job.seed)
+
+
+def target_seed(seed: int, fingerprint: str, target: str) -> int:
+    """The planning seed of one design and target (OMPL and goal sampling), from the study seed."""
+    digest = hashlib.sha256(f"{seed}:{fingerprint}:{target}".encode()).digest()
+    return int.from_bytes(digest[:4], "little") % (2**31 - 1)
+
+
+def evaluate(task: DesignTask, parameters: Parameters, seed: int = 0) -> dict:
+    """The record of one design.
+
+    Keys: ``parameters``; ``feasible`` and, when not, ``infeasible`` ``{constraint, message}``
+    (constraint one of ``robot``, ``max_strain``, ``domain``, ``snap_free``, ``start``);
+    ``max_strain`` (fraction), ``total_length_mm``, ``robot`` (the robot file as a dict),
+    ``fingerprint``, ``stability`` ``{snap_free, source (certificate | sweep), checked, example_q,
+    example_reason}`` (with ``snap_free`` constraints), ``start`` (joints, mm and rad);
+    ``targets``: per target ``{name, reached, stage (screen | plan), message, goals, seed,
+    planning_time_s, kinematics_calls, min_clearance_mm, path}`` (path: joints (K, 2N) of the
+    validated path, reached targets only); ``reached`` (names); ``min_clearance_mm`` (smallest over
+    the reached targets' paths, None if none); ``time_s`` and ``timings`` (s).
+    """
+    t0 = time.perf_counter()
+    data = robot_dict(task, parameters)
+    record: dict[str, Any] = {
+        "parameters": dict(parameters), "feasible": False, "infeasible": None,
+        "max_strain": max_strain(data), "total_length_mm": total_length_mm(data), "robot": data,
+        "fingerprint": None, "stability": None, "start": None, "targets": [], "reached": [],
+        "min_clearance_mm": None, "time_s": 0.0, "timings": {},
+    }
+    design = _feasible(task, record)
+    if design is not None:
+        _reach(task, *design, record, seed)
+    record["time_s"] = time.perf_counter() - t0
+    return record
+
+
+def _refuse(record: dict, constraint: str, message: str) -> None:
+    record["infeasible"] = {"constraint": constraint, "message": message}
+
+
+def _feasible(task: DesignTask, record: dict):
+    """Check the feasibility conditions in order, filling ``record``; the design's scene (with its
+    start) and exact configuration checker, or None after recording the first condition that
+    fails."""
+    try:
+        robot = build_robot(record["robot"], "design")
+    except InputError as exc:
+        return _refuse(record, "robot", str(exc).removeprefix("design: "))
+    record["fingerprint"] = robot.fingerprint
+    if record["max_strain"] > task.max_strain:
+        return _refuse(record, "max_strain", f"pre-curvature strain {100 * record['max_strain']:.2f} % "
+                                             f"above the limit {100 * task.max_strain:.2f} %")
+    problem = domain_problem(robot)
+    if problem:
+        return _refuse(record, "domain", problem)
+    if task.snap_free:
+        t = time.perf_counter()
+        verdict = record["stability"] = stability_verdict(robot)
+        record["timings"]["stability_s"] = time.perf_counter() - t
+        if not verdict["snap_free"]:
+            return _refuse(record, "snap_free", f"the joint domain is not snap-free "
+                                                f"({verdict['example_reason']} at q = "
+                                                f"{np.round(verdict['example_q'], 3).tolist()})")
+    t = time.perf_counter()
+    scene, checker = _design_scene(task, robot)
+    start = design_start(scene, checker)
+    record["timings"]["start_s"] = time.perf_counter() - t
+    if start is None:
+        return _refuse(record, "start", "no collision-free stable start configuration")
+    record["start"] = start.tolist()
+    record["feasible"] = True
+    return replace(scene, start=start), checker
+
+
+def domain_problem(robot: Robot) -> str | None:
+    """Why some configuration of the robot's joint domain is physically impossible for its tubes
+    (tube order, a tube reaching past an inner one, a tube behind the plate), or None. The
+    conditions are linear in the box coordinates, so the corners of the translation box decide."""
+    d = robot.domain
+    n = robot.n_tubes
+    corners = np.array(list(itertools.product(*[d.bounds[c] for c in range(n)])))
+    box = np.hstack([corners, np.broadcast_to(d.box_lower[n:], (len(corners), n))])
+    try:
+        robot.check_joints(d.from_box(box), where="joint domain corner")
+    except InputError as exc:
+        return str(exc)
+    return None
+
+
+_VERDICTS: dict[str, dict] = {}
+
+
+def stability_verdict(robot: Robot) -> dict:
+    """Whether the robot's domain is snap-free: a certificate if one exists (shipped or made here),
+    else the sweep of `ctrplan stability` with its default settings, stopped at the first flagged
+    sweep (a snap-free verdict is stored as a certificate); remembered per process by
+    fingerprint."""
+    fp = robot.fingerprint
+    if fp not in _VERDICTS:
+        if is_certified(robot):
+            _VERDICTS[fp] = {"snap_free": True, "source": "certificate", "checked": None,
+                             "example_q": None, "example_reason": None}
+        else:
+            report, _ = certify(robot, stop_at_first=True)
+            _VERDICTS[fp] = {"snap_free": report.snap_free, "source": "sweep", "checked": report.checked,
+                             "example_q": report.example_q, "example_reason": report.example_reason}
+    return dict(_VERDICTS[fp])
+
+
+_WORLDS: dict[str, Any] = {}
+
+
+def _design_scene(task: DesignTask, robot: Robot):
+    """The task's scene with the design's robot, and a configuration checker with the exact model
+    (testing stability per state unless the robot is certified), on a collision world built once per
+    process."""
+    from ctrplan.collision import CollisionWorld
+    from ctrplan.planning import ConfigurationChecker
+
+    key = str(task.path)
+    if key not in _WORLDS:
+        _WORLDS[key] = CollisionWorld.from_scene(task.scene)
+    scene = replace(task.scene, robot=robot)
+    exact = CosseratBackend(robot)
+    if not is_certified(robot):
+        exact = exact.checking_stability()
+    return scene, ConfigurationChecker(scene, exact, world=_WORLDS[key])
+
+
+def design_start(scene: Scene, checker) -> np.ndarray | None:
+    """The start configuration of a design: the scene's start if valid, else the valid candidate
+    nearest it in the planning metric among its translations and the fully retracted ones
+    (``betaN`` lowest, differences largest), each with every rotatable tube turned by multiples of
+    1/`START_TURNS` turn (wrapped into its interval). None when no candidate is valid."""
+    space = checker.space
+    robot = scene.robot
+    n = robot.n_tubes
+    lo, hi = scene.joint_box
+    box0 = robot.domain.to_box(scene.start)
+    retracted = np.concatenate([[lo[0]], hi[1:n]])
+    angles = []
+    for c in range(n, 2 * n):
+        if hi[c] > lo[c]:
+            turns = box0[c] + np.arange(START_TURNS) * (hi[c] - lo[c]) / START_TURNS
+            angles.append(lo[c] + np.mod(turns - lo[c], hi[c] - lo[c]))
+        else:
+            angles.append(np.array([box0[c]]))
+    rows = [np.concatenate([t, a]) for t in (box0[:n], retracted) for a in itertools.product(*angles)]
+    cands = robot.domain.from_box(np.array(rows))
+    dist = np.linalg.norm(space.to_coords(cands) - space.to_coords(scene.start[None]), axis=1)
+    order = np.argsort(dist, kind="stable")
+    for a in range(0, len(order), START_CHUNK):
+        chunk = order[a:a + START_CHUNK]
+        valid = checker.check(cands[chunk])
+        if valid.any():
+            return cands[chunk[int(np.argmax(valid))]]
+    return None
+
+
+def _reach(task: DesignTask, scene: Scene, checker, record: dict, seed: int) -> None:
+    """Screen every target, then plan to those with goal configurations; fill ``record``."""
+    from ctrplan.planning import GoalSampler, plan
+
+    robot = scene.robot
+    exact = CosseratBackend(robot)
+    screen_s = plan_s = 0.0
+    for target in task.targets:
+        out: dict[str, Any] = {"name": target.name, "reached": False, "stage": "screen", "message": "",
+                               "goals": 0, "seed": target_seed(seed, robot.fingerprint, target.name),
+                               "planning_time_s": None, "kinematics_calls": None, "min_clearance_mm": None,
+                               "path": None}
+        record["targets"].append(out)
+        t = time.perf_counter()
+        sampler = GoalSampler(checker, target.region, np.random.default_rng(out["seed"]),
+                              seeds_per_batch=max(4, 3 * scene.settings.goal_samples), start=scene.start)
+        for k in range(1, SCREEN_BATCHES + 1):
+            if sampler.sample_batch() or (k >= SCREEN_GIVE_UP and sampler.stats.ik_reached == 0):
+                break
+        screen_s += time.perf_counter() - t
+        out["goals"] = len(sampler.goals)
+        if not sampler.goals:
+            st = sampler.stats
+            out["message"] = (f"no collision-free goal configuration ({st.ik_reached} of {st.seeds} IK "
+                              f"solutions reached the target, closest {st.closest_mm:.2f} mm)")
+            continue
+        t = time.perf_counter()
+        result = plan(_target_scene(scene, target), exact, exact=exact, time_limit_s=task.plan_time_s,
+                      seed=out["seed"], goal_hints=np.stack(sampler.goals))
+        plan_s += time.perf_counter() - t
+        out.update(stage="plan", message=result.message, reached=bool(result.solved),
+                   planning_time_s=result.planning_time_s, kinematics_calls=result.kinematics_calls)
+        if result.solved:
+            out["min_clearance_mm"] = float(result.validated.min_clearance_mm)
+            out["path"] = np.asarray(result.path).tolist()
+    reached = [t for t in record["targets"] if t["reached"]]
+    record["reached"] = [t["name"] for t in reached]
+    if reached:
+        record["min_clearance_mm"] = min(t["min_clearance_mm"] for t in reached)
+    record["timings"].update(screen_s=screen_s, plan_s=plan_s)
+
+
+def _target_scene(scene: Scene, target: NamedTarget) -> Scene:
+    """The design's scene aimed at one target."""
+    return replace(scene, target=target.region, name=f"{scene.name}:{target.name}")

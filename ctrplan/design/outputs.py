@@ -1,0 +1,249 @@
+"""What a design study leaves behind, built from the study's records alone (so a finished or
+interrupted study can rewrite them at any time):
+
+- ``best_robot.yaml``: the best design as a robot file every command accepts, its domain certified
+  snap-free here (the certificate `ctrplan stability --robot best_robot.yaml` finds);
+- ``paths/<target>/scene.yaml`` for every target (the task's scene with the best robot, its start
+  and that target: ``ctrplan plan`` it); for each reached target also ``path.json``, ``plan.png``,
+  ``plan.html`` and ``obstacles.ply`` as ``ctrplan plan --out`` writes them, from the path the trial
+  found, validated again here with the exact model;
+- ``designs.csv``: every finished trial, its parameters, objectives and reached targets;
+- ``pareto.png``, ``report.html`` (`ctrplan.design.report`) and ``design.json`` (the JSON summary).
+
+The best design is the feasible one first in the task's objectives taken in order (most targets
+reached, then the second objective, ...); the Pareto front holds the feasible designs no other
+feasible design dominates.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import shutil
+import statistics
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import optuna
+
+from ctrplan.bench import machine_info
+from ctrplan.dataio import atomic_write
+from ctrplan.design.space import build_robot
+from ctrplan.design.study import NOMINAL, RECORD, dominates, finished_trials, objective_value, ranking_key
+from ctrplan.design.task import DesignTask
+from ctrplan.kinematics import CosseratBackend
+from ctrplan.stability import certify, is_certified
+from ctrplan.yamlio import dump_yaml, load_yaml
+
+
+@dataclass(frozen=True)
+class Design:
+    """A finished trial: its number (None: the base design) and evaluation record."""
+
+    trial: int | None
+    record: dict
+
+
+def designs_of(study: optuna.Study) -> list[Design]:
+    """The study's finished trials, by number."""
+    return [Design(t.number, t.user_attrs[RECORD]) for t in finished_trials(study)]
+
+
+def nominal_of(study: optuna.Study) -> Design | None:
+    record = study.user_attrs.get(NOMINAL)
+    return None if record is None else Design(None, record)
+
+
+def ranked(designs: list[Design], task: DesignTask) -> list[Design]:
+    """The feasible designs, best first (objectives in order; ties by trial number)."""
+    feasible = [d for d in designs if d.record["feasible"]]
+    return sorted(feasible, key=lambda d: (ranking_key(d.record, task.objectives), d.trial))
+
+
+def pareto_front(designs: list[Design], task: DesignTask) -> list[Design]:
+    """The feasible designs no other feasible design dominates, best first."""
+    feasible = ranked(designs, task)
+    return [d for d in feasible
+            if not any(dominates(o.record, d.record, task.objectives) for o in feasible)]
+
+
+def targets_of(record: dict) -> dict[str, dict]:
+    """Per target: reached, the path's clearance (mm) and planning time (s), and what happened."""
+    keys = ("reached", "stage", "min_clearance_mm", "planning_time_s", "message")
+    return {t["name"]: {k: t[k] for k in keys} for t in record["targets"]}
+
+
+def objectives_of(record: dict, task: DesignTask) -> dict[str, float | int]:
+    """The record's objectives by name (targets reached as a count)."""
+    values = {o.name: objective_value(record, o.name) for o in task.objectives}
+    return {**values, "targets_reached": len(record["reached"])}
+
+
+def write_outputs(task: DesignTask, study: optuna.Study, out: Path, *, storage: str, seed: int,
+                  time_s: float, executor: str) -> dict:
+    """Write every output into ``out`` (see the module docstring); return the JSON summary."""
+    from ctrplan.design.report import pareto_figure, write_report
+
+    designs = designs_of(study)
+    nominal = nominal_of(study)
+    order = ranked(designs, task)
+    best = order[0] if order else None
+    front = pareto_front(designs, task)
+    if (out / "paths").exists():  # a previous best's folders would mislead
+        shutil.rmtree(out / "paths")
+    targets = write_best(task, best, out, study.study_name) if best is not None else {}
+    write_designs_csv(task, designs, out / "designs.csv")
+    pareto_figure(task, designs, front, best, nominal, out / "pareto.png")
+    times = [d.record["time_s"] for d in designs]
+    trials = finished_trials(study)
+    span = None if not trials else (max(t.datetime_complete for t in trials)
+                                    - min(t.datetime_start for t in trials)).total_seconds()
+    doc = {
+        "study": study.study_name, "storage": storage, "task": str(task.path), "seed": seed,
+        "trials": len(designs), "feasible": sum(d.record["feasible"] for d in designs),
+        "targets": [t.name for t in task.targets], "objectives": [o.label for o in task.objectives],
+        "best": None if best is None else {
+            "trial": best.trial, "robot_file": str(out / "best_robot.yaml"),
+            "reached": best.record["reached"], "objectives": objectives_of(best.record, task),
+            "parameters": best.record["parameters"], "robot": best.record["robot"],
+            "targets": targets_of(best.record), "paths": {name: str(p) for name, p in targets.items()}},
+        "pareto": [{"trial": d.trial, "parameters": d.record["parameters"],
+                    "objectives": objectives_of(d.record, task), "reached": d.record["reached"]}
+                   for d in front],
+        "nominal": None if nominal is None else {
+            "reached": nominal.record["reached"], "feasible": nominal.record["feasible"],
+            "objectives": objectives_of(nominal.record, task), "robot": nominal.record["robot"],
+            "targets": targets_of(nominal.record)},
+        "time_s": round(time_s, 2),
+        "study_wall_s": None if span is None else round(span, 2),
+        "trial_time_s": None if not times else {
+            "median": round(statistics.median(times), 2), "mean": round(statistics.fmean(times), 2),
+            "max": round(max(times), 2), "total": round(sum(times), 2)},
+        "executor": executor,
+        "machine": machine_info(),
+        "outputs": {name: str(out / name) for name in
+                    ("design.json", "designs.csv", "pareto.png", "report.html", "best_robot.yaml", "paths")
+                    if best is not None or name not in ("best_robot.yaml", "paths")},
+    }
+    write_report(task, doc, designs, best, nominal, out)
+    with atomic_write(out / "design.json") as fh:
+        fh.write(json.dumps(doc, indent=2) + "\n")
+    return doc
+
+
+def write_best(task: DesignTask, best: Design, out: Path, study: str) -> dict[str, Path]:
+    """``best_robot.yaml`` (certified here when the task asks for snap-free designs) and the folder
+    of every target; returns the ``path.json`` of each reached target."""
+    record = best.record
+    robot = build_robot(record["robot"], str(out / "best_robot.yaml"))
+    certificate = "not requested (constraints.snap_free: false): planning tests stability per state"
+    if task.snap_free:
+        if not is_certified(robot):
+            report, _ = certify(robot)
+            if not report.snap_free:
+                raise RuntimeError(f"trial {best.trial}: the stability sweep here disagrees with the trial's "
+                                   f"snap-free verdict (fingerprint {robot.fingerprint})")
+        certificate = (f"snap-free over the whole joint domain (ctrplan stability; fingerprint "
+                       f"{robot.fingerprint})")
+    header = (f"# The best design of `ctrplan design {task.path.name}` (study {study}, trial {best.trial}):\n"
+              f"# reaches {len(record['reached'])} of {len(task.targets)} targets "
+              f"({', '.join(record['reached']) or 'none'}).\n# Certified: {certificate}.\n")
+    with atomic_write(out / "best_robot.yaml") as fh:
+        fh.write(header + dump_yaml(record["robot"]))
+    start = np.asarray(record["start"])
+    exact = CosseratBackend(robot)
+    if not is_certified(robot):
+        exact = exact.checking_stability()
+    paths = {}
+    for target, result in zip(task.targets, record["targets"], strict=True):
+        folder = out / "paths" / target.name
+        folder.mkdir(parents=True, exist_ok=True)
+        scene_file = write_target_scene(task, target, start, out / "best_robot.yaml", folder / "scene.yaml")
+        if result["reached"]:
+            paths[target.name] = write_target_path(task, exact, scene_file, result, folder)
+    return paths
+
+
+def write_target_scene(task: DesignTask, target, start: np.ndarray, robot_file: Path, path: Path) -> Path:
+    """The task's scene file with ``robot_file``, ``start`` and ``target``: what ``ctrplan plan``
+    needs to plan that target with the design (mesh and robot paths made relative to ``path``)."""
+    from ctrplan.scene import load_scene
+
+    source = task.scene.path
+    data = dict(load_yaml(source).data)
+    here = path.parent.resolve()
+
+    def moved(rel: str) -> str:
+        p = Path(rel) if Path(rel).is_absolute() else source.parent / rel
+        return os.path.relpath(p.resolve(), here)
+
+    data["name"] = f"{task.name}_{target.name}"
+    data["description"] = (f"{target.name} of design task {task.path.name} with its best design. "
+                           f"{target.reason}").strip()
+    data["robot"] = moved(str(robot_file.resolve()))
+    data["obstacles"] = [{**o, "mesh": moved(o["mesh"])} if "mesh" in o else o
+                         for o in data.get("obstacles") or []]
+    data["target"] = target.region.to_yaml()
+    data["start"] = [float(v) for v in start]
+    with atomic_write(path) as fh:
+        fh.write(dump_yaml(data))
+    load_scene(path)  # every command must accept it
+    return path
+
+
+def write_target_path(task: DesignTask, exact, scene_file: Path, result: dict, folder: Path) -> Path:
+    """Validate a reached target's path again with the exact model and write what ``ctrplan plan
+    --out`` writes for it; returns its ``path.json``."""
+    from ctrplan.cli.plan import plan_document, write_plan_outputs
+    from ctrplan.planning import PlanResult, validate_path
+    from ctrplan.scene import load_scene
+
+    scene = load_scene(scene_file)
+    path_q = np.asarray(result["path"])
+    vp = validate_path(scene, path_q, exact, exact=exact)
+    if not vp.report.ok:
+        raise RuntimeError(f"{result['name']}: the exact validation here disagrees with the trial's "
+                           f"(a path the trial confirmed fails now)")
+    plan = PlanResult(True, scene.settings.planner, exact.name, result["planning_time_s"],
+                      result["kinematics_calls"], path_q, scene.target.center, scene.target.tolerance_mm,
+                      scene.base_pose, tip_mm=np.asarray(vp.report.tip_mm), validated=vp.report,
+                      message="solved", status="Exact solution", seed=result["seed"],
+                      time_limit_s=task.plan_time_s, scene=scene.name, dense=vp)
+    write_plan_outputs(folder, scene, plan, plan_document(plan, scene, scene_file, None))
+    return folder / "path.json"
+
+
+def csv_rows(task: DesignTask, designs: list[Design]) -> tuple[list[str], list[list[Any]]]:
+    """Header and rows of ``designs.csv``: trial, feasibility, objectives, parameters, the reached
+    targets (names, then one 0/1 column per target), times (s) and the robot's fingerprint."""
+    params = sorted({k for d in designs for k in d.record["parameters"]})
+    names = [t.name for t in task.targets]
+    header = (["trial", "feasible", "infeasible", "targets_reached", "max_strain", "total_length_mm",
+               "min_clearance_mm", *params, "reached", *[f"reached_{n}" for n in names], "time_s",
+               "stability_s", "plan_s", "fingerprint", "message"])
+    rows = []
+    for d in designs:
+        r = d.record
+        why = r["infeasible"] or {}
+        rows.append([d.trial, int(r["feasible"]), why.get("constraint", ""), len(r["reached"]),
+                     r["max_strain"], r["total_length_mm"], r["min_clearance_mm"],
+                     *[r["parameters"].get(p, "") for p in params], ";".join(r["reached"]),
+                     *[int(n in r["reached"]) for n in names], round(r["time_s"], 3),
+                     round(r["timings"].get("stability_s", 0.0), 3),
+                     round(r["timings"].get("plan_s", 0.0), 3),
+                     r["fingerprint"] or "", why.get("message", "")])
+    return header, rows
+
+
+def write_designs_csv(task: DesignTask, designs: list[Design], path: Path) -> None:
+    header, rows = csv_rows(task, designs)
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(header)
+    writer.writerows([["" if v is None else v for v in row] for row in rows])
+    with atomic_write(path) as fh:
+        fh.write(buf.getvalue())
