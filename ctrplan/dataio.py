@@ -194,6 +194,18 @@ def output_dir(path: str | Path, option: str = "--out") -> Path:
     return path
 
 
+def check_output_dir(path: str | Path, option: str = "--out") -> Path:
+    """Refuse, before any work, an output directory that `output_dir` could not create (an
+    `InputError` naming ``option``): the missing folders are made to prove it and removed again, so
+    a command that then fails or is interrupted leaves none behind. Returns ``path`` as a `Path`."""
+    path = Path(path)
+    missing = [p for p in (path, *path.parents) if not p.exists()]  # deepest first
+    output_dir(path, option)
+    for folder in missing:
+        folder.rmdir()
+    return path
+
+
 @contextmanager
 def atomic_write(path: str | Path, mode: str = "w") -> Iterator[IO]:
     """Open a temporary file beside ``path``; rename it onto ``path`` only if the block succeeds.

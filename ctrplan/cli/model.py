@@ -12,7 +12,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, RobotOpt, as_option
-from ctrplan.dataio import atomic_write, output_dir
+from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
 from ctrplan.kinematics.pinn import PinnBackend
@@ -176,6 +176,7 @@ def eval_model(
 
     if n < 1 or points < 2:
         raise InputError("--n must be >= 1 and --points >= 2")
+    check_output_dir(out)  # created when the figures are written
     model_robot = Robot.load(robot)
     pinn = PinnBackend.load(model, model_robot)
     cmp = compare(pinn, model_robot, n=n, points=points)

@@ -21,6 +21,7 @@ import typer
 
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, load_backend
+from ctrplan.dataio import check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.scene import PLANNERS
 
@@ -29,16 +30,6 @@ SceneArg = Annotated[Path, typer.Argument(metavar="SCENE.yaml", show_default=Fal
 
 
 log = logging.getLogger("ctrplan.ompl")
-
-
-def _check_out(out: Path | None) -> None:
-    """Refuse an ``--out`` that cannot become a directory; it (and its parents) are created only
-    when the outputs are written."""
-    if out is None:
-        return
-    existing = next(p for p in (out, *out.parents) if p.exists() or p == Path(p.anchor))
-    if not existing.is_dir():
-        raise InputError(f"--out: {existing} exists and is not a directory")
 
 
 @contextmanager
@@ -77,7 +68,8 @@ def plan_command(
         "--time-limit", metavar="S", show_default=False,
         help="Planning time limit in seconds (default: the scene's, 10).")] = None,
     seed: Annotated[int | None, typer.Option(
-        "--seed", metavar="N", show_default=False, help="Random seed (OMPL and goal sampling).")] = None,
+        "--seed", metavar="N", show_default=False, min=0,
+        help="Random seed (OMPL and goal sampling).")] = None,
     out: Annotated[Path | None, typer.Option(
         "--out", metavar="DIR", show_default=False,
         help="Write path.json, obstacles.ply, plan.png and plan.html into DIR.")] = None,
@@ -93,9 +85,8 @@ def plan_command(
 
     if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
         raise InputError(f"--time-limit: must be a positive number of seconds, got {time_limit}")
-    if seed is not None and seed < 0:
-        raise InputError(f"--seed: must be >= 0, got {seed}")
-    _check_out(out)
+    if out is not None:
+        check_output_dir(out)  # created when the outputs are written
 
     from ompl import util as ou
 
@@ -196,7 +187,7 @@ def _write_outputs(out: Path, sc, result, doc: dict) -> None:
     from ctrplan.dataio import atomic_write
     from ctrplan.viz import plot_plan, viewer_data, write_viewer
 
-    out.mkdir(parents=True, exist_ok=True)
+    output_dir(out)
     full = dict(doc)
     bbs = radii = None
     if result.dense is not None:
