@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import signal
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any, TypeVar
@@ -25,7 +26,9 @@ def _quiet_tick(_done: int, _total: int) -> None:
 
 
 def _pin_worker(cores: Any) -> None:
-    """Process-pool initializer: take one core off the queue, pin to it, go single-threaded."""
+    """Process-pool initializer: take one core off the queue, pin to it, go single-threaded. Ctrl-C
+    is the parent's to handle (it ends the workers), so a worker ignores it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     core = cores.get()
     if core is not None and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {core})
@@ -61,11 +64,22 @@ def run_local(fn: Callable[[Spec], dict], specs: Sequence[Spec], workers: int,
     results: list[dict | None] = [None] * len(specs)
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pin_worker,
                              initargs=(queue,)) as pool:
-        futures = {pool.submit(fn, spec): i for i, spec in enumerate(specs)}
-        for done, future in enumerate(as_completed(futures), 1):
-            results[futures[future]] = future.result()
-            tick(done, len(specs))
+        try:
+            futures = {pool.submit(fn, spec): i for i, spec in enumerate(specs)}
+            for done, future in enumerate(as_completed(futures), 1):
+                results[futures[future]] = future.result()
+                tick(done, len(specs))
+        except BaseException:  # Ctrl-C or a failed run: stop now, not after every queued run
+            _terminate(pool)
+            raise
     return results  # type: ignore[return-value]
+
+
+def _terminate(pool: ProcessPoolExecutor) -> None:
+    """End a pool's workers at once: running runs are killed, queued ones cancelled."""
+    for proc in list((pool._processes or {}).values()):  # no public way before Python 3.14
+        proc.terminate()
+    pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _ray_call(fn: Callable[[Spec], dict], spec: Spec) -> dict:
