@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, RobotOpt, as_option
@@ -18,7 +19,7 @@ from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
 from ctrplan.kinematics.pinn import PinnBackend
 from ctrplan.robot import Robot
 from ctrplan.training.evaluate import compare
-from ctrplan.training.trainer import RECIPES, get_recipe
+from ctrplan.training.trainer import RECIPES, get_recipe, remove_checkpoint
 from ctrplan.training.trainer import train as run_training
 
 if TYPE_CHECKING:
@@ -33,12 +34,12 @@ def train(
     recipe: Annotated[str | None, typer.Option(
         "--recipe", help=f"Recipe: {' | '.join(RECIPES)} (default: fast; finetune with --measured).")] = None,
     steps: Annotated[int | None, typer.Option(
-        "--steps", help="Optimiser steps (recipe default).")] = None,
+        "--steps", min=1, help="Optimiser steps (recipe default).")] = None,
     time_limit: Annotated[float | None, typer.Option(
         "--time-limit", help="Stop after this many minutes (the learning-rate schedule fits it).")] = None,
-    seed: Annotated[int, typer.Option("--seed")] = 0,
+    seed: Annotated[int, typer.Option("--seed", min=0)] = 0,
     device: Annotated[str, typer.Option("--device", help="cpu | cuda | cuda:N")] = "cpu",
-    threads: Annotated[int | None, typer.Option("--threads", help="CPU threads for torch.")] = None,
+    threads: Annotated[int | None, typer.Option("--threads", min=1, help="CPU threads for torch.")] = None,
     resume: Annotated[bool, typer.Option(
         "--resume", help="Continue from the last checkpoint of NAME.")] = False,
     init: Annotated[str | None, typer.Option(
@@ -71,11 +72,13 @@ def train(
     """
     import torch
 
+    if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
+        raise InputError(f"--time-limit: must be a positive number of minutes, got {time_limit:g}")
     if device.startswith("cuda") and not torch.cuda.is_available():
         raise InputError(f"--device: {device} requested but no CUDA device is available")
     if measured is None and shots is not None:
         raise InputError("--shots: needs --measured DATA.csv")
-    if threads:
+    if threads is not None:
         torch.set_num_threads(threads)
     model_robot = Robot.load(robot)
     if measured is None:
@@ -92,16 +95,17 @@ def train(
     start = PinnBackend.load(init, model_robot) if init else None
     out = output_dir(out_dir, "--out-dir") / (name or f"{model_robot.name}_{rec.name}")
     console = Console(stderr=True)
-    bar = Progress(TextColumn("train {task.fields[recipe]}"), BarColumn(), MofNCompleteColumn(),
+    limit_s = None if time_limit is None else time_limit * 60
+    bar = Progress(TextColumn("train {task.fields[recipe]}"), BarColumn(), TextColumn("{task.fields[done]}"),
                    TimeElapsedColumn(), TextColumn("loss {task.fields[loss]}"), console=console)
     with bar:
-        task = bar.add_task("train", total=rec.steps, recipe=rec.name, loss="-")
+        task = bar.add_task("train", total=1.0, recipe=rec.name, loss="-", done="")
 
         def progress(step: int, total: int, stats: dict) -> None:
-            bar.update(task, completed=step, loss=f"{stats['loss']:.4g}")
+            bar.update(task, completed=training_fraction(step, total, stats["time_s"], limit_s),
+                       done=progress_text(step, total, stats["time_s"], limit_s), loss=f"{stats['loss']:.4g}")
 
-        common = dict(seed=seed, device=device, resume=resume, progress=progress,
-                      time_limit_s=time_limit * 60 if time_limit else None)
+        common = dict(seed=seed, device=device, resume=resume, progress=progress, time_limit_s=limit_s)
         if fewshot is not None:
             from ctrplan.training.finetune import finetune, table_text
 
@@ -111,6 +115,7 @@ def train(
                 model_robot, rec, out, init_from=start.net if start else None, **common,
                 extra_card={"stages": training_stages(start.card)} if start else None,
                 evaluate=lambda net: compare(PinnBackend(model_robot, net), model_robot).metrics())
+    remove_checkpoint(out)  # the run finished: nothing to resume
     m = result.card["metrics"]["backbone_error_pct"]
     console.print(f"wrote {out.with_suffix('.safetensors')} and {out.with_suffix('.json')}: "
                   f"{result.steps} steps in {result.wall_time_s / 60:.1f} min; backbone error on 100 "
@@ -120,6 +125,20 @@ def train(
         console.print(table_text(result.card["metrics"]["measured_heldout"]))
     if as_json:
         typer.echo(out.with_suffix(".json").read_text())  # the card as written, with robot and hash
+
+
+def training_fraction(step: int, steps: int, time_s: float, limit_s: float | None) -> float:
+    """How much of the run is done: steps of the budget, or time of the limit, whichever ends it."""
+    return min(1.0, max(step / steps, time_s / limit_s if limit_s else 0.0))
+
+
+def progress_text(step: int, steps: int, time_s: float, limit_s: float | None) -> str:
+    """``1200/40000 steps``, or with a time limit ``1200 steps in 3:06 of 30:00`` (minutes:seconds
+    of training; the step budget is then only an upper bound)."""
+    if limit_s is None:
+        return f"{step}/{steps} steps"
+    clock = [f"{int(t // 60)}:{int(t % 60):02d}" for t in (time_s, limit_s)]
+    return f"{step} steps in {clock[0]} of {clock[1]}"
 
 
 def _measured_split(path: Path, robot: Robot, shots: int | None, heldout: float) -> FewShot:
