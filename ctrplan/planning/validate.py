@@ -25,6 +25,7 @@ from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.planning.goal import tip_tangents
 from ctrplan.planning.space import BoxSpace
 from ctrplan.scene import Scene
+from ctrplan.stability import is_certified
 
 
 @dataclass
@@ -93,7 +94,9 @@ def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | 
 
     ``planning_backend`` (if given and not exact itself) is evaluated on the same states for the
     position error. ``clearance_stride`` > 1 computes distances on every n-th state only (plus the
-    colliding-free minimum over all states is still exact for collisions).
+    colliding-free minimum over all states is still exact for collisions). For a robot without a
+    stability certificate the exact model also computes elastic stability: an unstable state fails
+    like a colliding one.
     """
     t0 = time.perf_counter()
     s = scene.settings
@@ -102,6 +105,8 @@ def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | 
     margin = s.margin_mm if margin_mm is None else float(margin_mm)
     space = BoxSpace.for_scene(scene)
     exact = exact or CosseratBackend(scene.robot)
+    if not is_certified(scene.robot):
+        exact = exact.checking_stability()
     dense = space.densify(path_q, resolution)
     ebb = exact.forward(dense, points=points, check=False)
     bound = float(np.min(ebb.radius_mm)) + margin
