@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from ctrplan.planning import plan, validate_path
+from ctrplan.planning.validate import clearance_along
 from ctrplan.scene import load_scene
 from tests.independent.cosserat import Tubes, solve
 from tests.independent.geometry import axis_angle, box_gap, sphere_gap
@@ -115,9 +116,13 @@ def test_validation_keeps_the_margin_and_measures_the_clearance(tmp_path):
     center = np.array([0.0, 0.75 + radius + gap, 2.5])
     ball = f"\n- {{name: ball, sphere: {{center: {vec(to_scene(center))}, radius: {radius}}}}}"
     scene = load_scene(write_scene(tmp_path, ball, tip_mm(q)[0], name="beside"))
-    rep = validate_path(scene, q[None]).report
+    vp = validate_path(scene, q[None])
+    rep = vp.report
     assert not rep.collision_free and rep.first_collision["obstacles"] == ["ball"]
     assert rep.min_clearance_mm == pytest.approx(gap, abs=0.01)
+    along = clearance_along(scene, vp.exact, 3.0)[0]  # per capsule, as plan.html colours the backbone
+    assert along[0] == pytest.approx(gap, abs=0.01) and along.min() == pytest.approx(gap, abs=0.01)
+    assert along[-1] == 3.0  # the distal capsules are far from the ball: capped
     free = validate_path(scene, q[None], margin_mm=0.0).report
     assert free.collision_free and free.ok
 

@@ -164,6 +164,17 @@ def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | 
     return ValidatedPath(dense, ebb, pbb, report)
 
 
+def clearance_along(scene: Scene, bb: Backbone, cap_mm: float,
+                    world: CollisionWorld | None = None) -> np.ndarray:
+    """The clearance along a path: distance (mm) from the surface of each capsule (K, N-1) of the
+    backbones ``bb`` (robot frame) to the nearest obstacle of ``scene``, 0 in contact, capped at
+    ``cap_mm``; NaN for a backbone that did not converge."""
+    checker = RobotCollisionChecker(world or CollisionWorld.from_scene(scene), scene.base_pose,
+                                    bb.positions_mm.shape[1])
+    return np.array([checker.clearances(p, r, cap_mm) for p, r in zip(bb.positions_mm, bb.radius_mm,
+                                                                          strict=True)])
+
+
 def backbone_steps(bb: Backbone) -> np.ndarray:
     """Largest displacement (mm) of any backbone point between consecutive rows (B-1,); inf where
     a row did not converge."""
