@@ -119,6 +119,10 @@ MUTATIONS = (
              "    remove_checkpoint(out)  # the run finished: nothing to resume\n", "",
              ("tests/test_newuser_trainer.py::"
               "test_cli_train_with_a_time_limit_reports_its_last_step_and_leaves_no_checkpoint",)),
+    Mutation("train's progress stops at the last multiple of 10 steps", "ctrplan/training/trainer.py",
+             "last = self.step == steps or self._out_of_time()", "last = self.step == steps",
+             ("tests/test_newuser_trainer.py::"
+              "test_cli_train_with_a_time_limit_reports_its_last_step_and_leaves_no_checkpoint",)),
     Mutation("an interrupt that became another exception leaks a traceback", "ctrplan/cli/__init__.py",
              "if not (console.interrupted() or isinstance(exc, (KeyboardInterrupt, typer.Abort))):",
              "if not isinstance(exc, (KeyboardInterrupt, typer.Abort)):",

@@ -69,9 +69,12 @@ def test_cli_train_with_a_time_limit_reports_its_last_step_and_leaves_no_checkpo
     from ctrplan.cli import main
 
     monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("TTY_COMPATIBLE", "1")  # rich draws the bar as on a terminal
+    monkeypatch.setenv("COLUMNS", "200")
     small = [f"--set={k}={v}" for k, v in TINY.items() if k != "steps"]
     assert main(["train", "--name", "tiny", "--time-limit", "0.05", "--threads", "1", *small]) == 0
     card = json.loads((tmp_path / "models" / "tiny.json").read_text())
-    shown = re.findall(r"(\d+) steps in \d+:\d\d of 0:03", capsys.readouterr().err)
+    err = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", capsys.readouterr().err)
+    shown = re.findall(r"(\d+) steps in \d+:\d\d of 0:03", err)
     assert shown and int(shown[-1]) == card["steps"] > 0
     assert sorted(p.name for p in (tmp_path / "models").iterdir()) == ["tiny.json", "tiny.safetensors"]

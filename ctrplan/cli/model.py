@@ -93,11 +93,12 @@ def train(
         init = init or DEFAULT_MODEL
         fewshot = _measured_split(measured, model_robot, shots, heldout)
     start = PinnBackend.load(init, model_robot) if init else None
-    out = output_dir(out_dir, "--out-dir") / (name or f"{model_robot.name}_{rec.name}")
+    out = check_output_dir(out_dir, "--out-dir") / (name or f"{model_robot.name}_{rec.name}")  # made on save
     console = Console(stderr=True)
     limit_s = None if time_limit is None else time_limit * 60
     bar = Progress(TextColumn("train {task.fields[recipe]}"), BarColumn(), TextColumn("{task.fields[done]}"),
-                   TimeElapsedColumn(), TextColumn("loss {task.fields[loss]}"), console=console)
+                   TimeElapsedColumn(), TextColumn("loss {task.fields[loss]}"), console=console,
+                   disable=not console.is_terminal)  # a log gets the summary line below
     with bar:
         task = bar.add_task("train", total=1.0, recipe=rec.name, loss="-", done="")
 
