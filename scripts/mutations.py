@@ -38,8 +38,8 @@ PHYSICS = "tests/test_calibration_physics.py::test_"
 
 MUTATIONS = (
     Mutation("exact validation at the identity pose", "ctrplan/planning/validate.py",
-             "CollisionWorld.from_scene(scene), scene.base_pose,",
-             "CollisionWorld.from_scene(scene), np.eye(4),",
+             "scene.base_pose,\n                                    points, margin)",
+             "np.eye(4),\n                                    points, margin)",
              (FRAMES + "validation_checks_the_robot_where_the_base_pose_puts_it",)),
     Mutation("exact validation without the margin", "ctrplan/planning/validate.py",
              "scene.base_pose,\n                                    points, margin)",
