@@ -423,6 +423,26 @@ class CapsuleChain:
                 out.add((int(i), world.names[j]))
         return sorted(out)
 
+    def distances(self, world: CollisionWorld, cap_mm: float) -> np.ndarray:
+        """Distance (mm) from each capsule (M,) to the nearest obstacle (0 in contact), capped at
+        ``cap_mm``: an obstacle whose bounding box is farther than the best so far is not queried."""
+        out = np.full(len(self._frames), float(cap_mm))
+        if len(world) == 0:
+            return out
+        gap = np.maximum(0.0, np.maximum(world.aabb_lo[None] - self.seg_hi[:, None],
+                                         self.seg_lo[:, None] - world.aabb_hi[None]))
+        lower = np.linalg.norm(gap, axis=-1)  # (M, O)
+        req = fcl.DistanceRequest()
+        for i in range(len(out)):
+            for j in np.argsort(lower[i]):
+                if lower[i, j] >= out[i]:
+                    break
+                d = fcl.distance(self._object(i), world._objects[j], req, fcl.DistanceResult())
+                out[i] = min(out[i], max(float(d), 0.0))
+                if out[i] == 0.0:
+                    break
+        return out
+
     def distance(self, world: CollisionWorld) -> Clearance:
         """Smallest distance between the chain and the obstacles (0 when in contact).
 
@@ -583,6 +603,14 @@ class RobotCollisionChecker:
         """(segment, obstacle) pairs in contact for one backbone (with the margin)."""
         self._place(positions, radius, self.margin_mm)
         return self.chain.contacts(self.world)
+
+    def clearances(self, positions: np.ndarray, radius: np.ndarray, cap_mm: float) -> np.ndarray:
+        """Distance (mm) from the surface of each capsule (N-1,) (no margin) to the nearest
+        obstacle, 0 on contact, capped at ``cap_mm``; NaN where the backbone is not finite."""
+        if not np.all(np.isfinite(positions)):
+            return np.full(len(positions) - 1, np.nan)
+        self._place(positions, radius, 0.0)
+        return self.chain.distances(self.world, cap_mm)
 
     def clearance(self, positions: np.ndarray, radius: np.ndarray) -> Clearance:
         """Distance from the robot's surface (no margin) to the nearest obstacle; 0 on contact."""

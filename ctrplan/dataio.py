@@ -108,7 +108,7 @@ def read_table(path: str | Path, columns: Sequence[str], *, optional: Sequence[s
     ``optional`` columns are read too when the header has them: ``Table.columns`` is ``columns``
     followed by the optional ones found. Blank lines (also before the header) are skipped. Raises
     `InputError` for a missing or empty file, a header without data rows, a missing or repeated
-    column, a row too short to hold the columns, or a cell that is not a finite number (see
+    column, a row with more or fewer fields than the header, or a cell that is not a finite number (see
     `parse_number` for ``allow_missing``).
     """
     path = Path(path)
@@ -136,14 +136,14 @@ def parse_table(text: str, path: str | Path, columns: Sequence[str], *,
         if len(hits) > 1:
             raise InputError(f"{path}: row {head}: column {name!r} appears {len(hits)} times")
         index.append(hits[0])
-    needed = max(index) + 1
     values, lines = [], []
     for cells in reader:
         if not any(c.strip() for c in cells):
             continue
         line = reader.line_num
-        if len(cells) < needed:
-            raise InputError(f"{path}: row {line}: expected {len(names)} fields, got {len(cells)}")
+        if len(cells) != len(names):  # a cell too many or too few: the columns may have shifted
+            raise InputError(f"{path}: row {line}: expected {len(names)} fields (as the header), "
+                             f"got {len(cells)}")
         values.append([parse_number(cells[i], path, line, name, allow_missing=allow_missing)
                        for name, i in zip(wanted, index, strict=True)])
         lines.append(line)
@@ -191,6 +191,18 @@ def output_dir(path: str | Path, option: str = "--out") -> Path:
         raise InputError(f"{option}: {path} exists and is not a directory") from None
     except OSError as exc:
         raise InputError(f"{option}: cannot create {path} ({exc.strerror})") from None
+    return path
+
+
+def check_output_dir(path: str | Path, option: str = "--out") -> Path:
+    """Refuse, before any work, an output directory that `output_dir` could not create (an
+    `InputError` naming ``option``): the missing folders are made to prove it and removed again, so
+    a command that then fails or is interrupted leaves none behind. Returns ``path`` as a `Path`."""
+    path = Path(path)
+    missing = [p for p in (path, *path.parents) if not p.exists()]  # deepest first
+    output_dir(path, option)
+    for folder in missing:
+        folder.rmdir()
     return path
 
 

@@ -191,6 +191,31 @@ class JointDomain:
                                 f"({names[c]} = {box[r, c]:.6g})"))
         return out
 
+    def impossible(self, lengths_mm: np.ndarray) -> tuple[int, str] | None:
+        """The first box coordinate whose interval holds physically impossible configurations of
+        tubes of ``lengths_mm`` (N,), as ``(index, message naming the limit)``; None if every
+        configuration of the box is possible (so `sample` never draws an impossible one).
+
+        Possible: tube N's base behind the plate and its tip in front of it,
+        ``-L_N < beta_N <= 0``, and no tube reaching past an inner one,
+        ``beta_{i+1} - beta_i <= L_i - L_{i+1}`` (tube order, ``>= 0``, is checked on loading)."""
+        n, L = self.n_tubes, np.asarray(lengths_mm, dtype=float)
+        names = box_names(n)
+        lo, hi = self.bounds[0]
+        if hi > 0.0:
+            return 0, (f"{names[0]} up to {hi:g} mm puts tube {n}'s base in front of the plate: "
+                       f"need {names[0]} <= 0")
+        if lo <= -L[n - 1]:
+            return 0, (f"{names[0]} down to {lo:g} mm pulls tube {n} behind the plate: need {names[0]} > "
+                       f"-L{n} = {-L[n - 1]:g} mm")
+        for c in range(1, n):
+            i = n - c  # coordinate c is beta_{i+1} - beta_i (tubes 1-based)
+            limit = L[i - 1] - L[i]
+            if self.bounds[c][1] > limit + 1e-9:
+                return c, (f"{names[c]} up to {self.bounds[c][1]:g} mm puts tube {i + 1}'s tip past tube "
+                           f"{i}'s: need {names[c]} <= L{i} - L{i + 1} = {limit:g} mm")
+        return None
+
     def to_dict(self) -> dict[str, list[float]]:
         """File form: one key per box coordinate; the alphas share ``alpha_rad`` when equal."""
         keys = box_keys(self.n_tubes)
@@ -232,6 +257,9 @@ class Robot:
             raise InputError(f"robot: the joint domain is for {self.domain.n_tubes} tubes, the robot has {n}")
         if len(self.joint_offset) != 2 * n:
             raise InputError(f"robot: joint_offset needs {2 * n} values, got {len(self.joint_offset)}")
+        bad = self.domain.impossible(self.lengths_mm)
+        if bad is not None:
+            raise InputError(f"robot {self.name}: domain: {bad[1]}")
 
     # ---- construction -------------------------------------------------------------------------
     @classmethod
@@ -515,6 +543,9 @@ def robot_from_yaml(doc: YamlDoc) -> Robot:
             raise doc.error(("tubes", i, "straight_length_mm"),
                             f"tube {i + 1} must be at least as long as tube {i + 2}")
     domain = _domain_from_yaml(doc, n)
+    bad = domain.impossible(np.array([t.length_mm for t in tubes]))
+    if bad is not None:
+        raise doc.error(("domain", box_keys(n)[bad[0]]), bad[1])
 
     loads = Loads()
     if "loads" in d:

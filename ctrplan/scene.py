@@ -18,6 +18,9 @@ file, the key and the line (`ctrplan.yamlio`). Layout::
       - {name: wall, box: {center: [...], size: [a, b, c], rotation: {...}}}
       - {name: rod, cylinder: {center: [...], radius: r, length: l, axis: [...]}}
       - {name: pin, capsule: {center: [...], radius: r, length: l, axis: [...]}}
+    anatomy: {x: left, y: superior, z: posterior}   # optional: the patient direction of each scene
+                                          # axis (left/right, anterior/posterior, superior/inferior),
+                                          # shown as orientation cues in plan.png and plan.html
     target:                               # tip must end inside this region (scene frame)
       point: [x, y, z]                    # with
       tolerance_mm: 2.0
@@ -65,6 +68,8 @@ from ctrplan.robot import Robot, box_keys
 from ctrplan.yamlio import YamlDoc, load_yaml
 
 PRIMITIVES = ("sphere", "box", "cylinder", "capsule")
+#: Patient directions in pairs of opposites (the `anatomy` key of a scene).
+ANATOMY_PAIRS = (("left", "right"), ("anterior", "posterior"), ("superior", "inferior"))
 MESH_SUFFIXES = (".stl", ".obj", ".ply")
 
 
@@ -330,6 +335,7 @@ class Scene:
     path: Path | None = None
     joint_limits: tuple[np.ndarray, np.ndarray] | None = None
     key_lines: dict = field(default_factory=dict)
+    anatomy: dict[str, str] | None = None  # scene axis ("x", "y", "z") -> patient direction of +axis
 
     def where(self, key: str) -> str:
         """``file:line: key`` for messages about a top-level key (as the loader's errors)."""
@@ -379,7 +385,7 @@ class Scene:
 
 # ---- loading ---------------------------------------------------------------------------------------
 _TOP_KEYS = {"name", "description", "robot", "base_pose", "obstacles", "target", "start", "planner",
-             "joint_limits"}
+             "joint_limits", "anatomy"}
 def joint_limit_keys(n_tubes: int) -> tuple[str, ...]:
     """Keys of a scene's ``joint_limits`` (box coordinates; translations in mm, rotations in deg):
     the robot file's domain keys with ``alphaI_deg`` for the rotations."""
@@ -651,6 +657,24 @@ def _settings(doc: YamlDoc, raw: Any) -> PlannerSettings:
     return PlannerSettings(**kw)
 
 
+def opposite(direction: str) -> str:
+    """The patient direction opposite ``direction`` (e.g. left -> right)."""
+    return next(b if a == direction else a for a, b in ANATOMY_PAIRS if direction in (a, b))
+
+
+def _anatomy(doc: YamlDoc, raw: Any) -> dict[str, str]:
+    spec = _mapping(doc, ("anatomy",), raw, {"x", "y", "z"}, ("x", "y", "z"))
+    terms = [t for pair in ANATOMY_PAIRS for t in pair]
+    for axis, value in spec.items():
+        if value not in terms:
+            raise doc.error(("anatomy", axis), f"expected one of {', '.join(terms)}, got {value!r}")
+    used = [next(i for i, pair in enumerate(ANATOMY_PAIRS) if spec[a] in pair) for a in "xyz"]
+    if len(set(used)) != 3:
+        raise doc.error(("anatomy",), "each axis needs its own pair of directions (left/right, "
+                                      "anterior/posterior, superior/inferior)")
+    return {a: spec[a] for a in "xyz"}
+
+
 def _joint_limits(doc: YamlDoc, raw: Any, robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     keys = ("joint_limits",)
     names = joint_limit_keys(robot.n_tubes)
@@ -745,9 +769,10 @@ def scene_from_yaml(doc: YamlDoc) -> Scene:
         raise doc.error(("name",), f"expected a string, got {name!r}")
     if not isinstance(desc, str):
         raise doc.error(("description",), f"expected a string, got {desc!r}")
+    anatomy = _anatomy(doc, d["anatomy"]) if "anatomy" in d else None
     return Scene(name=name, robot=robot, base_pose=base_pose, obstacles=obstacles, target=target,
                  start=start, settings=settings, description=desc.strip(), path=doc.path,
-                 joint_limits=limits,
+                 joint_limits=limits, anatomy=anatomy,
                  key_lines={k: doc.lines[(k,)] for k in d if (k,) in doc.lines})
 
 

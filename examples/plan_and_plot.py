@@ -15,6 +15,7 @@ import numpy as np
 from ompl import util as ou
 
 from ctrplan.planning import plan
+from ctrplan.planning.validate import clearance_along
 from ctrplan.scene import load_scene
 from ctrplan.viz import plot_plan, viewer_data, write_viewer
 
@@ -54,8 +55,9 @@ def main() -> None:
     out = Path(args.out)
     backbones = scene.to_scene(result.dense.exact.positions_mm)  # exact model, scene frame
     png = plot_plan(scene, backbones, out / "plan.png", tip_path=backbones[:, -1])
+    clearance = clearance_along(scene, result.dense.exact, 3.0)  # per capsule, mm: colours the backbone
     html = write_viewer(out / "plan.html", viewer_data(scene, backbones, result.dense.exact.radius_mm,
-                                                       {"message": result.message}),
+                                                       {"result": result.message}, clearance),
                         title=f"ctrplan: {scene.name}")
     print(f"wrote {png} and {html}")
 

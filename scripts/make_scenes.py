@@ -479,6 +479,7 @@ def skullbase_scene(p: dict, name: str, description: str, backend) -> dict:
         "description": description,
         "robot": "nominal",
         "base_pose": _yaml_pose(T),
+        "anatomy": {"x": "left", "y": "superior", "z": "posterior"},
         "obstacles": obstacles,
         "target": {"ellipsoid": dict(TARGET)},
         "start": _yaml_q(q_start),

@@ -7,6 +7,7 @@ import sys
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from ctrplan.cli import main
@@ -32,6 +33,8 @@ CONFIG_CASES = {
     "missing column": ("beta1,beta2,beta3,alpha1,alpha3\n0,0,0,0,0\n", None, [],
                        ["configs.csv: row 1", "missing column 'alpha2'"]),
     "short row": (f"{HEADER}\n{GOOD_ROW}\n-20,-10,-5\n", None, [], ["configs.csv: row 3", "fields"]),
+    "long row": (f"{HEADER}\n{GOOD_ROW}\n{GOOD_ROW},7\n", None, [],
+                 ["configs.csv: row 3", "expected 6 fields (as the header), got 7"]),
     "non-numeric cell": (f"{HEADER}\n{GOOD_ROW}\n-20,-10,-5,0,abc,0\n", None, [],
                          ["configs.csv: row 3", "alpha2", "'abc'", "not a number"]),
     "nan cell": (f"{HEADER}\nnan,-10,-5,0,0,0\n", None, [],
@@ -53,6 +56,17 @@ CONFIG_CASES = {
     "robot ID >= OD": (f"{HEADER}\n{GOOD_ROW}\n",
                        broken_robot("inner_diameter_mm: 0.70", "inner_diameter_mm: 0.95"), [],
                        ["robot.yaml:6", "tubes[1].inner_diameter_mm", "must be < outer diameter"]),
+    "robot not a Poisson ratio": (f"{HEADER}\n{GOOD_ROW}\n",  # E / (2 G) - 1 = 50 / 32 - 1 = 0.5625
+                                  broken_robot("shear_modulus_gpa: 19.23", "shear_modulus_gpa: 16.0"), [],
+                                  ["robot.yaml:5", "tubes[0].shear_modulus_gpa", "(-1, 0.5]"]),
+    "robot tubes not nested": (f"{HEADER}\n{GOOD_ROW}\n",  # tube 1 OD 0.75 mm > tube 2 ID 0.70 mm
+                               broken_robot("outer_diameter_mm: 0.50", "outer_diameter_mm: 0.75"), [],
+                               ["robot.yaml:6", "tubes[1].inner_diameter_mm", "cannot hold tube 1"]),
+    "robot domain past tube 1": (f"{HEADER}\n{GOOD_ROW}\n",  # L1 - L2 = 210 - 165 = 45 mm
+                                 broken_robot("beta2_minus_beta1_mm: [0.0, 15.0]",
+                                              "beta2_minus_beta1_mm: [30.0, 50.0]"), [],
+                                 ["robot.yaml:14", "domain.beta2_minus_beta1_mm",
+                                  "tube 2's tip past tube 1's", "L1 - L2 = 45 mm"]),
     "robot malformed": (f"{HEADER}\n{GOOD_ROW}\n", "name: x\ntubes: [\n  - {a: 1\n", [],
                         ["robot.yaml", "malformed YAML"]),
     "robot missing": (f"{HEADER}\n{GOOD_ROW}\n", None, ["--robot", "nowhere.yaml"],
@@ -150,3 +164,61 @@ def test_no_arguments_prints_help_without_traceback(capsys):
     out, err = capsys.readouterr()
     assert rc in (0, 2)
     assert "fk" in out and "Traceback" not in err
+
+
+SCENE = str(Path(__file__).resolve().parents[1] / "scenes" / "open.yaml")
+
+
+@pytest.mark.parametrize(("args", "fragments"), [
+    (["plan", SCENE, "--out", "/proc/ctrplan_out"], ["--out", "cannot create /proc/ctrplan_out"]),
+    (["plan", "unread.yaml", "--out", "/proc/ctrplan_out"], ["--out"]),  # before the scene is read
+    *[(command + ["--seed", "-1"], ["--seed", "greater than or equal to 0"]) for command in (
+        ["plan", SCENE], ["stability"], ["train"], ["bench", "kinematics"], ["bench", "plan", SCENE],
+        ["diagnose", "data.csv"])],
+    *[(["train", "--time-limit", v], ["--time-limit", "must be a positive number of minutes"])
+      for v in ("0", "-1", "nan")],
+    (["train", "--steps", "0"], ["--steps", "greater than or equal to 1"]),
+    (["train", "--threads", "0"], ["--threads", "greater than or equal to 1"]),
+])
+def test_bad_option_fails_cleanly_and_writes_nothing(tmp_path, capsys, monkeypatch, args, fragments):
+    """One line, exit 2, before any work: nothing in the working directory (where runs/ and models/
+    would go) or at the given --out."""
+    monkeypatch.chdir(tmp_path)
+    rc = main(args)
+    assert_one_line_error(rc, *capsys.readouterr(), fragments)
+    assert list(tmp_path.iterdir()) == []
+    assert not Path("/proc/ctrplan_out").exists()
+
+
+def test_robot_domain_is_refused_at_load_so_sampling_stays_physical(tmp_path):
+    """The domain box may only hold configurations `check_joints` accepts: then `sample_joints`
+    never returns an impossible one. At the limit (beta2 - beta1 <= L1 - L2 = 45 mm) it loads."""
+    from ctrplan.errors import InputError
+    from ctrplan.robot import Robot
+
+    path = tmp_path / "robot.yaml"
+    for old, new, limit in (
+            ("beta3_mm: [-10.0, 0.0]", "beta3_mm: [-10.0, 2.0]", "need beta3 <= 0"),
+            ("beta3_mm: [-10.0, 0.0]", "beta3_mm: [-110.0, 0.0]", "need beta3 > -L3 = -110 mm"),
+            ("beta3_minus_beta2_mm: [0.0, 55.0]", "beta3_minus_beta2_mm: [0.0, 56.0]",
+             "need beta3 - beta2 <= L2 - L3 = 55 mm")):
+        path.write_text(broken_robot(old, new))
+        with pytest.raises(InputError) as info:
+            Robot.load(str(path))
+        assert str(info.value).endswith(limit)
+    path.write_text(broken_robot("beta2_minus_beta1_mm: [0.0, 15.0]", "beta2_minus_beta1_mm: [30.0, 45.0]"))
+    robot = Robot.load(str(path))
+    q = robot.sample_joints(2000, rng=0)
+    robot.check_joints(q)  # raises for an impossible configuration
+    assert np.max(q[:, 1] - q[:, 0]) > 44.9
+
+
+def test_missing_pinn_for_the_robot_in_use_says_so(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "robot.yaml").write_text(broken_robot("name: nominal", "name: mine")
+                                         .replace("curvature_1_per_m: 28.0", "curvature_1_per_m: 30.0"))
+    rc = main(["fk", str(EXAMPLE), "--backend", "pinn", "--robot", "robot.yaml", "-o", "out.csv"])
+    assert_one_line_error(rc, *capsys.readouterr(), [
+        "--backend pinn: no PINN model trained for robot 'mine'", f"in {tmp_path / 'models'} or among "
+        "the shipped models", "ctrplan train --robot ROBOT.yaml --name mine_pinn"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["robot.yaml"]

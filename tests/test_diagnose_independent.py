@@ -106,9 +106,11 @@ def test_pair_sensor_offset_and_backlash(tmp_path):
 
 def test_near_the_noise_threshold(tmp_path):
     """A registration a tenth of lab size: either named right, or `none` only when the nominal model
-    is within the noise tolerance -- never a wrong cause, never `none` with a visible error."""
+    is within the noise tolerance -- never a wrong cause, never `none` with a visible error. A cause
+    the data cannot tell from registration may be named only with registration among its ties."""
     lab, data, diag, j = _diagnose(tmp_path, {"registration": 0.12}, 7)
     if j["cause"] == "none":
         assert j["nominal"]["mean_mm"] <= 1.3 * j["noise_mm"], _msg(diag, lab)
     else:
-        assert j["causes"] == ["registration"] or j["ties"], _msg(diag, lab)
+        assert "registration" in j["causes"] + j["ties"], _msg(diag, lab)
+        assert set(j["causes"]) <= set(j["ties"]) | {"registration"}, _msg(diag, lab)

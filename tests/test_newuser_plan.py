@@ -174,8 +174,13 @@ def test_library_resolve_backend_does_not_fall_back(tmp_path):
     from ctrplan.robot import Robot
 
     text = resources.files("ctrplan.data").joinpath("nominal.yaml").read_text()
-    (tmp_path / "r.yaml").write_text(text.replace("curvature_1_per_m: 28.0", "curvature_1_per_m: 30.0"))
-    other = Robot.load(str(tmp_path / "r.yaml"))  # the shipped PINN was trained for nominal
-    with pytest.raises(InputError, match="trained for robot 'nominal'"):
+    (tmp_path / "r.yaml").write_text(text.replace("curvature_1_per_m: 28.0", "curvature_1_per_m: 30.0")
+                                     .replace("name: nominal", "name: r"))
+    other = Robot.load(str(tmp_path / "r.yaml"))  # the shipped PINNs were trained for other robots
+    with pytest.raises(InputError) as info:
         resolve_backend(None, other)
+    message = str(info.value)  # names this robot, where it looked and how to train one; no other model
+    assert message.startswith("no PINN model trained for robot 'r' (fingerprint ")
+    assert str(Path("models").resolve()) in message and "shipped models (pinn_nominal" in message
+    assert "ctrplan train --robot ROBOT.yaml --name r_pinn" in message and "'nominal'" not in message
     assert resolve_backend("cosserat", other).name == "cosserat"

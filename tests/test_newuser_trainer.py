@@ -57,3 +57,24 @@ def test_train_is_short():
     assert len(inspect.getsource(train).splitlines()) <= 40
     assert all(len(inspect.getsource(m).splitlines()) <= 40
                for m in (Trainer.train, Trainer.finish, TrainingData.build))
+
+
+def test_cli_train_with_a_time_limit_reports_its_last_step_and_leaves_no_checkpoint(tmp_path, capsys,
+                                                                                   monkeypatch):
+    """`--time-limit 0.05` (3 s): the progress line ends at the step the card records (not at the
+    last multiple of 10) against the limit, and the checkpoint is gone once the model is written."""
+    import json
+    import re
+
+    from ctrplan.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("TTY_COMPATIBLE", "1")  # rich draws the bar as on a terminal
+    monkeypatch.setenv("COLUMNS", "200")
+    small = [f"--set={k}={v}" for k, v in TINY.items() if k != "steps"]
+    assert main(["train", "--name", "tiny", "--time-limit", "0.05", "--threads", "1", *small]) == 0
+    card = json.loads((tmp_path / "models" / "tiny.json").read_text())
+    err = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", capsys.readouterr().err)
+    shown = re.findall(r"(\d+) steps in \d+:\d\d of 0:03", err)
+    assert shown and int(shown[-1]) == card["steps"] > 0
+    assert sorted(p.name for p in (tmp_path / "models").iterdir()) == ["tiny.json", "tiny.safetensors"]

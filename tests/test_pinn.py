@@ -76,7 +76,7 @@ def test_short_training_lowers_the_loss(robot, tmp_path):
     calls = []
     train(robot, recipe, tmp_path / "tiny", seed=3,
           progress=lambda step, total, stats: calls.append((step, total, stats["loss"])))
-    assert [c[0] for c in calls] == [10, 20, 30, 40, 50, 60, 60]  # every 10 steps, then the final count
+    assert [c[0] for c in calls] == [10, 20, 30, 40, 50, 60]  # every 10 steps, the last one included
     assert calls[-1][:2] == (60, 60)
     assert calls[-1][2] < 0.8 * calls[0][2]
     card = json.loads((tmp_path / "tiny.json").read_text())

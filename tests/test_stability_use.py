@@ -12,10 +12,11 @@ from test_any_robot import overlapping_pair
 
 from ctrplan.cli import main
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.planning import plan, validate_path
 from ctrplan.planning.validity import ConfigurationChecker
 from ctrplan.robot import Robot
 from ctrplan.scene import load_scene
-from ctrplan.stability import critical_length_mm, is_certified
+from ctrplan.stability import critical_length_mm, is_certified, user_certificate_dir
 
 REPO = __import__("pathlib").Path(__file__).resolve().parents[1]
 HALF_TURN = np.array([0.0, 0.0, 0.0, math.pi])
@@ -98,3 +99,67 @@ def test_stability_command_bad_input(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--n" in err[0]
     assert not (tmp_path / "x").exists()
+
+
+#: Overlap 1.3 times the critical length: at half a turn the straight-twist equilibrium has the
+#: Jacobi measure cos(1.3 pi / 2) = -0.45 < 0 (Dupont et al. 2010; tests/test_any_robot.py checks the
+#: solver against it), and cold solves from 2.8 rad to pi end on that unstable branch.
+SNAP_FACTOR = 1.3
+
+
+def snapper_scene(tmp_path, alpha2_target: float):
+    """A scene for two overlapping curved tubes that snap near half a turn, only alpha2 free
+    (0 .. pi), start at alpha2 = 0, target (3 mm) where the exact tip is at ``alpha2_target``."""
+    import yaml
+
+    robot = overlapping_pair(SNAP_FACTOR * critical_length_mm(overlapping_pair(50.0)))
+    doc = {**robot.to_dict(), "name": "snapper",
+           "domain": {"beta2_mm": [0.0, 0.0], "beta2_minus_beta1_mm": [0.0, 0.0], "alpha1_rad": [0.0, 0.0],
+                      "alpha2_rad": [0.0, math.pi]}}
+    (tmp_path / "snapper.yaml").write_text(yaml.safe_dump(doc))
+    tip = CosseratBackend(robot).forward(np.array([0.0, 0.0, 0.0, alpha2_target]), points=2).tip_mm[0]
+    path = tmp_path / "snap_scene.yaml"
+    path.write_text(f"name: snap\nrobot: snapper.yaml\nbase_pose: {{position: [0, 0, 0]}}\nobstacles: []\n"
+                    f"target: {{point: {tip.tolist()}, tolerance_mm: 3.0}}\nstart: [0, 0, 0, 0]\n")
+    scene = load_scene(path)
+    assert not is_certified(scene.robot)
+    return scene
+
+
+def test_plan_never_uses_a_configuration_that_snaps(tmp_path, private_cache):
+    """The target is where the tip is at half a turn: every configuration that gets the tip there is
+    unstable, so the planner finds no goal (it never hands exact validation an unstable path);
+    the same robot reaches a target on the stable side."""
+    assert math.cos(SNAP_FACTOR * math.pi / 2) < 0
+    res = plan(snapper_scene(tmp_path, math.pi), "cosserat", seed=0, time_limit_s=3.0)
+    assert not res.solved and res.validated is None, res.message
+    assert "elastically unstable" in res.message
+    stable = plan(snapper_scene(tmp_path, 1.0), "cosserat", seed=0, time_limit_s=3.0)
+    assert stable.solved and stable.validated.stable, stable.message
+
+
+def test_exact_validation_fails_every_unstable_state(tmp_path, private_cache):
+    """From 2.9 rad to half a turn every state converges, is collision-free (no obstacles) and is
+    unstable: each must fail, and the path with them."""
+    scene = snapper_scene(tmp_path, math.pi)
+    rep = validate_path(scene, np.array([[0.0, 0.0, 0.0, 2.9], [0.0, 0.0, 0.0, math.pi]])).report
+    assert rep.converged and rep.tip_in_target
+    assert not rep.stable and not rep.ok
+    assert rep.colliding_states == list(range(rep.states))
+    assert not rep.collision_free and "unstable" in " ".join(rep.first_collision["obstacles"])
+    control = validate_path(scene, np.array([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])).report
+    assert control.stable and control.collision_free and control.colliding_states == []
+
+
+def test_a_certificate_counts_only_for_its_robot_and_a_snap_free_verdict(tmp_path, private_cache):
+    robot = Robot.load(snapping_pair_file(tmp_path))
+    path = user_certificate_dir() / f"{robot.fingerprint}.json"
+    path.parent.mkdir(parents=True)
+    for doc, certified in (({"fingerprint": robot.fingerprint, "snap_free": True}, True),
+                           ({"fingerprint": Robot.nominal().fingerprint, "snap_free": True}, False),
+                           ({"fingerprint": robot.fingerprint, "snap_free": False}, False),
+                           ({"fingerprint": robot.fingerprint}, False)):
+        path.write_text(json.dumps(doc))
+        assert is_certified(robot) is certified, doc
+    path.unlink()
+    assert not is_certified(robot)

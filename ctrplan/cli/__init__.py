@@ -7,18 +7,15 @@ traceback, nothing half-written; ``--json`` prints one JSON document on stdout a
 from __future__ import annotations
 
 import inspect
-import os
 import sys
 import warnings
-from typing import NoReturn
 
 import typer
 
-from ctrplan import __version__
+from ctrplan import __version__, console
+from ctrplan.console import INTERRUPTED
 from ctrplan.errors import InputError
 
-#: Exit code after Ctrl-C (128 + SIGINT); no command returns it otherwise.
-INTERRUPTED = 130
 #: Click settings of every command group: help as wide as the terminal, up to 120 columns.
 HELP_SETTINGS = {"max_content_width": 120}
 
@@ -77,15 +74,27 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Console entry point: exit 2 with one clear line for any `InputError` or usage error.
-
-    Ctrl-C prints one line and ends the process at once (exit 130): a normal interpreter exit
-    would let nanobind list the OMPL objects still alive as "leaked".
-    """
+    """Run one command: exit 2 with one clear line for any `InputError` or usage error; Ctrl-C, at
+    any moment, ends it with the one line ``ctrplan: aborted`` (exit 130, see `ctrplan.console`)."""
     args = sys.argv[1:] if argv is None else list(argv)
     if args == ["--version"]:  # answer without importing the commands (torch, OMPL, ...)
         print(f"ctrplan {__version__}")
         return 0
+    previous = console.catch_ctrl_c()
+    try:
+        code = _run(args)
+    except BaseException as exc:
+        if not (console.interrupted() or isinstance(exc, (KeyboardInterrupt, typer.Abort))):
+            console.restore(previous)
+            raise
+        console.abort(exc)  # whatever the interrupt turned into on its way out
+    if console.interrupted() or code == INTERRUPTED:  # typer returns Ctrl-C as this code
+        console.abort()
+    console.restore(previous)
+    return code
+
+
+def _run(args: list[str]) -> int:
     _register()
     warnings.showwarning = _one_line_warning
     try:
@@ -103,21 +112,4 @@ def main(argv: list[str] | None = None) -> int:
         elif message:
             print(f"ctrplan: error: {message}", file=sys.stderr)
         return exc.exit_code
-    except (typer.Abort, KeyboardInterrupt):
-        _abort()
-    if code == INTERRUPTED:  # typer returns Ctrl-C as this code (after the commands cleaned up)
-        _abort()
     return code if isinstance(code, int) else 0
-
-
-def _abort() -> NoReturn:
-    """One line, then end the process now: skip the interpreter's exit, where nanobind would list
-    the OMPL objects a half-finished planner still holds as "leaked"."""
-    print("ctrplan: aborted", file=sys.stderr)
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(INTERRUPTED)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -20,7 +20,7 @@ from ctrplan.bench.fanout import check_workers, run_jobs
 from ctrplan.bench.plots import planning_plots, timing_boxplot
 from ctrplan.cli import HELP_SETTINGS, app
 from ctrplan.cli.kinematics import RobotOpt, as_option, load_backend
-from ctrplan.dataio import atomic_write, output_dir
+from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS
 from ctrplan.robot import Robot
@@ -94,7 +94,7 @@ def kinematics(
     n: Annotated[int, typer.Option("--n", help="Configurations per case (random, snap-free).")] = 5000,
     points: Annotated[str, typer.Option(
         "--points", help="Comma-separated numbers of backbone points.")] = "30,60,90,150",
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the random configurations.")] = 0,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the random configurations.")] = 0,
     robot: RobotOpt = None,
     out: Annotated[Path, typer.Option(
         "--out", help="Directory for results.json and the plot.")] = Path("runs/bench_kinematics"),
@@ -114,7 +114,7 @@ def kinematics(
         raise InputError(f"--n: need at least 1 configuration, got {n}")
     model = Robot.load(robot)
     backends = {name: load_backend(name, model, None) for name in dict.fromkeys(names)}
-    out = output_dir(out)
+    check_output_dir(out)  # created when the results are written
     cases = kinematics_bench.cases(backends, point_counts)
     with progress_bar() as bar, single_core() as core:
         task = bar.add_task("bench kinematics", total=n * len(cases))
@@ -130,6 +130,7 @@ def kinematics(
 
         results, times = kinematics_bench.run(backends, n, point_counts, seed=seed, tick=tick)
     batched = [] if batch < 1 else kinematics_bench.throughput(backends, points=64, batch=batch)
+    out = output_dir(out)
     doc = {"machine": {**machine_info(), "pinned_core": core},
            "settings": {"n": n, "points": point_counts, "seed": seed, "robot": model.name,
                         "check_joints": False, "warm_neighbour": "0.5 mm / 0.5 deg per joint",
@@ -163,7 +164,7 @@ def plan(
     runs: Annotated[int, typer.Option("--runs", help="Seeded runs per scene x backend x planner.")] = 20,
     time_limit: Annotated[float | None, typer.Option(
         "--time-limit", help="Time budget per run in seconds (default: each scene's setting).")] = None,
-    seed: Annotated[int, typer.Option("--seed", help="First seed; runs use seed, seed+1, ...")] = 0,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="First seed; runs use seed, seed+1, ...")] = 0,
     out: Annotated[Path, typer.Option(
         "--out", help="Directory for results.json, the OMPL logs, benchmark.db and plots.")
     ] = Path("runs/bench_plan"),
@@ -205,7 +206,7 @@ def plan(
         raise as_option(exc, flags) from None
     limits = planning_bench.prepare(scenes, backends, time_limit)
     specs = planning_bench.make_specs(limits, backends, planners, runs, seed)
-    out = output_dir(out)
+    check_output_dir(out)  # created when the results are written
     t0 = time.perf_counter()
     with progress_bar() as bar:
         task = bar.add_task("bench plan", total=len(specs))
@@ -219,6 +220,7 @@ def plan(
         except InputError as exc:
             raise as_option(exc, flags) from None
     summary = planning_bench.summarize(records)
+    out = output_dir(out)
     machine = machine_info()
     settings = {"backends": backends, "planners": planners, "runs": runs, "first_seed": seed,
                 "time_limit_s": {Path(f).name: limit for f, limit in limits},

@@ -10,6 +10,7 @@ from typing import Annotated
 import typer
 
 from ctrplan.cli import app
+from ctrplan.dataio import check_output_dir
 from ctrplan.errors import InputError
 
 Data = Annotated[Path, typer.Argument(
@@ -28,7 +29,7 @@ CandidatesOpt = Annotated[str, typer.Option(
     "--candidates", help="Comma-separated candidate causes to try.")]
 HeldoutOpt = Annotated[float, typer.Option(
     "--heldout", help="Fraction of the rows held out (in contiguous blocks).")]
-SeedOpt = Annotated[int, typer.Option("--seed", help="Seed of the held-out block draw.")]
+SeedOpt = Annotated[int, typer.Option("--seed", min=0, help="Seed of the held-out block draw.")]
 MaxRowsOpt = Annotated[int, typer.Option(
     "--max-rows", help="Diagnose at most this many rows (larger files: contiguous runs spread over the "
                        "file; the direction of motion still comes from the full sequence).")]
@@ -68,8 +69,8 @@ def diagnose(data: Data, robot: RobotOpt = None, out: OutOpt = None, json_: Json
         raise InputError(f"--max-rows: must be >= 30, got {max_rows}")
     if pairs < 0:
         raise InputError(f"--pairs: must be >= 0, got {pairs}")
-    if out is not None and out.exists() and not out.is_dir():
-        raise InputError(f"--out: {out} exists and is not a directory")
+    if out is not None:
+        check_output_dir(out)  # created when the outputs are written
     model, calib = load_extended_robot(robot)
     measured = read_measured(data, model)
     opts = DiagnoseOptions(candidates=names, heldout_fraction=heldout, seed=seed, pairs=pairs,

@@ -3,22 +3,23 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, RobotOpt, as_option
-from ctrplan.dataio import atomic_write, output_dir
+from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
 from ctrplan.kinematics.pinn import PinnBackend
 from ctrplan.robot import Robot
 from ctrplan.training.evaluate import compare
-from ctrplan.training.trainer import DEFAULT_RECIPE, RECIPES, get_recipe
+from ctrplan.training.trainer import DEFAULT_RECIPE, RECIPES, get_recipe, remove_checkpoint
 from ctrplan.training.trainer import train as run_training
 
 if TYPE_CHECKING:
@@ -38,13 +39,13 @@ def train(
         "--recipe", help=f"Recipe: {' | '.join(RECIPES)} (default: {DEFAULT_RECIPE}, "
                          f"{RECIPES[DEFAULT_RECIPE].minutes:g} min; finetune with --measured).")] = None,
     steps: Annotated[int | None, typer.Option(
-        "--steps", help="Optimiser steps (recipe default).")] = None,
+        "--steps", min=1, help="Optimiser steps (recipe default).")] = None,
     time_limit: Annotated[float | None, typer.Option(
         "--time-limit", help="Stop after this many minutes, data generation included (default: the "
                              "recipe's budget); the learning-rate schedule fits it.")] = None,
-    seed: Annotated[int, typer.Option("--seed")] = 0,
+    seed: Annotated[int, typer.Option("--seed", min=0)] = 0,
     device: Annotated[str, typer.Option("--device", help="cpu | cuda | cuda:N")] = "cpu",
-    threads: Annotated[int | None, typer.Option("--threads", help="CPU threads for torch.")] = None,
+    threads: Annotated[int | None, typer.Option("--threads", min=1, help="CPU threads for torch.")] = None,
     resume: Annotated[bool, typer.Option(
         "--resume", help="Continue from the last checkpoint of NAME.")] = False,
     init: Annotated[str | None, typer.Option(
@@ -80,11 +81,13 @@ def train(
     """
     import torch
 
+    if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
+        raise InputError(f"--time-limit: must be a positive number of minutes, got {time_limit:g}")
     if device.startswith("cuda") and not torch.cuda.is_available():
         raise InputError(f"--device: {device} requested but no CUDA device is available")
     if measured is None and shots is not None:
         raise InputError("--shots: needs --measured DATA.csv")
-    if threads:
+    if threads is not None:
         torch.set_num_threads(threads)
     model_robot = Robot.load(robot)
     if measured is None:
@@ -99,27 +102,30 @@ def train(
         init = init or DEFAULT_MODEL
         fewshot = _measured_split(measured, model_robot, shots, heldout)
     start = PinnBackend.load(init, model_robot) if init else None
-    out = output_dir(out_dir, "--out-dir") / (name or f"{model_robot.name}_{rec.name}")
+    out = check_output_dir(out_dir, "--out-dir") / (name or f"{model_robot.name}_{rec.name}")  # made on save
     console = Console(stderr=True)
-    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                   TimeElapsedColumn(), TextColumn("{task.fields[info]}"), console=console)
+    limit_s = time_limit * 60 if time_limit is not None else (rec.minutes * 60 if rec.minutes else None)
+    bar = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[done]}"),
+                   TimeElapsedColumn(), TextColumn("{task.fields[info]}"), console=console,
+                   disable=not console.is_terminal)  # a log gets the summary line below
     with bar:
-        data_task = bar.add_task("exact solutions", total=None, info="")
-        task = bar.add_task(f"train {rec.name}", total=None, info="", visible=False)
+        data_task = bar.add_task("exact solutions", total=None, done="", info="")
+        task = bar.add_task(f"train {rec.name}", total=1.0, done="", info="", visible=False)
 
         def data_progress(done: int, total: int) -> None:
             rate = done / max(bar.tasks[data_task].elapsed or 1e-9, 1e-9)
-            bar.update(data_task, completed=done, total=total, info=f"{rate:,.0f} solutions/s")
+            bar.update(data_task, completed=done, total=total, done=f"{done}/{total}",
+                       info=f"{rate:,.0f} solutions/s")
 
         def progress(step: int, total: int, stats: dict) -> None:
-            info = f"loss {stats.get('loss', float('nan')):.4g}"
+            info = f"loss {stats['loss']:.4g}"
             if "fresh_tip_max_mm" in stats:
                 info += (f" | fresh tip p99.9 {stats['fresh_tip_p99_9_mm']:.2f} max "
                          f"{stats['fresh_tip_max_mm']:.2f} mm")
-            bar.update(task, completed=step, total=total, info=info, visible=True)
+            bar.update(task, completed=training_fraction(step, total, stats["time_s"], limit_s),
+                       done=progress_text(step, total, stats["time_s"], limit_s), info=info, visible=True)
 
-        common = dict(seed=seed, device=device, resume=resume, progress=progress,
-                      time_limit_s=time_limit * 60 if time_limit else None)
+        common = dict(seed=seed, device=device, resume=resume, progress=progress, time_limit_s=limit_s)
         if fewshot is not None:
             from ctrplan.training.finetune import finetune, table_text
 
@@ -131,6 +137,7 @@ def train(
                 extra_card={"stages": training_stages(start.card)} if start else None,
                 evaluate=lambda net: compare(PinnBackend(model_robot, net), model_robot,
                                              n=CARD_EVAL_CONFIGURATIONS).metrics())
+    remove_checkpoint(out)  # the run finished: nothing to resume
     card = result.card
     m = card["metrics"]
     tip = m["tip_error_pct_length"]
@@ -150,6 +157,20 @@ def train(
         console.print(table_text(card["metrics"]["measured_heldout"]))
     if as_json:
         typer.echo(out.with_suffix(".json").read_text())  # the card as written, with robot and hash
+
+
+def training_fraction(step: int, steps: int, time_s: float, limit_s: float | None) -> float:
+    """How much of the run is done: steps of the budget, or time of the limit, whichever ends it."""
+    return min(1.0, max(step / steps, time_s / limit_s if limit_s else 0.0))
+
+
+def progress_text(step: int, steps: int, time_s: float, limit_s: float | None) -> str:
+    """``1200/40000 steps``, or with a time limit ``1200 steps in 3:06 of 30:00`` (minutes:seconds
+    of training; the step budget is then only an upper bound)."""
+    if limit_s is None:
+        return f"{step}/{steps} steps"
+    clock = [f"{int(t // 60)}:{int(t % 60):02d}" for t in (time_s, limit_s)]
+    return f"{step} steps in {clock[0]} of {clock[1]}"
 
 
 def _measured_split(path: Path, robot: Robot, shots: int | None, heldout: float) -> FewShot:
@@ -206,6 +227,7 @@ def eval_model(
 
     if n < 1 or points < 2:
         raise InputError("--n must be >= 1 and --points >= 2")
+    check_output_dir(out)  # created when the figures are written
     model_robot = Robot.load(robot)
     pinn = PinnBackend.load(model, model_robot)
     cmp = compare(pinn, model_robot, n=n, points=points)

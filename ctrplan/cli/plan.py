@@ -21,6 +21,7 @@ import typer
 
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, load_backend
+from ctrplan.dataio import check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.scene import PLANNERS
 
@@ -29,16 +30,6 @@ SceneArg = Annotated[Path, typer.Argument(metavar="SCENE.yaml", show_default=Fal
 
 
 log = logging.getLogger("ctrplan.ompl")
-
-
-def _check_out(out: Path | None) -> None:
-    """Refuse an ``--out`` that cannot become a directory; it (and its parents) are created only
-    when the outputs are written."""
-    if out is None:
-        return
-    existing = next(p for p in (out, *out.parents) if p.exists() or p == Path(p.anchor))
-    if not existing.is_dir():
-        raise InputError(f"--out: {existing} exists and is not a directory")
 
 
 @contextmanager
@@ -77,7 +68,8 @@ def plan_command(
         "--time-limit", metavar="S", show_default=False,
         help="Planning time limit in seconds (default: the scene's, 10).")] = None,
     seed: Annotated[int | None, typer.Option(
-        "--seed", metavar="N", show_default=False, help="Random seed (OMPL and goal sampling).")] = None,
+        "--seed", metavar="N", show_default=False, min=0,
+        help="Random seed (OMPL and goal sampling).")] = None,
     out: Annotated[Path | None, typer.Option(
         "--out", metavar="DIR", show_default=False,
         help="Write path.json, obstacles.ply, plan.png and plan.html into DIR.")] = None,
@@ -93,9 +85,8 @@ def plan_command(
 
     if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
         raise InputError(f"--time-limit: must be a positive number of seconds, got {time_limit}")
-    if seed is not None and seed < 0:
-        raise InputError(f"--seed: must be >= 0, got {seed}")
-    _check_out(out)
+    if out is not None:
+        check_output_dir(out)  # created when the outputs are written
 
     from ompl import util as ou
 
@@ -201,44 +192,60 @@ def plan_document(result, sc, scene_file: Path, model: str | None) -> dict:
 def write_plan_outputs(out: Path, sc, result, doc: dict) -> None:
     """path.json, obstacles.ply, plan.png, plan.html; each file is written completely or not at all."""
     from ctrplan.dataio import atomic_write
+    from ctrplan.planning.validate import clearance_along
     from ctrplan.viz import plot_plan, viewer_data, write_viewer
+    from ctrplan.viz.style import CLEARANCE_CAP_MM
 
-    out.mkdir(parents=True, exist_ok=True)
+    output_dir(out)
     full = dict(doc)
-    bbs = radii = None
+    clearance = None
     if result.dense is not None:
-        dense = result.dense
-        bbs = sc.to_scene(dense.exact.positions_mm)
-        radii = dense.exact.radius_mm
-        full["dense_path"] = dense.dense_q.tolist()
+        exact = result.dense.exact
+        bbs, radii = sc.to_scene(exact.positions_mm), exact.radius_mm
+        clearance = clearance_along(sc, exact, CLEARANCE_CAP_MM)
+        full["dense_path"] = result.dense.dense_q.tolist()
         full["backbones_mm"] = np.round(np.where(np.isfinite(bbs), bbs, np.nan), 4).tolist()
         full["backbone_radius_mm"] = np.round(radii, 4).tolist()
         full["backbones_backend"] = "cosserat"
         full["frame"] = "scene (mm)"
+    else:  # nothing planned: show the start
+        from ctrplan.kinematics import CosseratBackend
+
+        b = CosseratBackend(sc.robot).forward(sc.start, points=sc.settings.points, check=False)
+        bbs, radii = sc.to_scene(b.positions_mm), b.radius_mm
     with atomic_write(out / "path.json") as fh:
         fh.write(json.dumps(_nan_to_none(full)))
     mesh = sc.merged_obstacles()
     with atomic_write(out / "obstacles.ply", "wb") as fh:
         fh.write(mesh.export(file_type="ply"))
-    if bbs is None:  # nothing planned: show the start
-        from ctrplan.kinematics import CosseratBackend
-
-        b = CosseratBackend(sc.robot).forward(sc.start, points=sc.settings.points, check=False)
-        bbs, radii = sc.to_scene(b.positions_mm), b.radius_mm
-    tip_path = bbs[:, -1, :]
     tmp_png = out / ".plan.png.tmp.png"
-    plot_plan(sc, bbs, tmp_png, tip_path=tip_path,
+    plot_plan(sc, bbs, tmp_png, tip_path=bbs[:, -1, :],
               title=f"{sc.name}: {result.planner}/{result.backend}, "
                     f"{'solved' if result.solved else 'not solved'}")
     tmp_png.replace(out / "plan.png")
-    info = {"solved": result.solved, "planner": result.planner, "backend": result.backend,
-            "planning_time_s": round(result.planning_time_s, 3)}
-    if result.validated is not None:
-        info["min_clearance_mm"] = round(result.validated.min_clearance_mm, 3)
-        info["max_position_error_mm"] = round(result.validated.max_position_error_mm, 3)
     tmp_html = out / ".plan.html.tmp.html"
-    write_viewer(tmp_html, viewer_data(sc, bbs, radii, info), title=f"ctrplan: {sc.name}")
+    write_viewer(tmp_html, viewer_data(sc, bbs, radii, _viewer_info(sc, result), clearance),
+                 title=f"ctrplan: {sc.name}")
     tmp_html.replace(out / "plan.html")
+
+
+def _viewer_info(sc, result) -> dict[str, str]:
+    """The result as labelled lines for plan.html."""
+    info = {"result": "solved" if result.solved else result.message,
+            "planner / backend": f"{result.planner} / {result.backend}",
+            "planning time": f"{result.planning_time_s:.2f} s (limit {result.time_limit_s:g} s)"}
+    v = result.validated
+    if v is not None:
+        miss = float(sc.target.distance(np.asarray(v.tip_mm))) if len(v.tip_mm) == 3 else float("nan")
+        info["final tip"] = "in the target" if v.tip_in_target else f"{miss:.2f} mm outside the target"
+        info["min clearance"] = f"{v.min_clearance_mm:.2f} mm to {v.nearest_obstacle or 'nothing'} " \
+                                f"(exact model, {v.states} states)"
+        if v.max_position_error_mm > 0:
+            error = v.max_position_error_mm
+            info[f"{result.backend} vs exact"] = f"backbones differ by {error:.2f} mm at most"
+        if v.repaired:
+            info["repair"] = "stretches re-planned with the exact model"
+    return info
 
 
 def _nan_to_none(x):

@@ -12,7 +12,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import RobotOpt
-from ctrplan.dataio import output_dir
+from ctrplan.dataio import check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.robot import Robot
 
@@ -22,7 +22,7 @@ def stability(
     robot: RobotOpt = None,
     n: Annotated[int, typer.Option("--n", help="Rotation sweeps from random configurations.")] = 64,
     steps: Annotated[int, typer.Option("--steps", help="Configurations per sweep.")] = 73,
-    seed: Annotated[int, typer.Option("--seed")] = 0,
+    seed: Annotated[int, typer.Option("--seed", min=0)] = 0,
     out: Annotated[Path, typer.Option(
         "--out", metavar="DIR", help="Where stability.json and stability.png go.")] = Path("runs/stability"),
     as_json: Annotated[bool, typer.Option("--json", help="Print the verdict as JSON on stdout.")] = False,
@@ -40,7 +40,7 @@ def stability(
     if n < 1 or steps < 3:
         raise InputError(f"--n must be >= 1 and --steps >= 3 (got {n}, {steps})")
     model = Robot.load(robot)
-    folder = output_dir(out, "--out")
+    check_output_dir(out)  # created when the verdict is written
     console = Console(stderr=True)
     with Progress(TextColumn("stability sweeps"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=console, disable=as_json or not console.is_terminal) as bar:
@@ -48,6 +48,7 @@ def stability(
         report, certificate = certify(model, n=n, steps=steps, seed=seed,
                                       progress=lambda: bar.advance(task))
     doc = report.to_json()
+    folder = output_dir(out)
     doc["plot"] = str(plot_stability(report, folder / "stability.png"))
     if certificate is not None:  # planning then skips the per-state stability test for this robot
         doc["certificate"] = str(certificate)

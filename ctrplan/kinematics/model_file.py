@@ -59,10 +59,9 @@ def resolve_model(model: str | Path | None) -> Path:
 
 def default_model_for(robot: Robot) -> Path:
     """The PINN used when none is named: `DEFAULT_MODEL` if it was trained for ``robot``, else the
-    first model in ``models/`` or among the shipped ones whose card carries this robot's fingerprint;
-    `DEFAULT_MODEL` when none does (loading it then says why it does not fit)."""
-    default = resolve_model(None)
-    candidates = [default, *sorted(MODELS_DIR.glob("*.safetensors")),
+    first model in ``models/`` or among the shipped ones whose card carries this robot's fingerprint.
+    `InputError` when none does, saying where it looked and how to train one."""
+    candidates = [resolve_model(None), *sorted(MODELS_DIR.glob("*.safetensors")),
                   *sorted(shipped_models_dir().glob("*.safetensors"))]
     for weights in candidates:
         try:
@@ -70,7 +69,10 @@ def default_model_for(robot: Robot) -> Path:
                 return weights
         except InputError:  # an unreadable card elsewhere does not stop the search
             continue
-    return default
+    raise InputError(f"no PINN model trained for robot {robot.name!r} (fingerprint "
+                     f"{robot.fingerprint[:12]}) in {MODELS_DIR.resolve()} or among the shipped models "
+                     f"({', '.join(shipped_models())}); train one with `ctrplan train --robot ROBOT.yaml "
+                     f"--name {robot.name}_pinn`, or use the exact model (--backend cosserat)")
 
 
 def file_sha256(path: Path) -> str:

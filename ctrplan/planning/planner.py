@@ -268,6 +268,11 @@ def _simplified_path(problem: PlanningProblem, simplify: bool, timings: dict) ->
     return _path_q(problem, path)
 
 
+def _all_invalid(scene: Scene) -> str:
+    """Why none of the configurations that reached the target is a goal."""
+    return "all in collision" if is_certified(scene.robot) else "all in collision or elastically unstable"
+
+
 def _failure_message(problem: PlanningProblem, limit_s: float, to_configuration: bool) -> str:
     sampler = problem.sampler
     if to_configuration:
@@ -277,7 +282,7 @@ def _failure_message(problem: PlanningProblem, limit_s: float, to_configuration:
         turned = f", {st.wrong_direction} of them not along the approach direction" \
             if st.wrong_direction else ""
         return (f"no collision-free goal configuration found ({st.ik_reached} IK solutions reached "
-                f"the target{turned}, all in collision)")
+                f"the target{turned}, {_all_invalid(problem.scene)})")
     return f"no path found within {limit_s:g} s ({len(sampler.goals)} goal configurations)"
 
 
@@ -320,7 +325,7 @@ def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, p
                            f"{sampler.stats.seeds} seeds"), checker
         if clock.remaining() <= 0:
             reached = sampler.stats.ik_reached
-            why = f": {reached} IK solutions reached the target, all in collision" \
+            why = f": {reached} IK solutions reached the target, {_all_invalid(scene)}" \
                 if reached and not sampler.goals else ""
             return outcome(None, "TIMEOUT", False,
                            f"time limit of {clock.limit_s:g} s reached while sampling goal "

@@ -25,6 +25,7 @@ from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.planning.goal import tip_tangents
 from ctrplan.planning.space import BoxSpace
 from ctrplan.scene import Scene
+from ctrplan.stability import is_certified
 
 
 @dataclass
@@ -93,7 +94,9 @@ def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | 
 
     ``planning_backend`` (if given and not exact itself) is evaluated on the same states for the
     position error. ``clearance_stride`` > 1 computes distances on every n-th state only (plus the
-    colliding-free minimum over all states is still exact for collisions).
+    colliding-free minimum over all states is still exact for collisions). For a robot without a
+    stability certificate the exact model also computes elastic stability: an unstable state fails
+    like a colliding one.
     """
     t0 = time.perf_counter()
     s = scene.settings
@@ -102,6 +105,8 @@ def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | 
     margin = s.margin_mm if margin_mm is None else float(margin_mm)
     space = BoxSpace.for_scene(scene)
     exact = exact or CosseratBackend(scene.robot)
+    if not is_certified(scene.robot):
+        exact = exact.checking_stability()
     dense = space.densify(path_q, resolution)
     ebb = exact.forward(dense, points=points, check=False)
     bound = float(np.min(ebb.radius_mm)) + margin
@@ -157,6 +162,17 @@ def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | 
                                 and angle <= scene.target.angle_tolerance_rad + 1e-12)
     report.time_s = time.perf_counter() - t0
     return ValidatedPath(dense, ebb, pbb, report)
+
+
+def clearance_along(scene: Scene, bb: Backbone, cap_mm: float,
+                    world: CollisionWorld | None = None) -> np.ndarray:
+    """The clearance along a path: distance (mm) from the surface of each capsule (K, N-1) of the
+    backbones ``bb`` (robot frame) to the nearest obstacle of ``scene``, 0 in contact, capped at
+    ``cap_mm``; NaN for a backbone that did not converge."""
+    checker = RobotCollisionChecker(world or CollisionWorld.from_scene(scene), scene.base_pose,
+                                    bb.positions_mm.shape[1])
+    return np.array([checker.clearances(p, r, cap_mm) for p, r in zip(bb.positions_mm, bb.radius_mm,
+                                                                          strict=True)])
 
 
 def backbone_steps(bb: Backbone) -> np.ndarray:

@@ -332,6 +332,12 @@ def _save_checkpoint(out: Path, net: PinnNet, opt: torch.optim.Optimizer, meta: 
     info.write_text(json.dumps(meta, indent=2))
 
 
+def remove_checkpoint(out: Path) -> None:
+    """Delete the checkpoint beside ``out`` (after a finished run it has nothing left to resume)."""
+    for path in _checkpoint_paths(out):
+        path.unlink(missing_ok=True)
+
+
 def _load_checkpoint(out: Path, net: PinnNet, opt: torch.optim.Optimizer, device) -> dict:
     weights, info = _checkpoint_paths(out)
     if not weights.exists() or not info.exists():
@@ -379,6 +385,9 @@ class Trainer:
     def _elapsed_s(self) -> float:
         return self.elapsed_before_s + time.perf_counter() - self._t0
 
+    def _out_of_time(self) -> bool:
+        return self.time_limit_s is not None and self._elapsed_s() >= self.time_limit_s
+
     def _adam_step(self) -> torch.Tensor:
         for group in self.optimizer.param_groups:
             group["lr"] = self.schedule(self.step, self._elapsed_s())
@@ -403,15 +412,6 @@ class Trainer:
                          {"step": self.step, "elapsed_s": elapsed_s, "recipe": asdict(self.recipe),
                           "seed": self.seed, "history": self.history})
 
-    def _expected_steps(self) -> int:
-        """The step count the run will reach: the recipe's, or fewer where the time limit ends it
-        first (estimated from the pace so far)."""
-        steps = self.recipe.steps
-        if self.time_limit_s is None or self.step == 0:
-            return steps
-        pace = self._elapsed_s() / self.step
-        return min(steps, max(self.step, int(self.time_limit_s / pace)))
-
     def _mine(self) -> dict:
         """A mining round (`HardExamples.mine`) when one is due; its fresh-configuration tail."""
         hard, m = self.data.hard, self.recipe.mining
@@ -424,39 +424,34 @@ class Trainer:
     def train(self, out: Path, *, checkpoint_every_s: float = 120.0,
               progress: Callable[[int, int, dict], None] | None = None) -> Trainer:
         """Run to the recipe's step budget or the time limit, checkpointing beside ``out`` and mining
-        hard examples as the recipe says. ``progress(step, expected_steps, stats)`` is called every 10
-        steps (and once at the end); ``stats`` carries the loss terms and, after mining rounds, the
-        network's tail on the round's fresh configurations."""
+        hard examples as the recipe says. ``progress(step, total, stats)`` is called every 10 steps
+        and at the last one; ``stats`` has the loss terms, ``time_s`` (the training time so far) and,
+        after mining rounds, the network's tail on the round's fresh configurations."""
         steps = self.recipe.steps
         one_step = self._adam_step if self.recipe.optimizer == "adam" else self._lbfgs_step
         self._t0 = last_ckpt = time.perf_counter()
         fresh: dict = {}
-        values: dict = {}
-        while self.step < steps:
-            if self.time_limit_s is not None and self._elapsed_s() >= self.time_limit_s:
-                break
+        while self.step < steps and not self._out_of_time():
             total = one_step()
             self.step += 1
-            if self.step > 0:
-                fresh = self._mine() or fresh
-            if self.step % 10 and self.step != steps:
+            fresh = self._mine() or fresh
+            last = self.step == steps or self._out_of_time()
+            if self.step % 10 and not last:
                 continue  # host-device syncs only every 10 steps
             loss = float(total.detach())
             if not math.isfinite(loss):
                 raise TrainingDivergedError(self.step, self.recipe,
                                             {k: float(v) for k, v in self._stats.items()})
             now = time.perf_counter()
+            elapsed = self.elapsed_before_s + now - self._t0
             values = {"loss": loss, **{k: float(v) for k, v in self._stats.items()}, **fresh}
-            if self.step % 50 == 0 or self.step == steps:
-                self.history.append({"step": self.step,
-                                     "time_s": round(self.elapsed_before_s + now - self._t0, 2), **values})
+            if self.step % 50 == 0 or last:
+                self.history.append({"step": self.step, "time_s": round(elapsed, 2), **values})
             if progress is not None:
-                progress(self.step, self._expected_steps(), values)
+                progress(self.step, steps, {**values, "time_s": elapsed})
             if now - last_ckpt > checkpoint_every_s:
                 self._checkpoint(out, self.elapsed_before_s + now - self._t0)
                 last_ckpt = now
-        if progress is not None:
-            progress(self.step, self.step, values)
         self.wall_time_s = self._elapsed_s() + self.data_time_s
         self._checkpoint(out, self.wall_time_s - self.data_time_s)
         return self

@@ -7,6 +7,11 @@ from pathlib import Path
 import numpy as np
 
 from ctrplan.scene import Scene
+from ctrplan.viz.framing import corridor_bounds, corridor_direction, section
+from ctrplan.viz.style import TARGET_COLOR, axis_labels, obstacle_colors, view_name
+
+#: A projection shows the obstacles within this distance (mm) of the path in its hidden axis.
+SECTION_MM = 4.0
 
 
 def _view_bounds(backbones: np.ndarray, scene: Scene, pad: float = 12.0) -> np.ndarray:
@@ -14,23 +19,6 @@ def _view_bounds(backbones: np.ndarray, scene: Scene, pad: float = 12.0) -> np.n
     p = np.concatenate([q[np.all(np.isfinite(q), axis=1)] for q in pts])
     lo, hi = p.min(axis=0) - pad, p.max(axis=0) + pad
     return np.stack([lo, hi])
-
-
-def _zoom_bounds(backbones: np.ndarray, scene: Scene, pad: float = 8.0) -> np.ndarray:
-    """Where robot and obstacles meet: the robot's bounds cut to the obstacles' bounds (or the
-    robot's bounds alone when they do not overlap)."""
-    full = _view_bounds(backbones, scene, pad=0.0)
-    if not scene.obstacles:
-        return full + np.array([[-pad], [pad]])
-    ob = np.array([o.bounds for o in scene.obstacles])
-    lo = np.maximum(full[0], ob[:, 0].min(axis=0))
-    hi = np.minimum(full[1], ob[:, 1].max(axis=0))
-    if np.any(lo >= hi):
-        lo, hi = full
-    t = scene.target
-    lo = np.minimum(lo, t.center - t.semi_axes)
-    hi = np.maximum(hi, t.center + t.semi_axes)
-    return np.stack([lo - pad, hi + pad])
 
 
 def triangles_in(scene: Scene, bounds: np.ndarray, max_triangles: int = 6000):
@@ -65,9 +53,12 @@ def plot_plan(scene: Scene, backbones_scene: np.ndarray, path: str | Path, *, ti
 
 def plan_figure(scene: Scene, backbones_scene: np.ndarray, *, title: str = "",
                 tip_path: np.ndarray | None = None, max_backbones: int = 12):
-    """A matplotlib figure: a 3-D view plus sagittal (z-y) and axial (z-x) projections of the
-    obstacles near the robot, backbones along the path (start blue -> end red), the tip trace and
-    the target region; the legend names every obstacle.
+    """A matplotlib figure: a 3-D overview plus two projections along the corridor (the scene axis
+    closest to its direction runs across both) of backbones along the path (start blue -> end red),
+    the tip trace and the target region (`TARGET_COLOR`, outlined and named). A projection shows
+    only the obstacles within `SECTION_MM` of the final backbone in the axis it projects away (a
+    section along the corridor: what lies beside the path is not drawn over it). Axes are named with the
+    scene's patient directions when it gives them; the legend names every obstacle.
 
     ``backbones_scene`` (K, N, 3): backbones along the path in the scene frame (mm); ``tip_path``
     (M, 3): the tip along the path (mm).
@@ -88,8 +79,12 @@ def plan_figure(scene: Scene, backbones_scene: np.ndarray, *, title: str = "",
     tris = triangles_in(scene, bounds)
     cmap = plt.get_cmap("coolwarm")
     names = [o.name for o in scene.obstacles]
-    tab = plt.get_cmap("tab20")  # colours repeat after 20 obstacles; the legend names them all
-    colour = {n: tab(i % 20) for i, n in enumerate(names)}
+    colour = obstacle_colors(names)
+    labels = axis_labels(scene.anatomy)
+
+    def axis_title(a: int) -> str:
+        ax = "xyz"[a]
+        return f"{ax} (mm): {labels[ax][1]} to {labels[ax][0]}" if scene.anatomy else f"{ax} (mm)"
 
     ncol = 8
     legend_rows = -(-(len(names) + 4) // ncol)
@@ -98,7 +93,8 @@ def plan_figure(scene: Scene, backbones_scene: np.ndarray, *, title: str = "",
     grid = fig.add_gridspec(2, 3, hspace=0.35, wspace=0.25, left=0.02, right=0.98, top=0.92, bottom=bottom)
     ax3 = fig.add_subplot(grid[:, 0], projection="3d")
     for n, t in tris:
-        pc = Poly3DCollection(t, facecolor=colour[n], edgecolor="none", alpha=0.12)
+        backdrop = np.ptp(t.reshape(-1, 3), axis=0).max() > 0.8 * np.ptp(bounds, axis=0).max()  # a face plate
+        pc = Poly3DCollection(t, facecolor=colour[n], edgecolor="none", alpha=0.04 if backdrop else 0.15)
         ax3.add_collection3d(pc)
     for j, i in enumerate(pick):
         c = cmap(j / max(1, len(pick) - 1))
@@ -112,20 +108,24 @@ def plan_figure(scene: Scene, backbones_scene: np.ndarray, *, title: str = "",
     for axis in (ax3.xaxis, ax3.yaxis, ax3.zaxis):  # few, small ticks: labels must not overlap
         axis.set_major_locator(MaxNLocator(4))
     ax3.tick_params(labelsize=7, pad=1)
-    ax3.set_xlabel("x (mm)", fontsize=8, labelpad=2)
-    ax3.set_ylabel("y (mm)", fontsize=8, labelpad=2)
-    ax3.set_zlabel("z (mm)", fontsize=8, labelpad=2)
+    ax3.set_xlabel(axis_title(0), fontsize=8, labelpad=2)
+    ax3.set_ylabel(axis_title(1), fontsize=8, labelpad=2)
+    ax3.set_zlabel(axis_title(2), fontsize=8, labelpad=2)
     ax3.view_init(elev=18, azim=-60)
     ax3.set_box_aspect(np.maximum(np.ptp(bounds, axis=0), 0.25 * np.ptp(bounds, axis=0).max()))
     ax3.set_title("overview", fontsize=10)
 
-    zoom = _zoom_bounds(bbs, scene)
+    zoom = corridor_bounds(bbs, scene)
+    along = int(np.argmax(np.abs(corridor_direction(bbs, zoom))))
+    across = [a for a in range(3) if a != along]
     tris = triangles_in(scene, zoom, max_triangles=12000)
-    for row, (a, b, lab) in enumerate(((2, 1, "side view (z-y)"), (2, 0, "top view (z-x)"))):
+    for row, (b, away) in enumerate(((across[1], across[0]), (across[0], across[1]))):
+        a = along
         ax = fig.add_subplot(grid[row, 1:])
         for n, t in tris:
+            t = t[section(t, bbs[-1:], along, away, SECTION_MM)]
             ax.add_collection(PolyCollection(t[:, :, [a, b]], facecolor=colour[n], edgecolor="none",
-                                             alpha=0.10))
+                                             alpha=0.25))
         for j, i in enumerate(pick):
             c = cmap(j / max(1, len(pick) - 1))
             ax.plot(bbs[i, :, a], bbs[i, :, b], color=c, lw=2.5 if i in (pick[0], pick[-1]) else 1.0)
@@ -135,14 +135,16 @@ def plan_figure(scene: Scene, backbones_scene: np.ndarray, *, title: str = "",
         ax.set_xlim(zoom[:, a])
         ax.set_ylim(zoom[:, b])
         ax.set_aspect("equal")
-        ax.set_xlabel("xyz"[a] + " (mm)")
-        ax.set_ylabel("xyz"[b] + " (mm)")
-        ax.set_title(lab, fontsize=10)
-    handles = [Patch(color=colour[n], alpha=0.4) for n in names]
-    handles += [Patch(color="green", alpha=0.35), plt.Line2D([], [], color="k", lw=0.8),
-                plt.Line2D([], [], color=cmap(0.0), lw=2.5), plt.Line2D([], [], color=cmap(1.0), lw=2.5)]
-    labels = [*names, "target", "tip trace", "start", "end"]
-    fig.legend(handles, labels, loc="lower center", ncol=min(ncol, len(labels)), fontsize=7, frameon=False)
+        ax.set_xlabel(axis_title(a))
+        ax.set_ylabel(axis_title(b))
+        ax.set_title(f"{view_name(scene.anatomy, 'xyz'[away])} ({'xyz'[a]}-{'xyz'[b]}): obstacles within "
+                     f"{SECTION_MM:g} mm of the final path in {'xyz'[away]}", fontsize=10)
+    handles = [Patch(color=colour[n], alpha=0.5) for n in names]
+    handles += [Patch(facecolor=TARGET_COLOR, edgecolor="k", alpha=0.8),
+                plt.Line2D([], [], color="k", lw=0.8), plt.Line2D([], [], color=cmap(0.0), lw=2.5),
+                plt.Line2D([], [], color=cmap(1.0), lw=2.5)]
+    labels_ = [*names, "target", "tip trace", "start", "end"]
+    fig.legend(handles, labels_, loc="lower center", ncol=min(ncol, len(labels_)), fontsize=7, frameon=False)
     fig.suptitle(title or f"{scene.name}: planned path ({k} states)", fontsize=11)
     return fig
 
@@ -155,7 +157,9 @@ def _ellipsoid_points(scene: Scene, n: int = 24) -> np.ndarray:
 
 def _target_3d(ax, scene: Scene) -> None:
     p = _ellipsoid_points(scene)
-    ax.plot_wireframe(p[..., 0], p[..., 1], p[..., 2], color="green", lw=0.4, alpha=0.6)
+    ax.plot_surface(p[..., 0], p[..., 1], p[..., 2], color=TARGET_COLOR, alpha=0.7, lw=0)
+    c = scene.target.center
+    ax.text(c[0], c[1], c[2] + 1.5 * scene.target.semi_axes.max(), "target", color="k", fontsize=8)
 
 
 def _target_2d(ax, scene: Scene, a: int, b: int) -> None:
@@ -165,4 +169,7 @@ def _target_2d(ax, scene: Scene, a: int, b: int) -> None:
     pts = p[:, [a, b]]
     hull = ConvexHull(pts)
     poly = pts[hull.vertices]
-    ax.fill(poly[:, 0], poly[:, 1], color="green", alpha=0.35, lw=0)
+    ax.fill(poly[:, 0], poly[:, 1], facecolor=TARGET_COLOR, edgecolor="k", alpha=0.75, lw=1.2, zorder=5)
+    top = poly[np.argmax(poly[:, 1])]
+    ax.annotate("target", top, xytext=(0, 8), textcoords="offset points", ha="center", fontsize=8,
+                zorder=6)

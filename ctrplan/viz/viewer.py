@@ -5,38 +5,53 @@ No CDN, no external script: the data is embedded as JSON and drawn by a small ca
 written here (depth-sorted, flat-shaded triangles; the robot's tubes as thick segments). Drag to
 rotate, shift-drag (or right-drag) to pan, wheel to zoom; a slider and a play button step along the
 path; obstacle names in the legend toggle their visibility; a scale bar gives lengths in mm.
+
+What a surgeon looks for is marked: the target in a colour no obstacle has (outlined and named
+on top of everything), the tip, the exact model's clearance as a colour along the backbone (with
+its scale and the state's minimum), anatomical orientation (the scene's `anatomy` directions on an
+axis triad) and the result as labelled lines. The first view is framed on the corridor, seen from
+the side; an obstacle much larger than the corridor (a face plate) is drawn faint.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 
 from ctrplan.scene import Scene
-
-_PALETTE = ["#8da0cb", "#fc8d62", "#66c2a5", "#e78ac3", "#a6d854", "#ffd92f", "#e5c494", "#b3b3b3",
-            "#1f78b4", "#33a02c", "#fb9a99", "#cab2d6", "#fdbf6f", "#b15928", "#6a3d9a", "#999999"]
+from ctrplan.viz.framing import corridor_bounds, corridor_direction, finite_points
+from ctrplan.viz.style import (
+    CLEARANCE_CAP_MM,
+    CLEARANCE_STOPS,
+    TARGET_COLOR,
+    axis_labels,
+    obstacle_colors,
+)
 
 
 def viewer_data(scene: Scene, backbones_scene: np.ndarray, radii: np.ndarray,
-                info: dict | None = None, max_triangles: int = 40000) -> dict:
-    """The JSON document the viewer draws: obstacles, backbones (K, N, 3) with radii (K, N), target."""
+                info: dict[str, str] | None = None, clearance_mm: np.ndarray | None = None,
+                max_triangles: int = 40000) -> dict:
+    """The JSON document the viewer draws: obstacles, backbones (K, N, 3) with radii (K, N) and the
+    clearance of each segment (K, N-1) (mm, surface to nearest obstacle, capped at
+    `CLEARANCE_CAP_MM`; None: not shown), the target, the first view, the axis names and ``info``
+    (label -> text, shown as labelled lines)."""
+    bounds = corridor_bounds(backbones_scene, scene)
+    size = float(np.ptp(bounds, axis=0).max())
+    colours = obstacle_colors([o.name for o in scene.obstacles])
     obstacles = []
     total = 0
-    pts = np.asarray(backbones_scene, dtype=float).reshape(-1, 3)
-    pts = pts[np.all(np.isfinite(pts), axis=1)]
-    size = float(np.ptp(np.vstack([pts, scene.target.center[None]]), axis=0).max()) if len(pts) else 100.0
-    for i, o in enumerate(scene.obstacles):
+    for o in scene.obstacles:
         m = o.to_trimesh()
         v = np.round(np.asarray(m.vertices, dtype=float), 2)
         f = np.asarray(m.faces, dtype=int)
         total += len(f)
-        big = float(np.ptp(v, axis=0).max()) > 0.8 * size  # e.g. a face plate: keep it faint
-        obstacles.append({"name": o.name, "color": _PALETTE[i % len(_PALETTE)],
-                          "vertices": v.ravel().tolist(), "faces": f.ravel().tolist(),
-                          "alpha": 0.08 if big else 0.35})
+        backdrop = float(np.ptp(v, axis=0).max()) > 1.5 * size
+        obstacles.append({"name": o.name, "color": colours[o.name], "vertices": v.ravel().tolist(),
+                          "faces": f.ravel().tolist(), "alpha": 0.05 if backdrop else 0.35})
     if total > max_triangles:
         step = int(np.ceil(total / max_triangles))
         for o in obstacles:
@@ -44,15 +59,34 @@ def viewer_data(scene: Scene, backbones_scene: np.ndarray, radii: np.ndarray,
             o["faces"] = f.ravel().tolist()
     bbs = np.where(np.isfinite(backbones_scene), backbones_scene, 0.0)
     t = scene.target
+    clearance = None if clearance_mm is None else np.round(np.nan_to_num(clearance_mm, nan=0.0), 3).tolist()
     return {
         "scene": scene.name,
         "obstacles": obstacles,
         "backbones": np.round(bbs, 3).tolist(),
         "radii": np.round(np.asarray(radii, dtype=float), 3).tolist(),
+        "clearance": clearance,
+        "clearance_cap": CLEARANCE_CAP_MM,
+        "clearance_stops": [list(s) for s in CLEARANCE_STOPS],
         "target": {"center": t.center.tolist(), "semi_axes": t.semi_axes.tolist(),
-                   "rotation": t.rotation.tolist()},
-        "info": info or {},
+                   "rotation": t.rotation.tolist(), "color": TARGET_COLOR},
+        "view": _first_view(backbones_scene, bounds),
+        "axes": axis_labels(scene.anatomy),
+        "info": [[k, str(v)] for k, v in (info or {}).items()],
     }
+
+
+def _first_view(backbones: np.ndarray, bounds: np.ndarray) -> dict:
+    """Camera of the first view (the viewer's y is up): centred on the corridor ``bounds``, looking
+    across the corridor's direction, turned 35 degrees towards its start and 20 degrees down."""
+    d = corridor_direction(backbones, bounds)
+    yaw = math.atan2(d[2], -d[0]) if math.hypot(d[0], d[2]) > 0.3 else -0.9
+    centre = bounds.mean(axis=0)
+    pts = finite_points(np.asarray(backbones)[-1:])
+    if len(pts):  # keep the last backbone's tip region in the middle of the picture
+        centre = 0.5 * (centre + np.clip(pts.mean(axis=0), bounds[0], bounds[1]))
+    return {"center": centre.tolist(), "radius": float(np.linalg.norm(np.ptp(bounds, axis=0)) / 2),
+            "yaw": yaw + math.radians(35.0), "pitch": math.radians(20.0)}
 
 
 def write_viewer(path: str | Path, data: dict, title: str = "ctrplan") -> Path:
@@ -75,15 +109,22 @@ _TEMPLATE = r"""<!DOCTYPE html>
  body{margin:0;font:13px system-ui,sans-serif;background:#f4f4f2;color:#222;overflow:hidden}
  #bar{position:absolute;left:0;right:0;bottom:0;padding:6px 10px;background:#fffd;display:flex;gap:10px;align-items:center}
  #bar input[type=range]{flex:1}
- #legend{position:absolute;top:8px;left:8px;background:#fffd;padding:6px 8px;border-radius:4px;max-height:70vh;overflow:auto}
- #legend div{cursor:pointer;user-select:none;white-space:nowrap}
- #legend span{display:inline-block;width:10px;height:10px;margin-right:5px;vertical-align:middle}
- #info{position:absolute;top:8px;right:8px;background:#fffd;padding:6px 8px;border-radius:4px;white-space:pre;font-family:monospace;font-size:11px}
+ .panel{position:absolute;background:#fffe;padding:6px 9px;border-radius:4px;box-shadow:0 1px 3px #0002}
+ #legend{top:8px;left:8px;max-height:62vh;overflow:auto}
+ #legend div{cursor:pointer;user-select:none;white-space:nowrap;line-height:1.45}
+ #legend span{display:inline-block;width:11px;height:11px;margin-right:6px;vertical-align:middle;border:1px solid #0003}
+ #legend .target{font-weight:bold}
+ #info{top:8px;right:8px;max-width:34vw}
+ #info table{border-collapse:collapse}
+ #info th{text-align:left;font-weight:600;padding:1px 10px 1px 0;color:#444;vertical-align:top;white-space:nowrap}
+ #info td{padding:1px 0}
+ #info .title{font-weight:bold;font-size:14px;margin-bottom:3px}
+ #state{min-width:260px}
  canvas{display:block}
 </style></head><body>
 <canvas id="c"></canvas>
-<div id="legend"><b>__TITLE__</b></div><div id="info"></div>
-<div id="bar"><button id="play">&#9654;</button><span id="lab">state 0</span>
+<div id="legend" class="panel"><b>__TITLE__</b></div><div id="info" class="panel"></div>
+<div id="bar"><button id="play">&#9654;</button><span id="state">state 0</span>
 <input id="slider" type="range" min="0" max="0" value="0"><label><input id="ghost" type="checkbox" checked> path</label>
 <button id="reset">reset view</button></div>
 <script id="data" type="application/json">__DATA__</script>
@@ -93,13 +134,14 @@ const D = JSON.parse(document.getElementById("data").textContent);
 const cv = document.getElementById("c"), ctx = cv.getContext("2d");
 const K = D.backbones.length;
 const slider = document.getElementById("slider"); slider.max = Math.max(0, K - 1); slider.value = Math.max(0, K - 1);
+const esc = s => String(s).replace(/&/g,"&amp;").replace(/</g,"&lt;").replace(/>/g,"&gt;");
 // ---- geometry -------------------------------------------------------------------------------
 const obs = D.obstacles.map(o => ({name: o.name, color: o.color, v: o.vertices, f: o.faces, on: true, alpha: o.alpha}));
 function hex(c){return [parseInt(c.slice(1,3),16),parseInt(c.slice(3,5),16),parseInt(c.slice(5,7),16)];}
 obs.forEach(o => o.rgb = hex(o.color));
 // target ellipsoid as a triangle mesh
 (function(){
-  const t = D.target, n = 16, m = 8, v = [], f = [];
+  const t = D.target, n = 18, m = 9, v = [], f = [];
   for (let i = 0; i <= m; i++) for (let j = 0; j < n; j++) {
     const th = Math.PI * i / m, ph = 2 * Math.PI * j / n;
     const p = [Math.sin(th)*Math.cos(ph)*t.semi_axes[0], Math.sin(th)*Math.sin(ph)*t.semi_axes[1], Math.cos(th)*t.semi_axes[2]];
@@ -108,20 +150,26 @@ obs.forEach(o => o.rgb = hex(o.color));
   for (let i = 0; i < m; i++) for (let j = 0; j < n; j++) {
     const a = i*n+j, b = i*n+(j+1)%n, c = (i+1)*n+j, d = (i+1)*n+(j+1)%n; f.push(a,c,b, b,c,d);
   }
-  obs.push({name: "target", color: "#2ca02c", rgb: [44,160,44], v: v, f: f, on: true, alpha: 0.55});
+  obs.push({name: "target", color: t.color, rgb: hex(t.color), v: v, f: f, on: true, alpha: 0.7, target: true});
 })();
 // legend
 const lg = document.getElementById("legend");
-obs.forEach(o => { const d = document.createElement("div"); d.innerHTML = '<span style="background:'+o.color+'"></span>'+o.name;
+obs.forEach(o => { const d = document.createElement("div"); d.innerHTML = '<span style="background:'+o.color+'"></span>'+esc(o.name);
+  if (o.target) d.className = "target";
   d.onclick = () => { o.on = !o.on; d.style.opacity = o.on ? 1 : 0.35; draw(); }; lg.appendChild(d); });
-document.getElementById("info").textContent = Object.entries(D.info).map(([k,v]) => k + ": " + (typeof v === "number" ? (+v.toFixed(3)) : JSON.stringify(v))).join("\n");
-// view centre: robot + target bounds
-let lo = [1e9,1e9,1e9], hi = [-1e9,-1e9,-1e9];
-D.backbones.forEach(b => b.forEach(p => { for (let a=0;a<3;a++){ lo[a]=Math.min(lo[a],p[a]); hi[a]=Math.max(hi[a],p[a]); }}));
-for (let a=0;a<3;a++){ lo[a]=Math.min(lo[a],D.target.center[a]); hi[a]=Math.max(hi[a],D.target.center[a]); }
-const C0 = [0,1,2].map(a => (lo[a]+hi[a])/2), R0 = Math.max(20, Math.hypot(hi[0]-lo[0],hi[1]-lo[1],hi[2]-lo[2])/2);
+// result: labelled lines
+document.getElementById("info").innerHTML = '<div class="title">' + esc(D.scene) + '</div><table>' +
+  D.info.map(([k, v]) => "<tr><th>" + esc(k) + "</th><td>" + esc(v) + "</td></tr>").join("") + "</table>";
+// clearance colours along the backbone
+const stops = D.clearance_stops.map(([f, c]) => [f, hex(c)]);
+function clearColor(c){
+  const f = Math.max(0, Math.min(1, c / D.clearance_cap));
+  let i = 0; while (i + 2 < stops.length && f > stops[i+1][0]) i++;
+  const [f0, a] = stops[i], [f1, b] = stops[i+1], u = Math.max(0, Math.min(1, (f - f0) / (f1 - f0)));
+  return "rgb(" + [0,1,2].map(k => Math.round(a[k] + u*(b[k]-a[k]))).join(",") + ")";
+}
 let yaw, pitch, dist, ctr;
-function reset(){ yaw = -0.9; pitch = 0.35; dist = 2.6*R0; ctr = C0.slice(); }
+function reset(){ yaw = D.view.yaw; pitch = D.view.pitch; dist = 2.2*D.view.radius; ctr = D.view.center.slice(); }
 reset();
 // ---- camera ---------------------------------------------------------------------------------
 let W = 0, H = 0, F = 1, cam;
@@ -129,7 +177,7 @@ function resize(){ W = cv.width = innerWidth; H = cv.height = innerHeight; F = 0
 function basis(){
   const cy = Math.cos(yaw), sy = Math.sin(yaw), cp = Math.cos(pitch), sp = Math.sin(pitch);
   const fw = [cp*sy, -sp, cp*cy];            // forward (scene y is up)
-  const rt = [cy, 0, -sy];                   // right
+  const rt = [-cy, 0, sy];                   // right = forward x up: a rotation, never a mirror image
   const up = [rt[1]*fw[2]-rt[2]*fw[1], rt[2]*fw[0]-rt[0]*fw[2], rt[0]*fw[1]-rt[1]*fw[0]];
   const eye = [ctr[0]-fw[0]*dist, ctr[1]-fw[1]*dist, ctr[2]-fw[2]*dist];
   return {fw, rt, up, eye};
@@ -163,14 +211,18 @@ function draw(){
     }
   }
   const k = +slider.value;
-  const seg = (bb, rr, col, wmin) => { for (let i=0;i+1<bb.length;i++) { const A = proj(bb[i]), B = proj(bb[i+1]);
-      if (A[2] < 1 || B[2] < 1) continue; const r = Math.max(rr[i], rr[i+1]);
-      items.push({z:(A[2]+B[2])/2 - 0.5, line:[A,B], w:Math.max(wmin, 2*r*F/((A[2]+B[2])/2)), col:col}); } };
+  const seg = (bb, rr, col, wmin, outline) => { const P = bb.map(proj), far = Math.max(...P.map(p => p[2])) + 1;
+    for (let i=0;i+1<bb.length;i++) { const A = P[i], B = P[i+1];
+      if (A[2] < 1 || B[2] < 1) continue; const r = Math.max(rr[i], rr[i+1]), z = (A[2]+B[2])/2;
+      const w = Math.max(wmin, 2*r*F/z), c = typeof col === "function" ? col(i) : col;
+      if (outline) items.push({z:far, line:[A,B], w:w + 2.5, col:"#222"});  // under the whole backbone
+      items.push({z:z - 0.5, line:[A,B], w:w, col:c}); } };
   if (document.getElementById("ghost").checked && K > 1) {
     const step = Math.max(1, Math.floor(K/10));
-    for (let j=0;j<K;j+=step) if (j !== k) seg(D.backbones[j], D.radii[j], "rgba(60,60,160,0.35)", 1);
+    for (let j=0;j<K;j+=step) if (j !== k) seg(D.backbones[j], D.radii[j], "rgba(70,80,120,0.28)", 1, false);
   }
-  if (K) seg(D.backbones[k], D.radii[k], "#c0392b", 2.5);
+  const cl = D.clearance ? D.clearance[k] : null;
+  if (K) seg(D.backbones[k], D.radii[k], cl ? (i => clearColor(cl[i])) : "#333", 4, true);
   items.sort((a,b) => b.z - a.z);
   for (const it of items) {
     if (it.tri) { const [A,B,Cc] = it.tri; ctx.beginPath(); ctx.moveTo(A[0],A[1]); ctx.lineTo(B[0],B[1]); ctx.lineTo(Cc[0],Cc[1]); ctx.closePath();
@@ -178,8 +230,58 @@ function draw(){
     else { ctx.beginPath(); ctx.moveTo(it.line[0][0], it.line[0][1]); ctx.lineTo(it.line[1][0], it.line[1][1]);
       ctx.strokeStyle = it.col; ctx.lineWidth = it.w; ctx.lineCap = "round"; ctx.stroke(); }
   }
-  scaleBar();
-  document.getElementById("lab").textContent = "state " + k + " / " + Math.max(0, K-1);
+  marks(k); scaleBar(); triad(); if (D.clearance) clearanceBar();
+  let text = "state " + k + " / " + Math.max(0, K-1);
+  if (cl) { const c = Math.min(...cl); text += " \u00b7 min clearance " + (c >= D.clearance_cap ? "\u2265 " + D.clearance_cap : c.toFixed(2)) + " mm"; }
+  document.getElementById("state").textContent = text;
+}
+function label(text, x, y, color){
+  ctx.font = "bold 13px system-ui,sans-serif"; ctx.lineWidth = 4; ctx.strokeStyle = "#fff"; ctx.lineJoin = "round";
+  ctx.strokeText(text, x, y); ctx.fillStyle = color; ctx.fillText(text, x, y);
+}
+// on top of everything: the target's outline and name, the tip and its name
+function marks(k){
+  const t = D.target, C = proj(t.center);
+  if (C[2] > 1 && obs[obs.length-1].on) {
+    const r = Math.max(7, Math.max(...t.semi_axes)*F/C[2]);
+    ctx.setLineDash([5, 4]); ctx.lineWidth = 2.5; ctx.strokeStyle = "#003c55";
+    ctx.beginPath(); ctx.arc(C[0], C[1], r + 3, 0, 2*Math.PI); ctx.stroke(); ctx.setLineDash([]);
+    label("target", C[0] + r + 8, C[1] - r - 4, "#006b94");
+  }
+  if (!K) return;
+  const bb = D.backbones[k], P = bb.map(proj), cl = D.clearance ? D.clearance[k] : null;
+  ctx.globalAlpha = 0.6; ctx.lineCap = "round";  // the backbone seen through the anatomy in front of it
+  for (let i=0;i+1<P.length;i++) { if (P[i][2] < 1 || P[i+1][2] < 1) continue;
+    ctx.strokeStyle = cl ? clearColor(cl[i]) : "#333"; ctx.lineWidth = 3;
+    ctx.beginPath(); ctx.moveTo(P[i][0], P[i][1]); ctx.lineTo(P[i+1][0], P[i+1][1]); ctx.stroke(); }
+  ctx.globalAlpha = 1;
+  const T = P[P.length-1];
+  if (T[2] < 1) return;
+  ctx.beginPath(); ctx.arc(T[0], T[1], 6, 0, 2*Math.PI); ctx.fillStyle = "#fff"; ctx.fill();
+  ctx.lineWidth = 2.5; ctx.strokeStyle = "#111"; ctx.stroke();
+  label("tip", T[0] - 12, T[1] + 22, "#111");
+}
+// orientation: the scene axes from the camera, named by the patient directions when the scene gives them
+function triad(){
+  const x0 = W - 95, y0 = H - 120, len = 42, cols = {x: "#c0392b", y: "#2e8b57", z: "#2c5aa0"};
+  ctx.fillStyle = "#fffc"; ctx.beginPath(); ctx.arc(x0, y0, len + 34, 0, 2*Math.PI); ctx.fill();
+  [["x", [1,0,0]], ["y", [0,1,0]], ["z", [0,0,1]]].forEach(([a, e]) => {
+    const dx = e[0]*cam.rt[0]+e[1]*cam.rt[1]+e[2]*cam.rt[2], dy = -(e[0]*cam.up[0]+e[1]*cam.up[1]+e[2]*cam.up[2]);
+    [[1, D.axes[a][0], 2.5, cols[a]], [-1, D.axes[a][1], 1, "#777"]].forEach(([s, name, w, c]) => {
+      ctx.strokeStyle = c; ctx.lineWidth = w; ctx.beginPath(); ctx.moveTo(x0, y0); ctx.lineTo(x0 + s*dx*len, y0 + s*dy*len); ctx.stroke();
+      ctx.font = (s > 0 ? "bold " : "") + "11px system-ui,sans-serif"; ctx.fillStyle = c; ctx.textAlign = "center";
+      ctx.fillText(name, x0 + s*dx*(len + 14), y0 + s*dy*(len + 14) + 4); ctx.textAlign = "start";
+    });
+  });
+}
+function clearanceBar(){
+  const x0 = 20, y0 = H - 112, w = 190, h = 10, g = ctx.createLinearGradient(x0, 0, x0 + w, 0);
+  stops.forEach(([f, c]) => g.addColorStop(f, "rgb(" + c.join(",") + ")"));
+  ctx.fillStyle = "#fffc"; ctx.fillRect(x0 - 6, y0 - 20, w + 80, 42);
+  ctx.fillStyle = g; ctx.fillRect(x0, y0, w, h); ctx.strokeStyle = "#333"; ctx.lineWidth = 1; ctx.strokeRect(x0, y0, w, h);
+  ctx.fillStyle = "#222"; ctx.font = "12px system-ui,sans-serif";
+  ctx.fillText("clearance to the obstacles (exact model)", x0, y0 - 6);
+  for (let v = 0; v <= D.clearance_cap; v++) ctx.fillText(v + (v === D.clearance_cap ? "+ mm" : ""), x0 + w*v/D.clearance_cap - 3, y0 + h + 12);
 }
 // scale bar: a round length in mm, true at the depth of the view centre
 function scaleBar(){
@@ -196,7 +298,7 @@ addEventListener("mouseup", () => drag = null);
 cv.addEventListener("contextmenu", e => e.preventDefault());
 addEventListener("mousemove", e => { if (!drag) return; const dx = e.clientX-drag.x, dy = e.clientY-drag.y; drag.x = e.clientX; drag.y = e.clientY;
   if (drag.pan) { const s = dist/F; for (let a=0;a<3;a++) ctr[a] -= (cam.rt[a]*dx - cam.up[a]*dy)*s; }
-  else { yaw += dx*0.008; pitch = Math.max(-1.5, Math.min(1.5, pitch + dy*0.008)); }
+  else { yaw -= dx*0.008; pitch = Math.max(-1.5, Math.min(1.5, pitch + dy*0.008)); }
   draw(); });
 cv.addEventListener("wheel", e => { e.preventDefault(); dist *= Math.exp(e.deltaY*0.001); draw(); }, {passive:false});
 slider.addEventListener("input", draw);
