@@ -74,8 +74,9 @@ class Comparison:
                 "joints": [[round(float(v), 4) for v in row] for row in q[:20]]}
 
     def metrics(self) -> dict:
-        """Backbone error (% of arc length), tip errors of tubes 1…N (mm), u_z RMSE (1/m), RMSE of
-        the twists theta_2…N (rad; 0 for one tube), orientation error (deg), over the configurations
+        """Backbone error (% of arc length), tip errors of tubes 1…N (mm, and tube 1's in % of its arc
+        length), u_z RMSE (1/m), RMSE of the twists theta_2…N (rad; 0 for one tube), orientation error
+        (deg) along the whole backbone and at the tip of tube 1, over the configurations
         the exact solver solved (`unsolved` lists the others). Every value is finite: a surrogate
         that returns non-finite states where a truth exists counts as `nonfinite_predictions`."""
         ok = self.solved
@@ -102,6 +103,7 @@ class Comparison:
             "theta_rmse_rad": float(np.sqrt(((ps[..., 3 + n:2 + 2 * n] - es[..., 3 + n:2 + 2 * n]) ** 2
                                              ).mean())) if n > 1 else 0.0,
             "orientation_error_deg": _tail(angle),
+            "tip_orientation_error_deg": _tail(angle[:, -1]),
         })
 
 
