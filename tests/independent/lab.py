@@ -209,26 +209,45 @@ def make(n: int, effects: dict[str, float], seed: int, sigma_mm: float = 0.1, mo
             off[:N] = -off[:N] if _physical(q + np.r_[-off[:N], off[N:]], tubes) else off[:N] / 2
     if off.any():
         truth["joint_offset"] = {"offset": off.tolist()}
-    qt = q + off
-    d = _directions(q)
+    lags: dict = {}   # the joint-side effects' parameters
     for name, mag in effects.items():
         if name == "backlash":
-            b = np.radians(rng.uniform(1.5, 3.0, N)) * mag
-            qt[:, N:] -= b * d[:, N:]
-            truth[name] = {"backlash_rad": b.tolist()}
+            lags[name] = np.radians(rng.uniform(1.5, 3.0, N)) * mag
+            truth[name] = {"backlash_rad": lags[name].tolist()}
         elif name == "torsional_windup":
             tau = rng.uniform(0.02, 0.06) * mag * np.array([1.0, 8.0, 40.0])   # N mm, ~ tube stiffness
-            qt[:, N:] -= (tau / tubes.gj) * (-q[:, :N]) * d[:, N:]
+            lags[name] = tau / tubes.gj
             truth[name] = {"friction_torque_nmm": tau.tolist()}
         elif name == "alpha_scale":
-            s = 1.0 + mag * rng.uniform(0.04, 0.06) * rng.choice([-1, 1])
-            qt[:, N:] *= s
-            truth[name] = {"scale": s}
+            lags[name] = 1.0 + mag * rng.uniform(0.04, 0.06) * rng.choice([-1, 1])
+            truth[name] = {"scale": lags[name]}
         elif name == "encoder_wobble":
-            a = mag * math.radians(rng.uniform(3.0, 5.0))
-            qt[:, N:] += a * np.sin(q[:, N:])
-            truth[name] = {"amplitude_rad": a}
-    sol = solve(qt, tubes)
+            lags[name] = mag * math.radians(rng.uniform(3.0, 5.0))
+            truth[name] = {"amplitude_rad": lags[name]}
+
+    def reached(q: np.ndarray) -> np.ndarray:
+        """The joints the tubes reach for reported joints q in acquisition order."""
+        qt, d = q + off, _directions(q)
+        for name, v in lags.items():
+            if name == "backlash":
+                qt[:, N:] -= v * d[:, N:]
+            elif name == "torsional_windup":
+                qt[:, N:] -= v * (-q[:, :N]) * d[:, N:]
+            elif name == "alpha_scale":
+                qt[:, N:] *= v
+            elif name == "encoder_wobble":
+                qt[:, N:] += v * np.sin(q[:, N:])
+        return qt
+
+    sol = solve(reached(q), tubes)
+    for _ in range(20 if rows == "random" else 0):   # random rows past the snap of this robot: others
+        failed = np.flatnonzero(~sol["converged"])
+        if not failed.size:
+            break
+        c = random_rows(4 * failed.size, rng)
+        c = c[_physical_rows(c, tubes) & _physical_rows(c + off, tubes)]
+        q[failed[:len(c)]] = c[:failed.size]
+        sol = solve(reached(q), tubes)
     assert sol["converged"].all()
     tips = sol["tips_mm"].copy()
     if "sensor_offset" in effects:
