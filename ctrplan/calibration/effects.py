@@ -39,6 +39,7 @@ registration       frame      rotation vector (rad) and translation (mm), robot 
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -91,7 +92,7 @@ class Param:
     plausible: Plausible | None = None
 
 
-class Effect:
+class Effect(ABC):
     """A candidate cause. Subclasses set ``name``, ``side``, ``key`` and ``description`` and define
     `params`, `values` and `with_values`; `unseen`, `limits`, `implausible`, `derived` and
     `initial_guess` have defaults."""
@@ -107,17 +108,17 @@ class Effect:
         if cls.name:
             EFFECTS[cls.name] = cls
 
+    @abstractmethod
     def params(self, robot: Robot) -> list[Param]:
         """The fitted parameters, in the order of ``x``."""
-        raise NotImplementedError
 
+    @abstractmethod
     def values(self, robot: Robot) -> np.ndarray:
         """The robot's current parameter values (len(params),), file units."""
-        raise NotImplementedError
 
+    @abstractmethod
     def with_values(self, robot: Robot, x: np.ndarray) -> Robot:
         """``robot`` with this effect's parameters set to ``x``."""
-        raise NotImplementedError
 
     def unseen(self, q: np.ndarray, direction: np.ndarray, robot: Robot) -> dict[str, str]:
         """Parameters the rows (joints q (R, 2N), directions of motion (R, 2N)) cannot show -> why,
@@ -423,12 +424,9 @@ class MeasurementEffect(Effect):
     Subclasses define the map of their side: `joints` (reported joints -> the joints the mechanics
     sees), `tips` (tip side: solved tips -> tracked point) or `frame` (robot -> tracker frame)."""
 
+    @abstractmethod
     def size(self, n_tubes: int) -> int:
         """Number of values for a robot of ``n_tubes`` tubes."""
-        raise NotImplementedError
-
-    def params(self, robot):
-        raise NotImplementedError
 
     def values(self, robot):
         return robot.calibration.values(self.name, self.size(robot.n_tubes))
