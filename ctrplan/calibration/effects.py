@@ -330,9 +330,6 @@ class JointOffset(Effect):
         return {names[j]: f"{joints[j]} never moves in the data" for j in range(robot.n_joints)
                 if np.ptp(q[:, j]) <= 1e-9}
 
-    def limits(self, q, robot):
-        return offset_limits(q, robot, share=1.0)
-
     def derived(self, robot, x):
         n = robot.n_tubes
         return {f"alpha{i + 1}_offset_deg": float(np.degrees(x[n + i])) for i in range(n)}

@@ -172,25 +172,34 @@ class Selector:
 
 
     def _fit(self, effect: Effect, split: Split, x_start: np.ndarray | None, max_nfev: int) -> FitResult:
+        """Fit ``effect`` on the training rows of ``split``. Every row of the file must stay physical
+        under the fitted robot: if a joint offset makes one impossible, the fit is repeated with the
+        offsets bounded so that each tube keeps every row physical on its own (``share`` 1), and then
+        whatever the others do (``share`` 0.5)."""
         d = self.data
         ev = Evaluator(d.q[split.train], self.direction[split.train])
         fixed = effect.unseen(self.q_file, self.direction_file, self.robot)
-
-        def fit_within(limits):
-            return fit_effect(effect, self.robot, ev, d.tips_mm[split.train], d.tubes,
-                              self.nominal.subset(split.train), x_start=x_start, max_nfev=max_nfev,
-                              fixed=fixed, limits=limits)
-
         limits = effect.limits(self.q_file, self.robot)
-        fit = fit_within(limits)
-        try:   # every row of the file must stay physical under the fitted robot
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                fit.robot.check_joints(self.q_file, allow_outside_domain=True)
-        except InputError:   # joint offsets that keep every row physical whatever the others do
-            fit = fit_within(limits | offset_limits(self.q_file, self.robot, share=0.5))
+        fit = None
+        for share in (None, 1.0, 0.5):
+            if fit is not None and self._physical(fit.robot):
+                break
+            bounds = limits if share is None else limits | offset_limits(self.q_file, self.robot, share=share)
+            fit = fit_effect(effect, self.robot, ev, d.tips_mm[split.train], d.tubes,
+                             self.nominal.subset(split.train), x_start=x_start if fit is None else fit.x,
+                             max_nfev=max_nfev, fixed=fixed, limits=bounds)
         self.solves += ev.solves
         return fit
+
+    def _physical(self, robot: Robot) -> bool:
+        """Whether every row of the file is physically possible for ``robot`` (outside the domain is)."""
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                robot.check_joints(self.q_file, allow_outside_domain=True)
+        except InputError:
+            return False
+        return True
 
     def _nominal(self, split: Split) -> tuple[np.ndarray, float]:
         """The nominal model's held-out errors and training BIC on ``split``."""
