@@ -326,8 +326,8 @@ class Diagnosis:
             lines.append(f"  not fitted: {name} ({'; '.join(why)})")
         fixed = {k: v for c in self.candidates if len(c.causes) == 1 for k, v in c.fit.fixed.items()}
         if fixed:
-            lines.append("  held at their file values (the data cannot show them): "
-                         + "; ".join(f"{k}: {v}" for k, v in fixed.items()))
+            lines.append("  held at their file values (the data cannot show them):")
+            lines += [f"    {k}: {v}" for k, v in fixed.items()]
         for name, why in j["implausible"].items():
             lines.append(f"  implausible, not named: {name}: "
                          + "; ".join(f"{k} {v}" for k, v in why.items()))
