@@ -239,15 +239,16 @@ def make(n: int, effects: dict[str, float], seed: int, sigma_mm: float = 0.1, mo
                 qt[:, N:] += v * np.sin(q[:, N:])
         return qt
 
-    sol = solve(reached(q), tubes)
-    for _ in range(20 if rows == "random" else 0):   # random rows past the snap of this robot: others
-        failed = np.flatnonzero(~sol["converged"])
-        if not failed.size:
-            break
-        c = random_rows(4 * failed.size, rng)
-        c = c[_physical_rows(c, tubes) & _physical_rows(c + off, tubes)]
-        q[failed[:len(c)]] = c[:failed.size]
+    with np.errstate(over="ignore", invalid="ignore"):   # rows past the snap of this robot diverge
         sol = solve(reached(q), tubes)
+        for _ in range(20 if rows == "random" else 0):   # random rows: draw others for those
+            failed = np.flatnonzero(~sol["converged"])
+            if not failed.size:
+                break
+            c = random_rows(4 * failed.size, rng)
+            c = c[_physical_rows(c, tubes) & _physical_rows(c + off, tubes)]
+            q[failed[:len(c)]] = c[:failed.size]
+            sol = solve(reached(q), tubes)
     assert sol["converged"].all()
     tips = sol["tips_mm"].copy()
     if "sensor_offset" in effects:
