@@ -10,12 +10,13 @@ from __future__ import annotations
 import csv
 import math
 import os
+import re
 import secrets
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import numpy as np
 
@@ -30,6 +31,8 @@ def tip_names(n_tubes: int) -> tuple[str, ...]:
 
 #: Tip columns of a three-tube robot.
 TIP_NAMES = tip_names(3)
+#: A joint or tip column and its tube number: ``beta3``, ``alpha3``, ``tip3_x``.
+TUBE_COLUMN = re.compile(r"^(beta|alpha)(\d+)$|^tip(\d+)_[xyz]$")
 
 
 @dataclass(frozen=True)
@@ -102,21 +105,24 @@ def parse_number(cell: str, path: str | Path, line: int, name: str, *,
 
 
 def read_table(path: str | Path, columns: Sequence[str], *, optional: Sequence[str] = (),
-               allow_missing: bool = False) -> Table:
+               allow_missing: bool = False, n_tubes: int | None = None) -> Table:
     """Read the named numeric ``columns`` of a CSV file with a header line; other columns are ignored.
 
     ``optional`` columns are read too when the header has them: ``Table.columns`` is ``columns``
     followed by the optional ones found. Blank lines (also before the header) are skipped. Raises
     `InputError` for a missing or empty file, a header without data rows, a missing or repeated
     column, a row with more or fewer fields than the header, or a cell that is not a finite number (see
-    `parse_number` for ``allow_missing``).
+    `parse_number` for ``allow_missing``). With ``n_tubes``, a joint or tip column of a tube beyond
+    the robot's ``n_tubes`` (``beta3``, ``alpha3``, ``tip3_x`` for two tubes) is an error too: the data
+    are for another robot.
     """
     path = Path(path)
-    return parse_table(read_text(path), path, columns, optional=optional, allow_missing=allow_missing)
+    return parse_table(read_text(path), path, columns, optional=optional, allow_missing=allow_missing,
+                       n_tubes=n_tubes)
 
 
-def parse_table(text: str, path: str | Path, columns: Sequence[str], *,
-                optional: Sequence[str] = (), allow_missing: bool = False) -> Table:
+def parse_table(text: str, path: str | Path, columns: Sequence[str], *, optional: Sequence[str] = (),
+                allow_missing: bool = False, n_tubes: int | None = None) -> Table:
     """`read_table` on the already read ``text`` of ``path``."""
     path = Path(path)
     reader = csv.reader(text.splitlines())
@@ -125,6 +131,12 @@ def parse_table(text: str, path: str | Path, columns: Sequence[str], *,
         raise InputError(f"{path}: empty file (expected a header line: {','.join(columns)})")
     head = reader.line_num
     names = [h.strip() for h in header]
+    extra = [] if n_tubes is None else [h for h in names if (m := TUBE_COLUMN.match(h)) and
+                                        int(m.group(2) or m.group(3)) > n_tubes]
+    if extra:
+        raise InputError(f"{path}: row {head}: column{'s' if len(extra) > 1 else ''} {', '.join(extra)} "
+                         f"belong{'' if len(extra) > 1 else 's'} to a tube the robot does not have (it has "
+                         f"{n_tubes}); give the robot the data were measured with (--robot R.yaml)")
     missing = [c for c in columns if c not in names]
     if missing:
         raise InputError(f"{path}: row {head}: missing column{'s' if len(missing) > 1 else ''} "
@@ -160,7 +172,7 @@ def read_joints(path: str | Path, robot: Robot, *, allow_outside_domain: bool = 
     Out-of-domain rows raise `DomainError` (or warn, with ``allow_outside_domain``) naming the row's
     line and the violated inequality; physically impossible rows always raise `InputError`.
     """
-    table = read_table(path, robot.joint_names)
+    table = read_table(path, robot.joint_names, n_tubes=robot.n_tubes)
     check_joint_rows(robot, table.joints, table.lines, str(table.path),
                      allow_outside_domain=allow_outside_domain)
     return table
@@ -239,3 +251,19 @@ def format_csv(header: Sequence[str] | None, rows: np.ndarray, formats: Sequence
     fmt = ",".join(formats)
     lines.extend(fmt % tuple(r) for r in rows.tolist())
     return "\n".join(lines) + "\n"
+
+
+def plain(obj: Any) -> Any:
+    """``obj`` as plain JSON/YAML values: numpy scalars and arrays become Python numbers and lists,
+    tuples lists, mapping keys strings, and non-finite floats None (JSON has no NaN)."""
+    if isinstance(obj, dict):
+        return {str(k): plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, np.ndarray)):
+        return [plain(v) for v in obj]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
+    return obj

@@ -1,42 +1,40 @@
-"""`Calibration`: the measurement-side model extensions that are not mechanics.
+"""`Calibration`: the measurement side of a robot model -- how what the robot reports and what the
+tracker sees relate to its mechanics.
 
-Mechanical extensions (curvature, stiffness ratio, bending stiffness, joint offsets, gravity, tip
-force) are plain `Robot` parameters solved by the Cosserat backend. Three effects found in measured
-data are not mechanics:
+"Calibration" in ctrplan means two things, kept apart by their names:
 
-* registration -- the rigid transform between the robot frame and the frame the tips were measured
-  in: ``p_measured = R(rotation_vector) p_robot + translation``;
-* backlash -- a direction-dependent lag of the rotation joints: the tube turns to
-  ``alpha_i - backlash_i * d_i``, with ``d_i`` in {-1, 0, +1} the direction of the latest motion of
-  alpha_i (from consecutive rows, `motion_direction`);
-* torsional windup -- friction torque tau_i on tube i twists the length behind the front plate
-  (-beta_i, mm) against the motion: a further lag ``windup_i * (-beta_i) * d_i`` with
-  ``windup_i = tau_i / (G J_i)`` (rad/mm);
-* sensor offset -- the tracked point sits ``d`` (mm) from the tip of tube 1, fixed in the tip frame
-  ``R(l1)`` of the Cosserat state: ``p_tracked = p(l1) + R(l1) d``.
+* the package `ctrplan.calibration` *calibrates* a robot model from measured tips (``ctrplan
+  diagnose``): it extends the mechanics (`Robot` fields) and this measurement side;
+* `Robot.calibration` (this class; the robot file's ``calibration`` key) *is* the measurement side
+  of one robot: the `ctrplan.calibration.effects.MeasurementEffect` terms it holds, each with its
+  values.
 
-`Calibration.apply` turns a solved `Backbone` into what the extended model predicts the tracker sees
-(``ctrplan fk``/``shape`` use it); `Calibration.effective_joints` gives the joints to solve.
+A prediction for measured rows, for any backend, takes three steps:
 
-It is part of the robot model (`ctrplan.robot.Robot.calibration`); `ctrplan.calibration` fits it to
-measured data. In a robot file it is the top-level mapping::
+1. `Calibration.mechanics_joints` -- reported joints (rows in acquisition order, with their direction
+   of motion, `motion_direction`) -> the joints the mechanics sees (backlash, torsional windup);
+2. the pure mechanics (`Robot.mechanics`, its joint offsets included) solves them;
+3. `Calibration.tracked_tips` -- the solved tube tips in the robot frame (and the tip frame of tube 1
+   where `needs_tip_rotation`: a sensor offset) -> what the tracker sees (registration).
+
+In a robot file each term is one key of the ``calibration`` mapping (see each effect's ``key``)::
 
     calibration:
-      registration: {rotation_vector_rad: [rx, ry, rz], translation_mm: [tx, ty, tz]}
-      backlash_rad: [b1, b2, b3]
+      backlash_rad: [b1, ..., bN]
+      windup_rad_per_mm: [w1, ..., wN]
       sensor_offset_mm: [dx, dy, dz]
-      windup_rad_per_mm: [w1, w2, w3]
+      registration: {rotation_vector_rad: [rx, ry, rz], translation_mm: [tx, ty, tz]}
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ctrplan.calibration.effects import EFFECTS, SIDES, MeasurementEffect
 from ctrplan.errors import InputError
 from ctrplan.yamlio import YamlDoc
 
@@ -44,180 +42,148 @@ if TYPE_CHECKING:
     from ctrplan.kinematics.backbone import Backbone
 
 CALIBRATION_KEY = "calibration"
-
-
-def per_tube(values, n: int) -> np.ndarray:
-    """A per-tube calibration vector (any length; missing tubes 0) as n values."""
-    out = np.zeros(n)
-    m = min(n, len(values))
-    out[:m] = np.asarray(values, dtype=float)[:m]
-    return out
+#: The measurement-side effects by their robot-file key.
+_BY_KEY = {e.key: e() for e in EFFECTS.values() if issubclass(e, MeasurementEffect)}
 
 
 @dataclass(frozen=True)
 class Calibration:
-    """Registration (robot frame -> measurement frame), backlash of alpha_1..N, sensor offset.
+    """The measurement-side terms of a robot: (cause name, values) pairs, in the order their sides
+    act (joints, tip, frame), zero terms left out -- the identity has none.
 
-    Attributes:
-        rotation_vector_rad: axis * angle of the registration rotation R (rad).
-        translation_mm: registration translation t (mm).
-        backlash_rad: lag of alpha_1..N behind the command in the direction of motion (rad).
-        sensor_offset_mm: tracked point relative to the tip of tube 1, in the tip frame R(l1) (mm).
-        windup_rad_per_mm: torsional windup of alpha_1..N per mm of tube behind the plate (rad/mm).
+    Build it with `with_term`; read it with `values`.
     """
 
-    rotation_vector_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    translation_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    backlash_rad: tuple[float, ...] = (0.0, 0.0, 0.0)
-    sensor_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    windup_rad_per_mm: tuple[float, ...] = (0.0, 0.0, 0.0)
+    terms: tuple[tuple[str, tuple[float, ...]], ...] = ()
+
+    def __post_init__(self) -> None:
+        for name, _ in self.terms:
+            if not issubclass(EFFECTS.get(name, object), MeasurementEffect):
+                raise ValueError(f"{name!r} is not a measurement-side effect")
+        order = {name: (SIDES.index(e.side), i) for i, (name, e) in enumerate(EFFECTS.items())}
+        object.__setattr__(self, "terms", tuple(sorted(self.terms, key=lambda t: order[t[0]])))
+
+    def values(self, name: str, size: int) -> np.ndarray:
+        """The values of term ``name`` (zeros of ``size`` if absent)."""
+        found = dict(self.terms).get(name)
+        return np.zeros(size) if found is None else np.array(found, dtype=float)
+
+    def with_term(self, name: str, values) -> Calibration:
+        """This calibration with term ``name`` set to ``values`` (removed when all zero)."""
+        rest = tuple(t for t in self.terms if t[0] != name)
+        vals = tuple(float(v) for v in values)
+        return Calibration(rest + ((name, vals),) if any(vals) else rest)
+
+    @property
+    def is_identity(self) -> bool:
+        return not self.terms
+
+    def _side(self, side: str):
+        for name, vals in self.terms:
+            effect = EFFECTS[name]()
+            if effect.side == side:
+                yield effect, np.array(vals)
+
+    # ---- the maps a prediction applies --------------------------------------------------------------
+    def mechanics_joints(self, q: np.ndarray, direction: np.ndarray | None = None) -> np.ndarray:
+        """The joints the mechanics sees (B, 2N), mm and rad, for reported joints q (B, 2N) in
+        acquisition order. ``direction`` (B, 2N): each row's direction of motion (`motion_direction(q)`
+        if None -- pass it when q is a subset of a longer sequence). The robot's joint offsets are not
+        in it: the backends add them."""
+        q = np.asarray(q, dtype=float)
+        terms = list(self._side("joints"))
+        if not terms:
+            return q
+        d = motion_direction(np.atleast_2d(q)).reshape(q.shape) if direction is None \
+            else np.asarray(direction)
+        for effect, vals in terms:
+            q = effect.joints(vals, q, d)
+        return q
+
+    @property
+    def needs_tip_rotation(self) -> bool:
+        """Whether `tracked_tips` needs the tip frame of tube 1 (a sensor offset)."""
+        return any(True for _ in self._side("tip"))
+
+    def tracked_tips(self, robot_tips_mm: np.ndarray, tip_rotation: np.ndarray | None = None) -> np.ndarray:
+        """What the tracker sees (B, T, 3), mm, from the solved tube tips (B, T, 3) in the robot frame
+        and, where `needs_tip_rotation`, the tip frame R(l1) of tube 1 (B, 3, 3)."""
+        tips = np.asarray(robot_tips_mm, dtype=float)
+        for effect, vals in self._side("tip"):
+            if tip_rotation is None:
+                raise ValueError(f"the {effect.name} of this calibration needs the tip rotation of tube 1")
+            tips = effect.tips(vals, tips, tip_rotation)
+        return self.to_tracker_frame(tips)
+
+    def to_tracker_frame(self, points_mm: np.ndarray) -> np.ndarray:
+        """Robot-frame points (..., 3) -> the tracker frame (the frame side only)."""
+        p = np.asarray(points_mm, dtype=float)
+        for effect, vals in self._side("frame"):
+            p = effect.frame(vals, p)
+        return p
+
+    def to_robot_frame(self, points_mm: np.ndarray) -> np.ndarray:
+        """Tracker-frame points (..., 3) -> the robot frame (the inverse of `to_tracker_frame`)."""
+        p = np.asarray(points_mm, dtype=float)
+        for effect, vals in reversed(list(self._side("frame"))):
+            p = effect.frame(vals, p, inverse=True)
+        return p
+
+    def apply(self, backbone: Backbone) -> Backbone:
+        """The extended model's prediction of a `Backbone` solved at `mechanics_joints`: tips as the
+        tracker sees them, positions and orientations in the tracker frame. The state's moments, twists
+        and angles are frame-independent and kept."""
+        frames = list(self._side("frame"))
+        if not frames and not self.needs_tip_rotation:
+            return backbone
+        tips = self.tracked_tips(backbone.tips_mm, backbone.rotations[:, -1])
+        state = np.array(backbone.state, copy=True)
+        ip = 2 * backbone.n_tubes + 2  # position p, then the orientation quaternion (last 4)
+        state[..., ip:ip + 3] = self.to_tracker_frame(state[..., ip:ip + 3])
+        for effect, vals in frames:
+            quat = state[..., -4:].reshape(-1, 4)
+            ok = np.isfinite(quat).all(1)
+            out = np.full_like(quat, np.nan)
+            turn = Rotation.from_matrix(effect.frame_rotation(vals))
+            out[ok] = (turn * Rotation.from_quat(quat[ok][:, [1, 2, 3, 0]])).as_quat()[:, [3, 0, 1, 2]]
+            state[..., -4:] = out.reshape(state[..., -4:].shape)
+        return replace(backbone, state=state, tips_mm=tips)
 
     def refuse(self, robot_name: str, verb: str) -> None:
         """`InputError` for work that models the mechanics only (``verb``: plan, train) when this
         calibration is not the identity -- it would otherwise be ignored silently."""
         if not self.is_identity:
+            names = ", ".join(name.replace("_", " ") for name, _ in self.terms)
             raise InputError(
-                f"robot {robot_name!r}: its calibration section (registration, sensor offset, backlash, "
-                f"windup) describes how it is measured and cannot be used to {verb}; delete that section "
-                f"from the robot file to {verb} with its mechanics (curvatures, stiffnesses, offsets)")
+                f"robot {robot_name!r}: its calibration section ({names}) describes how it is measured and "
+                f"cannot be used to {verb}; delete that section from the robot file to {verb} with its "
+                f"mechanics (curvatures, stiffnesses, offsets)")
 
-    @property
-    def is_identity(self) -> bool:
-        return not any(self.rotation_vector_rad) and not any(self.translation_mm) \
-            and not any(self.backlash_rad) and not any(self.sensor_offset_mm) \
-            and not any(self.windup_rad_per_mm)
-
-    @property
-    def has_registration(self) -> bool:
-        return any(self.rotation_vector_rad) or any(self.translation_mm)
-
-    @property
-    def rotation(self) -> np.ndarray:
-        return Rotation.from_rotvec(np.asarray(self.rotation_vector_rad, dtype=float)).as_matrix()
-
-    @property
-    def registration_matrix(self) -> np.ndarray:
-        """4x4 homogeneous transform taking robot-frame points (mm) to the measurement frame."""
-        T = np.eye(4)
-        T[:3, :3] = self.rotation
-        T[:3, 3] = self.translation_mm
-        return T
-
-    def to_measurement_frame(self, points_mm: np.ndarray) -> np.ndarray:
-        """Robot-frame points (..., 3) -> measurement frame."""
-        if not self.has_registration:
-            return np.asarray(points_mm, dtype=float)
-        return np.asarray(points_mm) @ self.rotation.T + np.asarray(self.translation_mm)
-
-    def to_robot_frame(self, points_mm: np.ndarray) -> np.ndarray:
-        """Measured points (..., 3) -> robot frame (the inverse of `to_measurement_frame`)."""
-        if not self.has_registration:
-            return np.asarray(points_mm, dtype=float)
-        return (np.asarray(points_mm) - np.asarray(self.translation_mm)) @ self.rotation
-
-    def effective_joints(self, q: np.ndarray, direction: np.ndarray | None = None) -> np.ndarray:
-        """Joints the tubes actually reach (B, 2N) for commanded joints q (B, 2N) in acquisition order.
-
-        ``direction`` (B, 2N) is the direction of the latest motion (`motion_direction(q)` if None).
-        """
-        q = np.asarray(q, dtype=float)
-        if not any(self.backlash_rad) and not any(self.windup_rad_per_mm):
-            return q
-        d = motion_direction(np.atleast_2d(q)) if direction is None else np.asarray(direction)
-        n = q.shape[-1] // 2
-        lag = per_tube(self.backlash_rad, n) + per_tube(self.windup_rad_per_mm, n) * -q[..., :n]
-        out = np.array(q, dtype=float, copy=True)
-        out[..., n:] -= lag * d[..., n:]
-        return out
-
-    def tracked_tips(self, robot_tips_mm: np.ndarray, tip_rotation: np.ndarray | None) -> np.ndarray:
-        """What the tracker sees (B, T, 3), mm, measurement frame, from the solved tube tips (B, T, 3)
-        in the robot frame and the tip frame of tube 1 ``tip_rotation`` (B, 3, 3)."""
-        tips = np.asarray(robot_tips_mm, dtype=float)
-        if any(self.sensor_offset_mm):
-            tips = tips.copy()
-            tips[:, 0] += np.asarray(tip_rotation) @ np.asarray(self.sensor_offset_mm, dtype=float)
-        return self.to_measurement_frame(tips)
-
-    def apply(self, backbone: Backbone) -> Backbone:
-        """The extended model's prediction of a solved `Backbone` (solved at `effective_joints`):
-        tips with the sensor offset, and positions, orientations and tips in the measurement frame.
-        The state's moments, twists and angles are frame-independent and kept."""
-        from dataclasses import replace as dc_replace
-
-        if self.is_identity or not (self.has_registration or any(self.sensor_offset_mm)):
-            return backbone
-        rot = backbone.rotations
-        tips = self.tracked_tips(backbone.tips_mm, rot[:, -1])
-        state = np.array(backbone.state, copy=True)
-        ip = 2 * backbone.n_tubes + 2  # position p, then the orientation quaternion (last 4)
-        state[..., ip:ip + 3] = self.to_measurement_frame(state[..., ip:ip + 3])
-        if self.has_registration:
-            reg = Rotation.from_rotvec(np.asarray(self.rotation_vector_rad, dtype=float))
-            q = state[..., -4:].reshape(-1, 4)
-            ok = np.isfinite(q).all(1)
-            quat = np.full_like(q, np.nan)
-            xyzw = (reg * Rotation.from_quat(q[ok][:, [1, 2, 3, 0]])).as_quat()
-            quat[ok] = xyzw[:, [3, 0, 1, 2]]
-            state[..., -4:] = quat.reshape(state[..., -4:].shape)
-        return dc_replace(backbone, state=state, tips_mm=tips)
-
-    # ---- file format ------------------------------------------------------------------------------
+    # ---- the robot file -------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
-        out = {"registration": {"rotation_vector_rad": [float(v) for v in self.rotation_vector_rad],
-                                "translation_mm": [float(v) for v in self.translation_mm]},
-               "backlash_rad": [float(v) for v in self.backlash_rad]}
-        # absent when unused: older files and fingerprints unchanged
-        if any(self.sensor_offset_mm):
-            out["sensor_offset_mm"] = [float(v) for v in self.sensor_offset_mm]
-        if any(self.windup_rad_per_mm):
-            out["windup_rad_per_mm"] = [float(v) for v in self.windup_rad_per_mm]
-        return out
+        """The ``calibration`` mapping of a robot file: one key per term."""
+        return {EFFECTS[name].key: EFFECTS[name]().write(vals) for name, vals in self.terms}
 
     @classmethod
-    def from_doc(cls, doc: YamlDoc, keys: tuple = (CALIBRATION_KEY,)) -> Calibration:
-        """Validated `Calibration` from the ``calibration`` mapping of a parsed robot file."""
-        raw = doc.data.get(keys[0]) if len(keys) == 1 else None
+    def from_doc(cls, doc: YamlDoc, n_tubes: int) -> Calibration:
+        """The validated `Calibration` of a parsed robot file of ``n_tubes`` tubes."""
+        raw = doc.data.get(CALIBRATION_KEY)
+        keys = (CALIBRATION_KEY,)
         if raw is None:
             return cls()
         if not isinstance(raw, dict):
-            raise doc.error(keys, "expected a mapping with 'registration' and/or 'backlash_rad'")
-        for k in raw:
-            if k not in ("registration", "backlash_rad", "sensor_offset_mm", "windup_rad_per_mm"):
-                raise doc.error(keys + (k,), "unknown key (allowed: backlash_rad, registration, "
-                                             "sensor_offset_mm, windup_rad_per_mm)")
-        kw: dict[str, tuple] = {}
-        reg = raw.get("registration")
-        if reg is not None:
-            if not isinstance(reg, dict):
-                raise doc.error(keys + ("registration",), "expected a mapping with rotation_vector_rad "
-                                                          "and translation_mm")
-            for k in reg:
-                if k not in ("rotation_vector_rad", "translation_mm"):
-                    raise doc.error(keys + ("registration", k),
-                                    "unknown key (allowed: rotation_vector_rad, translation_mm)")
-            for k in ("rotation_vector_rad", "translation_mm"):
-                if k in reg:
-                    kw[k] = _vector3(doc, keys + ("registration", k), reg[k])
-        if "backlash_rad" in raw:
-            kw["backlash_rad"] = _vector3(doc, keys + ("backlash_rad",), raw["backlash_rad"])
-        if "windup_rad_per_mm" in raw:
-            kw["windup_rad_per_mm"] = _vector3(doc, keys + ("windup_rad_per_mm",), raw["windup_rad_per_mm"])
-        if "sensor_offset_mm" in raw:
-            kw["sensor_offset_mm"] = _vector3(doc, keys + ("sensor_offset_mm",), raw["sensor_offset_mm"])
-        return cls(**kw)
-
-
-def _vector3(doc: YamlDoc, keys: tuple, value: Any) -> tuple[float, float, float]:
-    ok = isinstance(value, list) and len(value) == 3 and all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
-    if not ok:
-        raise doc.error(keys, f"expected a list of 3 finite numbers, got {value!r}")
-    return tuple(float(v) for v in value)  # type: ignore[return-value]
+            raise doc.error(keys, f"expected a mapping with some of the keys {', '.join(_BY_KEY)}")
+        out = cls()
+        for k, value in raw.items():
+            effect = _BY_KEY.get(k)
+            if effect is None:
+                raise doc.error(keys + (k,), f"unknown key (allowed: {', '.join(sorted(_BY_KEY))})")
+            out = out.with_term(effect.name, effect.read(doc, keys + (k,), value, n_tubes))
+        return out
 
 
 def motion_direction(q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
-    """Direction of the latest motion of every joint (N, 6) in {-1, 0, +1}, from consecutive rows.
+    """Direction of the latest motion of every joint (R, 2N) in {-1, 0, +1}, from consecutive rows.
 
     A joint that did not move keeps the direction of its last move (a backlash gap stays taken up on
     the side it was last driven); before its first move the direction is 0.

@@ -31,7 +31,12 @@ BUILTIN_ROBOTS = ("nominal",)
 
 @dataclass(frozen=True)
 class Tube:
-    """One pre-curved nitinol tube. Lengths in mm, curvature in 1/mm, moduli in N/mm^2 (MPa)."""
+    """One pre-curved nitinol tube. Lengths in mm, curvature in 1/mm, moduli in N/mm^2 (MPa).
+
+    ``transmission_length_mm`` is the length over which the tube twists behind the plate beyond
+    ``-beta`` (0: the model's tube starts where its rotation is imposed; > 0: a compliant drive;
+    < 0: clamped nearer the plate). The Cosserat backend solves it; the PINN does not model it.
+    """
 
     inner_diameter_mm: float
     outer_diameter_mm: float
@@ -41,6 +46,7 @@ class Tube:
     youngs_modulus_mpa: float = 50e3
     shear_modulus_mpa: float = 19.23e3
     density_kg_m3: float = 6450.0
+    transmission_length_mm: float = 0.0
 
     @property
     def length_mm(self) -> float:
@@ -234,10 +240,10 @@ class Robot:
     """Immutable description of a CTR of N = 1…4 tubes: tubes (1 = innermost), loads, joint domain.
 
     Joints ``q = [beta_1 … beta_N, alpha_1 … alpha_N]`` (mm, rad). ``joint_offset`` (2N,) is added to
-    every commanded q before the mechanics (calibration extension: zero offsets of beta in mm and
-    alpha in rad). ``calibration`` holds the measurement-side extensions (registration to a tracker
-    frame, backlash of the alphas); backends never apply it -- backbones stay in the robot frame --
-    but measured-data tools and `fk` on ordered rows do.
+    every commanded q by the backends (zero offsets of beta in mm and alpha in rad: mechanics).
+    ``calibration`` is the measurement side (`ctrplan.measurement.Calibration`: backlash, windup,
+    sensor offset, registration); backends never apply it -- backbones stay in the robot frame -- but
+    measured-data tools and `fk`/`shape` on ordered rows do. `mechanics` is the robot without it.
     """
 
     tubes: tuple[Tube, ...]
@@ -279,6 +285,23 @@ class Robot:
     def with_changes(self, **changes: Any) -> Robot:
         return replace(self, **changes)
 
+    @property
+    def mechanics(self) -> Robot:
+        """The pure mechanics: this robot without its measurement-side calibration (what a backend
+        solves and a PINN is trained on; joint offsets, loads and tube parameters kept)."""
+        return self if self.calibration.is_identity else replace(self, calibration=Calibration())
+
+    def save(self, path: str | Path, comment: str = "") -> None:
+        """Write the robot file (`to_dict`, atomic); ``comment`` lines go on top as YAML comments."""
+        import yaml
+
+        from ctrplan.dataio import atomic_write, plain
+
+        text = yaml.safe_dump(plain(self.to_dict()), sort_keys=False, default_flow_style=None, width=100)
+        head = "".join(f"# {ln}\n" if ln else "#\n" for ln in comment.splitlines())
+        with atomic_write(path) as fh:
+            fh.write(head + text)
+
     # ---- derived ------------------------------------------------------------------------------
     @property
     def n_tubes(self) -> int:
@@ -316,8 +339,9 @@ class Robot:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain, JSON/YAML-ready description in file units (the format `Robot.load` reads)."""
-        tubes = [{key: getattr(t, attr) / scale for key, (attr, scale) in _TUBE_KEYS.items()}
-                 for t in self.tubes]
+        # a key at its default is left out when the default is 0: older files and fingerprints unchanged
+        tubes = [{key: getattr(t, attr) / scale for key, (attr, scale) in _TUBE_KEYS.items()
+                  if key not in _OPTIONAL_TUBE_KEYS or getattr(t, attr)} for t in self.tubes]
         out = {
             "name": self.name,
             "tubes": tubes,
@@ -417,7 +441,10 @@ _TUBE_KEYS = {
     "youngs_modulus_gpa": ("youngs_modulus_mpa", 1e3),
     "shear_modulus_gpa": ("shear_modulus_mpa", 1e3),
     "density_kg_m3": ("density_kg_m3", 1.0),
+    "transmission_length_mm": ("transmission_length_mm", 1.0),
 }
+#: Tube keys written only when not 0.
+_OPTIONAL_TUBE_KEYS = ("transmission_length_mm",)
 _REQUIRED_TUBE_KEYS = ("inner_diameter_mm", "outer_diameter_mm", "straight_length_mm",
                        "curved_length_mm", "curvature_1_per_m")
 
@@ -432,6 +459,7 @@ TUBE_LIMITS = {
     "youngs_modulus_gpa": (1.0, 1000.0, "Young's modulus of tube materials is 1 GPa to 1000 GPa"),
     "shear_modulus_gpa": (0.3, 500.0, "shear modulus of tube materials is 0.3 GPa to 500 GPa"),
     "density_kg_m3": (100.0, 25000.0, "density of tube materials is 100 to 25,000 kg/m^3"),
+    "transmission_length_mm": (-2000.0, 2000.0, "tube lengths are below 2 m"),
 }
 #: Largest bending strain a pre-curved tube can hold, kappa * outer radius (superelastic nitinol
 #: recovers about 8 %; 10 % is the ceiling of any tube material).
@@ -564,7 +592,7 @@ def robot_from_yaml(doc: YamlDoc) -> Robot:
         if any(abs(v) > 1000.0 for v in offset[:n]) or any(abs(v) > 2 * math.pi for v in offset[n:]):
             raise doc.error(("joint_offset",), "offsets must be within 1000 mm and 2 pi rad")
 
-    calibration = Calibration.from_doc(doc) if CALIBRATION_KEY in d else Calibration()
+    calibration = Calibration.from_doc(doc, n)
     name = d.get("name", doc.path.stem)
     robot = Robot(tubes=tuple(tubes), domain=domain, loads=loads, joint_offset=offset,
                   calibration=calibration, name=str(name))

@@ -85,7 +85,7 @@ MUTATIONS = (
              "t.youngs_modulus_mpa / (2.0 * t.shear_modulus_mpa) - 1.0",
              "t.youngs_modulus_mpa / t.shear_modulus_mpa - 1.0",
              (PHYSICS + "stiffness_ratio_is_poissons_ratio_nu_equal_e_over_2g_minus_1",)),
-    Mutation("diagnose ignores the Wilcoxon p-value", "ctrplan/calibration/diagnosis.py",
+    Mutation("diagnose ignores the Wilcoxon p-value", "ctrplan/calibration/selection.py",
              "bool(gain >= min_gain and p < alpha)", "bool(gain >= min_gain)",
              (PHYSICS + "a_mean_gain_is_not_significant_when_most_rows_get_worse",)),
     Mutation("Poisson limit of the robot loader 5", "ctrplan/robot.py",

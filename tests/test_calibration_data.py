@@ -1,5 +1,5 @@
-"""Measured-data readers (measured-data CSV, CRL 40 columns), the block split, the direction of
-motion and the extended robot file -- on files generated here."""
+"""Measured-data readers (measured-data CSV, CRL 40 columns), the row split and the direction of
+motion -- on files generated here."""
 
 from __future__ import annotations
 
@@ -9,21 +9,17 @@ import numpy as np
 import pytest
 
 from ctrplan.calibration import (
-    Calibration,
-    load_extended_robot,
     motion_direction,
     read_measured,
-    split_blocks,
+    split_rows,
     write_crl_csv,
-    write_extended_robot,
     write_measured_csv,
 )
 from ctrplan.calibration.data import matrix_quaternion, quaternion_matrix
-from ctrplan.calibration.effects import kabsch
 from ctrplan.calibration.synthetic import generate
 from ctrplan.errors import InputError
 from ctrplan.kinematics import CosseratBackend
-from ctrplan.robot import Loads, Robot
+from ctrplan.robot import Robot
 
 
 @pytest.fixture(scope="module")
@@ -115,7 +111,7 @@ def test_written_files_get_the_permissions_of_a_plain_open(tmp_path, syn):
     plain = (tmp_path / "plain.csv").stat().st_mode & 0o777
     write_measured_csv(tmp_path / "m.csv", syn.data.q, syn.data.tips_mm)
     write_crl_csv(tmp_path / "crl.csv", syn.data.q, syn.data.tips_mm)
-    write_extended_robot(tmp_path / "robot.yaml", Robot.nominal())
+    Robot.nominal().save(tmp_path / "robot.yaml")
     for name in ("m.csv", "crl.csv", "robot.yaml"):
         assert (tmp_path / name).stat().st_mode & 0o777 == plain, name
 
@@ -236,19 +232,27 @@ def test_quaternion_round_trip():
 
 
 # ---- split and direction --------------------------------------------------------------------------
-def test_split_contiguous_blocks_and_seed():
-    train, held = split_blocks(200, 0.25, blocks=10, seed=4)
-    assert len(np.intersect1d(train, held)) == 0 and len(train) + len(held) == 200
-    assert len(held) == 60 or len(held) == 40 or len(held) == 50
-    # held-out rows form whole blocks of 20 consecutive rows
-    runs = np.split(held, np.flatnonzero(np.diff(held) != 1) + 1)
-    assert all(len(r) % 20 == 0 for r in runs)
-    again, _ = split_blocks(200, 0.25, blocks=10, seed=4)
-    other, _ = split_blocks(200, 0.25, blocks=10, seed=5)
-    np.testing.assert_array_equal(train, again)
-    assert not np.array_equal(train, other)
-    with pytest.raises(InputError):
-        split_blocks(100, 1.5)
+@pytest.mark.parametrize("n,fraction", [(400, 0.25), (200, 0.25), (157, 0.3), (1307, 0.3), (60, 0.1)])
+def test_split_holds_out_the_fraction_asked_for_in_contiguous_blocks(n, fraction):
+    s = split_rows(n, fraction, seed=4)
+    assert len(s.heldout) == round(fraction * n)          # 0.25 of 400 is 100 rows, not 80
+    assert len(np.intersect1d(s.train, s.heldout)) == 0 and len(s.train) + len(s.heldout) == n
+    # held-out rows come as few contiguous runs (blocks of n/10 rows), not scattered rows
+    runs = np.split(s.heldout, np.flatnonzero(np.diff(s.heldout) != 1) + 1)
+    assert len(runs) <= int(np.ceil(fraction * 10)) and min(len(r) for r in runs) >= 1
+    again, other = split_rows(n, fraction, seed=4), split_rows(n, fraction, seed=5)
+    np.testing.assert_array_equal(s.heldout, again.heldout)
+    assert not np.array_equal(s.heldout, other.heldout)
+
+
+def test_split_last_holds_out_the_last_rows_and_resamples_only_the_training_rows():
+    s = split_rows(200, 0.3, last=True)
+    np.testing.assert_array_equal(s.heldout, np.arange(140, 200))
+    np.testing.assert_array_equal(s.train, np.arange(140))
+    r = s.resample(7)
+    assert set(r.train) | set(r.heldout) == set(range(140)) and len(r.heldout) == 42
+    with pytest.raises(InputError, match=r"heldout fraction must be in \(0, 1\)"):
+        split_rows(100, 1.5)
 
 
 def test_motion_direction_persists_when_joint_rests():
@@ -258,51 +262,3 @@ def test_motion_direction_persists_when_joint_rests():
     d = motion_direction(q)
     np.testing.assert_array_equal(d[:, 3], [0, 1, 1, -1, -1, 1])
     assert not d[:, [0, 1, 2, 4, 5]].any()
-
-
-# ---- calibration and the extended robot file ------------------------------------------------------
-def _same_robot(a: Robot, b: Robot) -> None:
-    """Same name and every parameter to 12 significant digits (calibration included)."""
-    assert a.name == b.name
-    assert a.fingerprint == b.fingerprint, (a.to_dict(), b.to_dict())
-
-
-def test_calibration_transforms():
-    c = Calibration(rotation_vector_rad=(0.01, -0.03, 0.02), translation_mm=(1.0, -0.5, 0.2),
-                    backlash_rad=(0.02, 0.0, 0.05))
-    p = np.random.default_rng(1).normal(size=(10, 3, 3)) * 50
-    np.testing.assert_allclose(c.to_robot_frame(c.to_measurement_frame(p)), p, atol=1e-12)
-    T = c.registration_matrix
-    np.testing.assert_allclose(c.to_measurement_frame(p[0]), p[0] @ T[:3, :3].T + T[:3, 3])
-    q = np.zeros((3, 6))
-    q[:, 3] = [0.0, 0.2, 0.1]
-    qe = c.effective_joints(q)
-    np.testing.assert_allclose(qe[:, 3], [0.0, 0.2 - 0.02, 0.1 + 0.02])
-    R, t = kabsch(p.reshape(-1, 3), c.to_measurement_frame(p).reshape(-1, 3))
-    np.testing.assert_allclose(R, c.rotation, atol=1e-10)
-    np.testing.assert_allclose(t, c.translation_mm, atol=1e-8)
-
-
-def test_extended_robot_file_round_trip(tmp_path):
-    base = Robot.nominal()
-    robot = base.with_changes(loads=Loads(gravity_m_s2=(0.0, -9.7, 0.3)),
-                              joint_offset=(0.5, 0.0, -1.0, 0.02, 0.0, 0.0), name="ext")
-    # mechanics only: a plain robot file that Robot.load (fk, plan, train) accepts
-    p = tmp_path / "mech.yaml"
-    write_extended_robot(p, robot, Calibration(), comment="from test")
-    assert p.read_text().startswith("# from test\n")
-    _same_robot(Robot.load(p), robot)
-    # with a calibration
-    cal = Calibration(rotation_vector_rad=(0.01, 0.0, -0.02), translation_mm=(1.0, 2.0, 3.0),
-                      backlash_rad=(0.03, 0.0, 0.01))
-    p2 = tmp_path / "cal.yaml"
-    write_extended_robot(p2, robot, cal)
-    r2, c2 = load_extended_robot(p2)
-    _same_robot(r2, robot.with_changes(calibration=cal))
-    assert c2 == cal
-    text = p2.read_text().replace("backlash_rad: [0.03, 0.0, 0.01]", "backlash_rad: [0.03, 0.0]")
-    p2.write_text(text)
-    with pytest.raises(InputError, match=r"cal\.yaml:\d+: calibration\.backlash_rad: expected a list of 3"):
-        load_extended_robot(p2)
-    r3, c3 = load_extended_robot("nominal")
-    assert r3 == base and c3.is_identity

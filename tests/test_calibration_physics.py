@@ -6,9 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ctrplan.calibration.diagnosis import _compare as compare  # the held-out significance test
 from ctrplan.calibration.effects import make_effect
-from ctrplan.measurement import Calibration
+from ctrplan.calibration.selection import compare  # the held-out significance test
 from ctrplan.robot import Robot
 
 
@@ -16,13 +15,13 @@ def test_stiffness_ratio_is_poissons_ratio_nu_equal_e_over_2g_minus_1():
     """Table I: E = 50 GPa, G = 19.23 GPa, so nu = 50 / (2 * 19.23) - 1 = 0.300052 (DESIGN §1,
     Dupont et al. 2010); the cause at that value is the robot file itself, and nu = 0.5 gives
     G = E / 3 = 16.667 GPa."""
-    robot, calib, effect = Robot.nominal(), Calibration(), make_effect("stiffness_ratio")
-    nu = effect.x0(robot, calib)
+    robot, effect = Robot.nominal(), make_effect("stiffness_ratio")
+    nu = effect.values(robot)
     assert nu == pytest.approx([0.300052], abs=1e-6)
-    same, _ = effect.apply(robot, calib, nu)
+    same = effect.with_values(robot, nu)
     assert [t.shear_modulus_mpa for t in same.tubes] == pytest.approx([19230.0] * 3)
-    assert effect.derived(robot, calib, nu)["torsional_stiffness_change_pct"] == pytest.approx(0.0)
-    half, _ = effect.apply(robot, calib, np.array([0.5]))
+    assert effect.derived(robot, nu)["torsional_stiffness_change_pct"] == pytest.approx(0.0)
+    half = effect.with_values(robot, np.array([0.5]))
     assert [t.shear_modulus_mpa for t in half.tubes] == pytest.approx([50e3 / 3] * 3)
 
 

@@ -1,13 +1,14 @@
-"""Measured data: show what the model gets wrong, name the physical cause, extend the model, measure
-the gain (``ctrplan diagnose``).
+"""Calibrating a robot model from measured tips (``ctrplan diagnose``): show what the model gets
+wrong, name the physical cause, extend the model, measure the gain.
 
-Modules: `data` (readers, split), `calibration` (the extended robot file), `effects` (candidate
-causes), `fit` (batched least squares), `noise` (measurement noise from the data alone), `diagnosis`
-(selection, stability and report), `where` and `plots` (where the error grows), `synthetic` (data with
-a hidden cause), `study` (confusion table).
+Modules: `data` (readers and writers of measured data), `split` (which rows train and which are
+held out), `effects` (the library of causes, each registered by its class), `fit` (batched least
+squares), `noise` (measurement noise from the data alone), `selection` (significance, stability and
+the named causes), `diagnosis` (the procedure and its report), `where` and `plots` (where the error
+grows), `synthetic` (generated data with a hidden cause).
 
-The fitted `Calibration` (registration, backlash, sensor offset, torsional windup) lives with the robot
-model in `ctrplan.measurement`.
+The result is one extended `ctrplan.robot.Robot`: its mechanics in its fields, its measurement side
+in `Robot.calibration` (`ctrplan.measurement.Calibration` -- what "calibration" means on a robot).
 """
 
 from __future__ import annotations
@@ -20,17 +21,17 @@ _EXPORTS = {
     "Calibration": "ctrplan.measurement",
     "DiagnoseOptions": "diagnosis",
     "Diagnosis": "diagnosis",
+    "EFFECTS": "effects",
     "MeasuredData": "data",
+    "Split": "split",
     "diagnose": "diagnosis",
-    "extended_robot_dict": "calibration",
-    "load_extended_robot": "calibration",
     "make_effect": "effects",
     "motion_direction": "ctrplan.measurement",
     "read_measured": "data",
-    "split_blocks": "data",
+    "split_rows": "split",
     "write_crl_csv": "data",
-    "write_extended_robot": "calibration",
     "write_measured_csv": "data",
+    "write_outputs": "diagnosis",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -1,5 +1,4 @@
-"""Measured tip data: readers for the measured-data CSV and the CRL 40-column format, writers,
-and the train/held-out split by contiguous blocks.
+"""Measured tip data: readers for the measured-data CSV and the CRL 40-column format, and writers.
 
 Rows keep their acquisition order (direction-dependent effects need it) and their line numbers in
 the source file, so every message can name the row: ``row N`` is line N of the file (a header, if
@@ -21,7 +20,6 @@ from pathlib import Path
 import numpy as np
 
 from ctrplan.dataio import (
-    TIP_NAMES,
     atomic_write,
     check_joint_rows,
     format_csv,
@@ -31,10 +29,8 @@ from ctrplan.dataio import (
     tip_names,
 )
 from ctrplan.errors import InputError
-from ctrplan.robot import JOINT_NAMES, Robot, joint_names
+from ctrplan.robot import Robot, joint_names
 
-#: Tip columns of tubes 1..3, three per tube (`ctrplan.dataio.TIP_NAMES`).
-TIP_COLUMNS = tuple(TIP_NAMES[3 * t: 3 * t + 3] for t in range(3))
 CRL_COLUMNS = 40
 #: Order of the joints in a CRL row: alpha1 beta1 alpha2 beta2 alpha3 beta3 -> index into q.
 CRL_JOINT_ORDER = (3, 0, 4, 1, 5, 2)
@@ -147,7 +143,7 @@ def read_measured(path: str | Path, robot: Robot | None = None, *,
 def _parse_measured_csv(path: Path, text: str, head_line: int, n_tubes: int = 3) -> MeasuredData:
     tip_columns = tuple(tip_names(n_tubes)[3 * t: 3 * t + 3] for t in range(n_tubes))
     table = parse_table(text, path, joint_names(n_tubes) + tip_columns[0],
-                        optional=sum(tip_columns[1:], ()), allow_missing=True)
+                        optional=sum(tip_columns[1:], ()), allow_missing=True, n_tubes=n_tubes)
     tubes = [0]
     for t in range(1, n_tubes):
         present = [c in table.columns for c in tip_columns[t]]
@@ -264,11 +260,15 @@ def _validate(data: MeasuredData, robot: Robot, min_rows: int) -> MeasuredData:
 
 # ---- writing ------------------------------------------------------------------------------------
 def write_measured_csv(path: str | Path, q: np.ndarray, tips_mm: np.ndarray,
-                       tubes: tuple[int, ...] = (0, 1, 2),
+                       tubes: tuple[int, ...] | None = None,
                        extra: dict[str, np.ndarray] | None = None) -> None:
-    """Write the measured-data CSV: joints, then the tips of ``tubes`` (N, 3, 3), then ``extra``."""
+    """Write the measured-data CSV: joints (R, 2N), then the tips (R, N, 3) of ``tubes`` (0-based; all
+    if None), then ``extra`` columns."""
     q = np.asarray(q, dtype=float)
-    header = list(JOINT_NAMES) + [c for t in tubes for c in TIP_COLUMNS[t]] + list(extra or {})
+    n = q.shape[1] // 2
+    tubes = tuple(range(n)) if tubes is None else tubes
+    names = tip_names(n)
+    header = list(joint_names(n)) + [names[3 * t + a] for t in tubes for a in range(3)] + list(extra or {})
     cols = [q] + [tips_mm[:, t, :] for t in tubes] + [np.asarray(v)[:, None] for v in (extra or {}).values()]
     table = np.concatenate(cols, axis=1)
     with atomic_write(path) as fh:
@@ -304,21 +304,3 @@ def write_crl_csv(path: str | Path, q: np.ndarray, tips_mm: np.ndarray, base_pos
         out[:, 15 + 7 * s: 19 + 7 * s] = quat
     with atomic_write(path) as fh:
         fh.write(format_csv(None, out, ["%r"] * CRL_COLUMNS))
-
-
-# ---- split and motion direction -----------------------------------------------------------------
-def split_blocks(n: int, heldout_fraction: float = 0.25, blocks: int = 10,
-                 seed: int | None = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Train/held-out row indices from ``blocks`` contiguous blocks (rows are sequences: a random
-    row split would leak neighbouring rows). ``round(blocks * heldout_fraction)`` blocks (at least
-    one, at most ``blocks - 1``) drawn with ``seed`` are held out. Both index arrays are sorted."""
-    if not 0.0 < heldout_fraction < 1.0:
-        raise InputError(f"heldout fraction must be in (0, 1), got {heldout_fraction}")
-    blocks = int(max(2, min(blocks, n // 5 if n >= 10 else 2)))
-    parts = np.array_split(np.arange(n), blocks)
-    k = int(min(blocks - 1, max(1, round(blocks * heldout_fraction))))
-    rng = np.random.default_rng(seed)
-    held = np.sort(rng.choice(blocks, size=k, replace=False))
-    heldout = np.concatenate([parts[b] for b in held])
-    train = np.setdiff1d(np.arange(n), heldout)
-    return train, heldout

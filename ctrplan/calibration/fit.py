@@ -1,24 +1,27 @@
 """Fitting a candidate effect to measured tips: batched Cosserat solves, warm starts, cheap
 finite-difference Jacobians, least squares, uncertainty and BIC.
 
+A model is one `Robot`: its mechanics solved by the Cosserat backend, its calibration mapping the
+reported joints to the mechanics and the solved tips to the tracker (`ctrplan.measurement`).
+
 Cost model: a Jacobian costs one batched forward call per parameter that changes the mechanics
 (curvature, stiffness, loads: the kernel takes robot parameters per call); all perturbations that
-only change the joints (joint offsets, backlash) are stacked into ONE call with the rows; frame
-perturbations (registration) need no solve at all. Every solve is warm-started from the solution
-of the same row at the current parameters (`Backbone.initial_state`), so Newton needs 1-3 steps.
+only change the joints (joint offsets, backlash) are stacked into ONE call with the rows; tip and
+frame perturbations (sensor offset, registration) need no solve at all. Every solve is warm-started
+from the solution of the same row at the current parameters (`Backbone.initial_state`), so Newton
+needs 1-3 steps.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from ctrplan.calibration.effects import Effect, Param
 from ctrplan.kinematics import CosseratBackend
-from ctrplan.measurement import Calibration
 from ctrplan.robot import Robot
 
 FD_STEP = 1e-3  # finite-difference step in units of each parameter's typical scale
@@ -27,7 +30,7 @@ FIT_TOL = 1e-6  # relative tolerance of least squares on the cost and on the par
 
 @dataclass
 class Prediction:
-    """Predicted tips of a set of rows under one (robot, calibration) model."""
+    """Predicted tips of a set of rows under one model."""
 
     tips_mm: np.ndarray          # (n, 3, 3) what the tracker sees, measurement frame
     robot_tips_mm: np.ndarray    # (n, 3, 3) solved tube tips, robot frame
@@ -42,8 +45,8 @@ class Prediction:
 
 
 class Evaluator:
-    """Predicts measured tips of fixed rows (commanded joints in acquisition order plus their
-    direction of motion) for any number of (robot, calibration) models, batching solves."""
+    """Predicts measured tips of fixed rows (reported joints in acquisition order plus their
+    direction of motion) for any number of robot models, batching the solves of each mechanics."""
 
     def __init__(self, q: np.ndarray, direction: np.ndarray):
         self.q = np.asarray(q, dtype=float)
@@ -54,22 +57,21 @@ class Evaluator:
     def __len__(self) -> int:
         return self.q.shape[0]
 
-    def predict(self, models: Sequence[tuple[Robot, Calibration]],
-                guess: np.ndarray | None = None) -> list[Prediction]:
+    def predict(self, models: Sequence[Robot], guess: np.ndarray | None = None) -> list[Prediction]:
         n = len(self.q)
         groups: dict[Robot, list] = {}
         plan = []
-        for robot, calib in models:
-            mech = robot.with_changes(joint_offset=(0.0,) * len(robot.joint_offset), name="",
-                                      calibration=Calibration())
-            qj = calib.effective_joints(self.q, self.direction) + np.asarray(robot.joint_offset)
+        for robot in models:
+            # models that differ only in the joints they see share one batched solve
+            mech = robot.mechanics.with_changes(joint_offset=(0.0,) * robot.n_joints, name="")
+            qj = robot.calibration.mechanics_joints(self.q, self.direction) + np.asarray(robot.joint_offset)
             g = groups.setdefault(mech, [])
             key = qj.tobytes()
             j = next((i for i, (k, _) in enumerate(g) if k == key), None)
             if j is None:  # a new set of joints for this mechanics: solve it
                 g.append((key, qj))
                 j = len(g) - 1
-            plan.append((mech, j, calib))
+            plan.append((mech, j, robot.calibration))
         solved: dict[Robot, tuple] = {}
         for mech, g in groups.items():
             stack = np.concatenate([qj for _, qj in g], axis=0)
@@ -91,15 +93,18 @@ class Evaluator:
 
 @dataclass
 class FitResult:
-    """A fitted effect. Parameters in file units; ``std`` from ``s^2 (J^T J)^-1``."""
+    """A fitted effect. Parameters in file units; ``std`` from ``s^2 (J^T J)^-1``. ``params`` are the
+    effect's own (their hard bounds); ``lower``/``upper`` the bounds the fit kept to, tightened by
+    limits the rows set (e.g. joint offsets that keep every row physical)."""
 
     effect: Effect
     params: list[Param]
+    lower: np.ndarray
+    upper: np.ndarray
     x0: np.ndarray
     x: np.ndarray
     std: np.ndarray
-    robot: Robot
-    calibration: Calibration
+    robot: Robot                 # the fitted model (its calibration included)
     rss: float
     n_residuals: int
     bic: float
@@ -111,6 +116,9 @@ class FitResult:
     identifiable: np.ndarray = field(default=None)  # type: ignore[assignment]
     #: parameters held at their base value, with the reason (e.g. the joint never moves)
     fixed: dict[str, str] = field(default_factory=dict)
+    #: parameters (or quantities derived from them) outside what a real robot can have -> why
+    implausible: dict[str, str] = field(default_factory=dict)
+    derived: dict[str, float] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -122,22 +130,25 @@ class FitResult:
         return len(self.params) - len(self.fixed)
 
     def at_bound(self) -> list[str]:
-        """Free parameters the data pushed to a bound (their std is not meaningful)."""
-        return [p.name for p, v in zip(self.params, self.x, strict=True)
-                if p.name not in self.fixed and min(abs(v - p.lower), abs(v - p.upper)) < 1e-4 * p.scale]
+        """Free parameters the data pushed to a bound of the fit (their std is not meaningful)."""
+        return [p.name for p, v, lo, hi in zip(self.params, self.x, self.lower, self.upper, strict=True)
+                if p.name not in self.fixed and min(abs(v - lo), abs(v - hi)) < 1e-4 * p.scale]
 
     @property
     def rms_mm(self) -> float:
         return float(np.sqrt(self.rss / max(self.n_residuals, 1)))
 
-    derived: dict = field(default_factory=dict)
-
     def parameters(self) -> dict[str, dict]:
+        """Per parameter: value, std, nominal (base) value, unit, plausible range; ``fitted: false``
+        with the reason, ``at_bound`` or ``implausible`` (the reason) where they apply."""
         out = {}
         bound = set(self.at_bound())
         for p, v, s, v0, ok in zip(self.params, self.x, self.std, self.x0, self.identifiable, strict=True):
             out[p.name] = {"value": float(v), "std": float(s) if np.isfinite(s) and ok else None,
-                           "nominal": float(v0), "unit": p.unit}
+                           "nominal": float(v0), "unit": p.unit,
+                           "plausible": None if p.plausible is None else [p.plausible.low, p.plausible.high]}
+            if p.name in self.implausible:
+                out[p.name]["implausible"] = self.implausible[p.name]
             if p.name in self.fixed:
                 out[p.name].update(fitted=False, reason=self.fixed[p.name], std=None)
             elif p.name in bound:
@@ -161,7 +172,7 @@ def residual_vector(measured: np.ndarray, pred: Prediction, tubes: Sequence[int]
     return (measured[:, t, :] - tips[:, t, :]).reshape(-1)
 
 
-def fit_effect(effect: Effect, base_robot: Robot, base_calib: Calibration, ev: Evaluator,
+def fit_effect(effect: Effect, base_robot: Robot, ev: Evaluator,
                measured: np.ndarray, tubes: Sequence[int], nominal: Prediction,
                x_start: np.ndarray | None = None, max_nfev: int = 30,
                fixed: dict[str, str] | None = None,
@@ -177,23 +188,21 @@ def fit_effect(effect: Effect, base_robot: Robot, base_calib: Calibration, ev: E
     import time
 
     t0 = time.perf_counter()
-    params = effect.params(base_robot, base_calib)
+    params = effect.params(base_robot)
     limits = limits or {}
-    params = [replace(p, lower=max(p.lower, limits[p.name][0]), upper=min(p.upper, limits[p.name][1]))
-              if p.name in limits else p for p in params]
+    lower = np.array([max(p.lower, limits.get(p.name, (-np.inf, np.inf))[0]) for p in params])
+    upper = np.array([min(p.upper, limits.get(p.name, (-np.inf, np.inf))[1]) for p in params])
     fixed = {k: v for k, v in (fixed or {}).items() if k in {p.name for p in params}}
-    x0 = effect.x0(base_robot, base_calib)
+    x0 = effect.values(base_robot)
     free = np.array([p.name not in fixed for p in params])
     scale = np.array([p.scale for p in params])
     start = x0.copy() if x_start is None else np.asarray(x_start, dtype=float).copy()
     if x_start is None:
         t = list(tubes)
-        g = effect.initial_guess(base_robot, base_calib, nominal.robot_tips_mm[:, t].reshape(-1, 3),
+        g = effect.initial_guess(base_robot, nominal.robot_tips_mm[:, t].reshape(-1, 3),
                                  measured[:, t].reshape(-1, 3))
         if g is not None:
             start = g
-    lower = np.array([p.lower for p in params])
-    upper = np.array([p.upper for p in params])
     # free parameters start strictly inside their bounds (trf does not leave a bound it starts on);
     # fixed ones stay at their base value
     start = np.where(free, np.clip(start, lower + 1e-3 * scale, upper - 1e-3 * scale), x0)
@@ -210,8 +219,7 @@ def fit_effect(effect: Effect, base_robot: Robot, base_calib: Calibration, ev: E
         key = np.asarray(z, dtype=float).tobytes()
         hit = cache.get(key)
         if hit is None:
-            robot, calib = effect.apply(base_robot, base_calib, phys(z))
-            pred = ev.predict([(robot, calib)], guess=state["guess"])[0]
+            pred = ev.predict([effect.with_values(base_robot, phys(z))], guess=state["guess"])[0]
             ok = pred.converged
             state["guess"][ok] = pred.initial_state[ok]
             r = residual_vector(measured, pred, tubes, state["fallback"])
@@ -232,7 +240,7 @@ def fit_effect(effect: Effect, base_robot: Robot, base_calib: Calibration, ev: E
         for j in range(len(idx)):
             zj = np.array(z, dtype=float)
             zj[j] += FD_STEP
-            models.append(effect.apply(base_robot, base_calib, phys(zj)))
+            models.append(effect.with_values(base_robot, phys(zj)))
         preds = ev.predict(models, guess=guess)
         J = np.empty((r.size, len(idx)))
         for j, pj in enumerate(preds):
@@ -250,10 +258,10 @@ def fit_effect(effect: Effect, base_robot: Robot, base_calib: Calibration, ev: E
     std_free, ident_free = _uncertainty(res.jac, rss, n, k)
     std, ident = np.full(len(params), np.nan), np.zeros(len(params), dtype=bool)
     std[idx], ident[idx] = std_free * scale[idx], ident_free
-    robot, calib = effect.apply(base_robot, base_calib, x)
-    derived = effect.derived(base_robot, base_calib, x)
-    return FitResult(derived=derived, effect=effect, params=params, x0=x0, x=x, std=std, robot=robot,
-                     calibration=calib, rss=rss, n_residuals=n, bic=bic(rss, n, k), nfev=res.nfev,
+    return FitResult(derived=effect.derived(base_robot, x), implausible=effect.implausible(base_robot, x),
+                     effect=effect, params=params, lower=lower, upper=upper, x0=x0, x=x, std=std,
+                     robot=effect.with_values(base_robot, x),
+                     rss=rss, n_residuals=n, bic=bic(rss, n, k), nfev=res.nfev,
                      njev=res.njev or 0, success=bool(res.success), message=str(res.message),
                      seconds=time.perf_counter() - t0, identifiable=ident, fixed=fixed)
 
@@ -278,17 +286,17 @@ def partner_scores(fit: FitResult, partners: Sequence[Effect], ev: Evaluator, me
     """Linearised training RSS if each partner effect were added to the fitted ``fit`` (a score test:
     one finite-difference Jacobian of the partner's parameters at the fitted model, one batched solve
     per mechanical parameter, then linear least squares on the fit's residual). Lower is better."""
-    base_pred = ev.predict([(fit.robot, fit.calibration)], guess=guess.initial_state)[0]
+    base_pred = ev.predict([fit.robot], guess=guess.initial_state)[0]
     fallback = np.where(base_pred.converged[:, None, None], base_pred.tips_mm, guess.tips_mm)
     r = residual_vector(measured, base_pred, tubes, fallback)
     models, cols = [], []
     for p_eff in partners:
-        params = p_eff.params(fit.robot, fit.calibration)
-        x0 = p_eff.x0(fit.robot, fit.calibration)
+        params = p_eff.params(fit.robot)
+        x0 = p_eff.values(fit.robot)
         for j, p in enumerate(params):
             x = x0.copy()
             x[j] += FD_STEP * p.scale
-            models.append(p_eff.apply(fit.robot, fit.calibration, x))
+            models.append(p_eff.with_values(fit.robot, x))
         cols.append(len(params))
     preds = ev.predict(models, guess=np.where(base_pred.converged[:, None], base_pred.initial_state,
                                               guess.initial_state))

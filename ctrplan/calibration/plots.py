@@ -213,9 +213,9 @@ def plot_before_after(diag, path: Path) -> Path:
 
 def plot_candidates(diag, path: Path) -> Path:
     plt = _plt()
-    cands = sorted(diag.singles + diag.pairs, key=lambda c: c.fit.bic)
-    names = [c.cause for c in cands]
-    dbic = [c.fit.bic - diag.nominal_bic for c in cands]
+    cands = sorted(diag.candidates, key=lambda c: c.fit.bic)
+    names = [c.name for c in cands]
+    dbic = [c.delta_bic for c in cands]
     held = [c.heldout_mean(0) for c in cands]
     nom = diag.stats("nominal")["mean_mm"]
     colors = [EXTENDED_COLOR if (diag.chosen is c) else ("#9ecae1" if c.significant else NOMINAL_COLOR)
@@ -234,7 +234,7 @@ def plot_candidates(diag, path: Path) -> Path:
     bx.legend(fontsize=8)
     for a in (ax, bx):
         a.grid(alpha=0.3, axis="x")
-    fig.suptitle(f"{_title(diag)} -- candidates (dark: named; light: beats noise)")
+    fig.suptitle(f"{_title(diag)} -- candidates (dark: named; light: significant on the main split)")
     fig.tight_layout()
     return _save(fig, path)
 

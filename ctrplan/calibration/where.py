@@ -30,8 +30,7 @@ def joint_sensitivity(diag) -> np.ndarray:
     for j in range(nj):
         off = np.zeros(nj)
         off[j] = step[j]
-        models.append((diag.robot.with_changes(joint_offset=tuple(np.asarray(diag.robot.joint_offset) + off)),
-                       diag.calibration))
+        models.append(diag.robot.with_changes(joint_offset=tuple(np.asarray(diag.robot.joint_offset) + off)))
     preds = ev.predict(models, guess=diag.nominal.initial_state)
     diag.solves += ev.solves
     base = diag.nominal.robot_tips_mm

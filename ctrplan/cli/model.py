@@ -57,8 +57,12 @@ def train(
              "training and held-out rows as `ctrplan diagnose` splits it.")] = None,
     shots: Annotated[int | None, typer.Option(
         "--shots", help="With --measured: training rows used (default: all training rows).")] = None,
-    heldout: Annotated[float, typer.Option(
-        "--heldout", help="With --measured: fraction of the rows held out (contiguous blocks).")] = 0.25,
+    heldout: Annotated[float | None, typer.Option(
+        "--heldout", metavar="FRACTION", show_default=False,
+        help="With --measured: fraction of the rows held out in contiguous blocks (default 0.25).")] = None,
+    heldout_last: Annotated[float | None, typer.Option(
+        "--heldout-last", metavar="FRACTION", show_default=False,
+        help="With --measured: hold out the last FRACTION of the rows in acquisition order instead.")] = None,
     out_dir: Annotated[Path, typer.Option("--out-dir", help="Where models are written.")] = MODELS_DIR,
     settings: Annotated[list[str] | None, typer.Option(
         "--set", metavar="FIELD=VALUE",
@@ -100,7 +104,7 @@ def train(
     fewshot = None
     if measured is not None:
         init = init or DEFAULT_MODEL
-        fewshot = _measured_split(measured, model_robot, shots, heldout)
+        fewshot = _measured_split(measured, model_robot, shots, heldout, heldout_last)
     start = PinnBackend.load(init, model_robot) if init else None
     out = check_output_dir(out_dir, "--out-dir") / (name or f"{model_robot.name}_{rec.name}")  # made on save
     console = Console(stderr=True)
@@ -173,19 +177,20 @@ def progress_text(step: int, steps: int, time_s: float, limit_s: float | None) -
     return f"{step} steps in {clock[0]} of {clock[1]}"
 
 
-def _measured_split(path: Path, robot: Robot, shots: int | None, heldout: float) -> FewShot:
+def _measured_split(path: Path, robot: Robot, shots: int | None, heldout: float | None,
+                    heldout_last: float | None) -> FewShot:
     """Read ``path`` and take the fine-tuning shots (all training rows if ``shots`` is None), with
-    the held-out blocks of `ctrplan diagnose` (its default seed)."""
+    the held-out rows of `ctrplan diagnose` (its options and default seed)."""
     from ctrplan.calibration.data import read_measured
+    from ctrplan.cli.diagnose import heldout_split
     from ctrplan.training.fewshot import split_shots
 
     if shots is not None and shots < 1:
         raise InputError(f"--shots: must be >= 1, got {shots}")
-    if not 0.0 < heldout < 1.0:
-        raise InputError(f"--heldout: must be in (0, 1), got {heldout}")
+    fraction, last = heldout_split(heldout, heldout_last)
     data = read_measured(path, robot)
     try:
-        return split_shots(data, shots, heldout)
+        return split_shots(data, shots, fraction, heldout_last=last)
     except InputError as exc:
         raise as_option(exc, {"shots": "--shots"}) from None
 

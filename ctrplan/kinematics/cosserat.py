@@ -82,6 +82,11 @@ class CosseratBackend(Backend):
     ``backbone.initial_state`` of a neighbouring configuration or a PINN prediction; rows that fail
     from the guess are retried cold. Non-converged rows come back with ``converged = False`` and NaN
     shapes; so do solutions that are not physical (a point farther from the plate than its arc length).
+
+    A tube's transmission length d_i (`Tube.transmission_length_mm`) makes it twist over -beta_i + d_i
+    behind the plate: the kernels see tube i starting d_i further back (beta_i - d_i, length L_i + d_i,
+    straight part + d_i), which changes only theta_i(0) = alpha_i - (beta_i - d_i) u_iz(0) -- everything
+    in front of the plate is the same.
     """
 
     name = "cosserat"
@@ -93,8 +98,11 @@ class CosseratBackend(Backend):
         self.settings = settings or SolverSettings()
         self.rod = RodArrays.of(self.robot)
         self.loaded = not (self.robot.loads.is_free and self.settings.exploit_free_space)
+        self._transmission = np.array([t.transmission_length_mm for t in self.robot.tubes])
+        d = self._transmission
+        rod = replace(self.rod, lengths=self.rod.lengths + d, straight=self.rod.straight + d)
         st = self.settings
-        self._kernel_args = (*self.rod.shooting_arrays(), self.loaded, st.step_multi_mm, st.step_single_mm,
+        self._kernel_args = (*rod.shooting_arrays(), self.loaded, st.step_multi_mm, st.step_single_mm,
                              st.tolerance_per_m * 1e-3, st.max_iterations, st.stability)
 
     @property
@@ -122,6 +130,8 @@ class CosseratBackend(Backend):
                 guess: np.ndarray | None = None, check: bool = True) -> Backbone:
         q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
         qm = self.robot.apply_offset(q)
+        qk = qm.copy()
+        qk[:, :self.robot.n_tubes] -= self._transmission   # the kernels' tube starts (see the class)
         frac = arc_fractions(points)
         b, n = qm.shape[0], frac.size
         nt, ns = self.robot.n_tubes, self.robot.n_states
@@ -140,10 +150,10 @@ class CosseratBackend(Backend):
         initial = np.empty((b, ns))
         args = (frac, *self._kernel_args)
         if b == 1:
-            x, c, it, r, sb = kernel.solve_one(qm[0], x0[0], warm, *args, states[0], tips[0], initial[0])
+            x, c, it, r, sb = kernel.solve_one(qk[0], x0[0], warm, *args, states[0], tips[0], initial[0])
             xs[0], conv[0], iters[0], resid[0], stab[0] = x, c, it, r, sb
         else:
-            kernel.solve_many(qm, x0, warm, *args, states, tips, initial, xs, conv, iters, resid, stab)
+            kernel.solve_many(qk, x0, warm, *args, states, tips, initial, xs, conv, iters, resid, stab)
         ends = qm[:, :nt] + self.rod.lengths
         s_mm = frac[None, :] * ends[:, :1]
         return Backbone(q=q, s_mm=s_mm, state=states, tube_ends_mm=ends, tips_mm=tips,

@@ -13,12 +13,11 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save
 
-from ctrplan.dataio import atomic_write
+from ctrplan.dataio import atomic_write, plain
 from ctrplan.errors import InputError
 from ctrplan.kinematics.pinn import FEATURES, PinnNet
 from ctrplan.robot import Robot
@@ -102,16 +101,8 @@ def save_model(net: PinnNet, robot: Robot, path: str | Path, card: dict[str, Any
         "weights_sha256": file_sha256(weights),
     }
     with atomic_write(weights.with_suffix(".json")) as fh:
-        fh.write(json.dumps(full, indent=2, default=_jsonable))
+        fh.write(json.dumps(plain(full), indent=2))
     return weights
-
-
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    raise TypeError(f"not JSON serialisable: {type(obj)}")
 
 
 def read_card(weights: Path) -> dict[str, Any]:
@@ -132,7 +123,7 @@ def write_card_field(weights: Path, key: str, value: Any) -> None:
     card = read_card(weights)
     card[key] = value
     with atomic_write(weights.with_suffix(".json")) as fh:
-        fh.write(json.dumps(card, indent=2, default=_jsonable))
+        fh.write(json.dumps(plain(card), indent=2))
 
 
 def load_model(model: str | Path | None, robot: Robot) -> tuple[PinnNet, dict[str, Any]]:

@@ -1,11 +1,12 @@
 """Measured tips for few-shot fine-tuning (paper stage b): which rows train, which are held out,
 and the observations the PINN is trained on.
 
-The rows are split like `ctrplan diagnose` splits them (`split_blocks`: contiguous blocks, a
-fraction held out); the ``shots`` training rows are taken from the training blocks as contiguous
-runs spread over them (`contiguous_subsample`; rows are sequences). Rows outside the snap-free
-domain -- which the reader accepts and flags -- are used neither for training nor in the held-out
-error: the PINN and its collocation points cover the snap-free domain only.
+The rows are split as `ctrplan diagnose` splits them (`ctrplan.calibration.split.split_rows`: a
+fraction held out in contiguous blocks, or the last rows); the ``shots`` training rows are taken from
+the training rows as contiguous runs spread over them (`contiguous_subsample`; rows are sequences).
+Rows outside the snap-free domain -- which the reader accepts and flags -- are used neither for
+training nor in the held-out error: the PINN and its collocation points cover the snap-free domain
+only.
 """
 
 from __future__ import annotations
@@ -14,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ctrplan.calibration.data import MeasuredData, split_blocks
-from ctrplan.calibration.diagnosis import contiguous_subsample
+from ctrplan.calibration.data import MeasuredData
+from ctrplan.calibration.split import contiguous_subsample, split_rows
 from ctrplan.errors import InputError
 from ctrplan.measurement import motion_direction
 from ctrplan.robot import Robot
@@ -32,6 +33,7 @@ class FewShot:
     train_rows: int             # training rows inside the domain (shots were drawn from these)
     heldout_fraction: float
     seed: int
+    heldout_last: bool = False  # the last rows held out (else contiguous blocks drawn with seed)
 
     @property
     def excluded(self) -> np.ndarray:
@@ -40,12 +42,13 @@ class FewShot:
 
 
 def split_shots(data: MeasuredData, shots: int | None = None, heldout_fraction: float = 0.25,
-                seed: int = 0) -> FewShot:
-    """Hold out contiguous blocks as `diagnose` does (same defaults); take ``shots`` of the training
-    rows (all if None)."""
+                seed: int = 0, heldout_last: bool = False) -> FewShot:
+    """Hold out rows as `diagnose` does (same defaults): contiguous blocks, or the last rows with
+    ``heldout_last``; take ``shots`` of the training rows (all if None)."""
     if shots is not None and shots < 1:
         raise InputError(f"shots: must be >= 1, got {shots}")
-    train, heldout = split_blocks(len(data), heldout_fraction, seed=seed)
+    split = split_rows(len(data), heldout_fraction, last=heldout_last, seed=seed)
+    train, heldout = split.train, split.heldout
     inside = ~data.outside_domain
     train, heldout = train[inside[train]], heldout[inside[heldout]]
     shots = len(train) if shots is None else shots
@@ -55,23 +58,23 @@ def split_shots(data: MeasuredData, shots: int | None = None, heldout_fraction: 
                          f"{heldout_fraction:g})")
     return FewShot(data=data, direction=motion_direction(data.q),
                    shots=train[contiguous_subsample(len(train), shots)], heldout=heldout,
-                   train_rows=len(train), heldout_fraction=heldout_fraction, seed=seed)
+                   train_rows=len(train), heldout_fraction=heldout_fraction, seed=seed,
+                   heldout_last=heldout_last)
 
 
 def check_trainable(robot: Robot) -> None:
-    """Few-shot training applies registration, backlash and joint offsets of the robot's calibration;
-    refuse (one line) what it does not model."""
-    if any(robot.calibration.sensor_offset_mm):
+    """Few-shot training applies the robot's joint offsets and its calibration's joints side (backlash,
+    windup) and frame side (registration); refuse (one line) what it does not model."""
+    if robot.calibration.needs_tip_rotation:
         raise InputError(f"robot {robot.name!r}: its calibration has sensor_offset_mm, which PINN training "
                          f"does not model; use the Cosserat backend, or remove sensor_offset_mm from the "
                          f"robot file's calibration")
 
 
 def model_joints(robot: Robot, fs: FewShot, rows: np.ndarray) -> np.ndarray:
-    """Joints (R, 6) the model sees for ``rows``: backlash of the robot's calibration, then its joint
-    offsets (mm, rad)."""
-    q = robot.calibration.effective_joints(fs.data.q[rows], fs.direction[rows])
-    return robot.apply_offset(q)
+    """Joints (R, 2N) the model sees for ``rows``: the robot's calibration maps the reported joints to
+    the mechanics (backlash, windup), then its joint offsets (mm, rad)."""
+    return robot.apply_offset(robot.calibration.mechanics_joints(fs.data.q[rows], fs.direction[rows]))
 
 
 def observations(robot: Robot, fs: FewShot) -> tuple[np.ndarray, np.ndarray]:

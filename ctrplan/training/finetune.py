@@ -17,7 +17,6 @@ from ctrplan.calibration.diagnosis import DiagnoseOptions, Diagnosis, diagnose, 
 from ctrplan.calibration.fit import Evaluator
 from ctrplan.kinematics.model_file import file_sha256
 from ctrplan.kinematics.pinn import PinnBackend, PinnNet
-from ctrplan.measurement import Calibration
 from ctrplan.robot import Robot
 from ctrplan.training.evaluate import compare
 from ctrplan.training.fewshot import FewShot, check_trainable, model_joints, observations
@@ -30,9 +29,10 @@ MODELS = {"nominal": "nominal Cosserat", "extended": "extended Cosserat", "pinn_
           "pinn_finetuned": "PINN fine-tuned"}
 
 
-def cosserat_tips(robot: Robot, calibration: Calibration, fs: FewShot, rows: np.ndarray) -> np.ndarray:
-    """Tips (R, 3, 3) mm, measurement frame, of the Cosserat model; NaN where it does not converge."""
-    pred = Evaluator(fs.data.q[rows], fs.direction[rows]).predict([(robot, calibration)])[0]
+def cosserat_tips(robot: Robot, fs: FewShot, rows: np.ndarray) -> np.ndarray:
+    """Tips (R, T, 3) mm, tracker frame, of the Cosserat model of ``robot`` (its calibration applied);
+    NaN where it does not converge."""
+    pred = Evaluator(fs.data.q[rows], fs.direction[rows]).predict([robot])[0]
     return np.where(pred.converged[:, None, None], pred.tips_mm, np.nan)
 
 
@@ -41,7 +41,7 @@ def pinn_tips(net: PinnNet, robot: Robot, fs: FewShot, rows: np.ndarray) -> np.n
     q = torch.as_tensor(model_joints(robot, fs, rows), dtype=torch.float32)
     with torch.no_grad():
         tips = tube_tips(net.cpu(), q, TubeTensors.from_robot(robot)).double().numpy()
-    return robot.calibration.to_measurement_frame(tips)
+    return robot.calibration.to_tracker_frame(tips)
 
 
 def heldout_table(fs: FewShot, robot: Robot, predictions: dict[str, np.ndarray]) -> dict:
@@ -80,11 +80,10 @@ def finetune(fs: FewShot, start: PinnBackend, out: Path, recipe: Recipe, *, init
     `trainer.train` (seed, device, time_limit_s, progress, ...)."""
     robot = start.robot
     check_trainable(robot)
-    diag = diagnose(fs.data.subset(fs.shots), robot, robot.calibration, diagnose_options,
-                    direction=fs.direction[fs.shots])
+    diag = diagnose(fs.data.subset(fs.shots), robot, diagnose_options, direction=fs.direction[fs.shots])
     held = fs.heldout
-    fixed = {"nominal": cosserat_tips(robot, robot.calibration, fs, held),
-             "extended": cosserat_tips(diag.extended_robot, diag.extended_calibration, fs, held),
+    fixed = {"nominal": cosserat_tips(robot, fs, held),
+             "extended": cosserat_tips(diag.extended_robot, fs, held),
              "pinn_start": pinn_tips(start.net, robot, fs, held)}
 
     def evaluate(net: PinnNet) -> dict:
@@ -113,6 +112,7 @@ def _data_record(fs: FewShot, diag: Diagnosis) -> dict:
         "train_rows": fs.train_rows,
         "heldout_rows": int(len(fs.heldout)),
         "heldout_fraction": fs.heldout_fraction,
+        "heldout_last": fs.heldout_last,
         "split_seed": fs.seed,
         "outside_domain_rows": [int(v) for v in d.lines[fs.excluded]],
         "extended_model": {"cause": j["cause"], "causes": j["causes"], "parameters": j["parameters"],

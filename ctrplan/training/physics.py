@@ -13,6 +13,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
+from ctrplan.errors import InputError
 from ctrplan.kinematics.cosserat import RodArrays
 from ctrplan.robot import Robot
 
@@ -37,6 +38,13 @@ class TubeTensors:
     @classmethod
     def from_robot(cls, robot: Robot, device: torch.device | str = "cpu",
                    dtype: torch.dtype = torch.float32) -> TubeTensors:
+        """The robot's tube arrays; `InputError` for what these equations do not model (a tube's
+        transmission length, which the Cosserat backend solves)."""
+        twisting = [i + 1 for i, t in enumerate(robot.tubes) if t.transmission_length_mm]
+        if twisting:
+            raise InputError(f"robot {robot.name!r}: the PINN does not model transmission lengths (tubes "
+                             f"{', '.join(map(str, twisting))}: transmission_length_mm); use the Cosserat "
+                             f"backend, or remove them from the robot file")
         rod = RodArrays.of(robot)
         return cls(**{f.name: torch.as_tensor(np.asarray(getattr(rod, f.name), dtype=float), dtype=dtype,
                                               device=device) for f in fields(cls)})

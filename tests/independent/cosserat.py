@@ -9,13 +9,15 @@ u_iz(0) with a finite-difference Jacobian. Free space: the bending moment m_b,xy
     u_iz' = -(EI_i / GJ_i) kappa_i u_iy,   u_iy = -sin(theta_i) u_x + cos(theta_i) u_y
     theta_i' = u_iz - u_1z,   p' = R e3,   R' = R [u_x, u_y, u_1z]^
 
-with R(0) = Rz(alpha_1 - beta_1 u_1z(0)), theta_i(0) = (alpha_i - beta_i u_iz(0)) - (alpha_1 - beta_1
-u_1z(0)) and u_iz(l_i) = 0 (u_iz stays constant past l_i, so u_iz(l_1) = 0 for all i). Units: mm, rad.
+with R(0) = Rz(psi_1), theta_i(0) = psi_i - psi_1, psi_i = alpha_i - (beta_i - d_i) u_iz(0) -- the tube
+twists over the length -beta_i behind the plate plus an extra transmission length d_i (0 in DESIGN §1:
+a compliant drive, or a longer clamp-to-plate length than the model's) -- and u_iz(l_i) = 0 (u_iz
+stays constant past l_i, so u_iz(l_1) = 0 for all i). Units: mm, rad.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -31,6 +33,7 @@ class Tubes:
     kappa_per_mm: np.ndarray
     E: np.ndarray
     G: np.ndarray
+    transmission_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @classmethod
     def paper(cls) -> Tubes:
@@ -95,7 +98,7 @@ def integrate(q: np.ndarray, uz0: np.ndarray, t: Tubes, steps: int = 24) -> tupl
     beta, alpha = q[:, :N], q[:, N:]
     ends = beta + t.length_mm
     l1 = ends[:, 0]
-    psi = alpha - beta * uz0
+    psi = alpha - (beta - t.transmission_mm) * uz0
     th = psi - psi[:, :1]
     R = _rz(psi[:, 0])
     p = np.zeros((B, 3))

@@ -1,23 +1,34 @@
 """Measured data with hidden effects, made by the independent integrator (`cosserat`) and effects
 implemented here -- not by `ctrplan.calibration.effects`/`synthetic`.
 
-A lab acquisition: some joints sweep slowly back and forth (small steps, reversals, near-repeated
-configurations), the others stay fixed; a tracker with Gaussian noise sees the tips. Effects:
+Two acquisitions: a lab ``sweep`` (some joints sweep slowly back and forth -- small steps, reversals,
+near-repeated configurations -- the others stay fixed) and ``random`` rows (every joint drawn anew in
+the snap-free box for each row). A tracker with Gaussian noise sees the tips. Effects, with magnitudes
+a real robot can have:
 
 ==================  ==================================================================  ==========
 effect              how it is made here                                                 library?
 ==================  ==================================================================  ==========
-registration        tracker frame rotated (Rodrigues) and shifted                       yes
-sensor_offset       tracked point 2-4 mm from the tip of tube 1, fixed in its tip frame  yes
+registration        tracker frame rotated (Rodrigues) 1-2 deg and shifted 0.5-1 mm      yes
+sensor_offset       tracked point 2-6 mm ahead of the tip of tube 1 along its tangent,  yes
+                    <= 0.4 mm to the side (a coil sensor inside or on the tip)
 bending_stiffness   tube 2 wall thicker: E and G of tube 2 x 1.3                        yes
 curvature           pre-curvatures x (1 +- 5..12 %)                                     yes
+stiffness_ratio     Poisson ratio of every tube 0.05-0.2 or 0.4-0.48 (G = E / 2(1+nu))  yes
 backlash            alpha_i lags 1.5-3 deg behind the command in its direction of motion yes
-joint_offset        zero offsets of the moving joints                                   yes
+joint_offset        zero offsets of the moving joints (1-2 mm, 2-4 deg)                 yes
+betaK_offset        zero offset of beta_K alone, of the given size in mm (magnitude =   yes
+                    the offset: true beta_K = reported + magnitude)
 torsional_windup    friction torque 0.02-0.06 N mm twists tube 1..3 behind the plate:  yes
                     alpha_i lags tau / GJ_i * (-beta_i) in its direction of motion
+transmission        each tube twists over 10-40 mm more than -beta_i (a compliant      yes
+                    drive): psi_i = alpha_i - (beta_i - d_i) u_iz(0)
 alpha_scale         rotation transmission ratio off by 4-6 % (alpha_true = s alpha)     no
 encoder_wobble      eccentric rotation encoder: alpha_true = alpha + a sin(alpha)       no
 ==================  ==================================================================  ==========
+
+Every true configuration is physical: joint offsets on a sweep are flipped or shrunk until it is;
+random rows that an offset would make unphysical are drawn again.
 """
 
 from __future__ import annotations
@@ -25,14 +36,16 @@ from __future__ import annotations
 import math
 import os
 import subprocess
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from tests.independent.cosserat import Tubes, solve
 
-IN_LIBRARY = ("registration", "sensor_offset", "bending_stiffness", "curvature", "backlash",
-              "joint_offset", "torsional_windup")
+IN_LIBRARY = ("registration", "sensor_offset", "bending_stiffness", "curvature", "stiffness_ratio",
+              "backlash", "joint_offset", "torsional_windup", "transmission")
+#: Single-joint zero offsets: effect name -> the joint (index into q) it offsets; library cause joint_offset.
+SINGLE_OFFSETS = {"beta1_offset": 0, "beta2_offset": 1, "beta3_offset": 2}
 OUTSIDE = ("alpha_scale", "encoder_wobble")
 
 
@@ -105,12 +118,25 @@ def sweep(n: int, rng: np.random.Generator, moving=(1, 3, 4), step: float = 0.25
     return out
 
 
-def _physical(q: np.ndarray, t: Tubes) -> bool:
-    """Tube order, bases behind the plate, inner tubes reaching furthest (written apart)."""
+def random_rows(n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` configurations (n, 6) drawn uniformly and independently in the paper's snap-free box:
+    -10 <= beta3 <= 0, 0 <= beta3 - beta2 <= 55, 0 <= beta2 - beta1 <= 15, |alpha| <= pi."""
+    b3 = rng.uniform(-10.0, 0.0, n)
+    b2 = b3 - rng.uniform(0.0, 55.0, n)
+    b1 = b2 - rng.uniform(0.0, 15.0, n)
+    return np.column_stack([b1, b2, b3, rng.uniform(-np.pi, np.pi, (n, 3))])
+
+
+def _physical_rows(q: np.ndarray, t: Tubes) -> np.ndarray:
+    """Per row (n,): tube order, bases behind the plate, inner tubes reaching furthest (written apart)."""
     b = q[:, :3]
     e = b + t.length_mm
-    return bool((b[:, 0] <= b[:, 1]).all() and (b[:, 1] <= b[:, 2]).all() and (b[:, 2] <= 0).all()
-                and (e[:, 0] >= e[:, 1]).all() and (e[:, 1] >= e[:, 2]).all())
+    return (b[:, 0] <= b[:, 1]) & (b[:, 1] <= b[:, 2]) & (b[:, 2] <= 0) & (e[:, 0] >= e[:, 1]) \
+        & (e[:, 1] >= e[:, 2])
+
+
+def _physical(q: np.ndarray, t: Tubes) -> bool:
+    return bool(_physical_rows(q, t).all())
 
 
 def _rodrigues(rv: np.ndarray) -> np.ndarray:
@@ -134,15 +160,16 @@ def _directions(q: np.ndarray) -> np.ndarray:
 
 
 def make(n: int, effects: dict[str, float], seed: int, sigma_mm: float = 0.1, moving=(1, 3, 4),
-         step: float = 0.25) -> LabData:
+         step: float = 0.25, rows: str = "sweep") -> LabData:
     """Lab data with the given hidden effects, each with a magnitude factor (1 = lab-sized,
-    smaller: nearer the noise)."""
+    smaller: nearer the noise; for ``betaK_offset`` the offset in mm). ``rows``: ``sweep`` (the
+    ``moving`` joints sweep) or ``random`` (every joint random in every row)."""
     rng = np.random.default_rng(seed)
-    q = sweep(n, rng, moving, step)
     tubes = Tubes.paper()
-    qt = q.copy()
     truth: dict = {}
     N = 3
+    off = np.zeros(6)
+    moved = range(6) if rows == "random" else moving
     for name, mag in effects.items():
         if name == "bending_stiffness":
             f = 1.0 + 0.3 * mag
@@ -152,41 +179,82 @@ def make(n: int, effects: dict[str, float], seed: int, sigma_mm: float = 0.1, mo
             f = 1.0 + mag * rng.uniform(0.05, 0.12, 3) * rng.choice([-1, 1], 3)
             tubes = tubes.scaled(kappa_per_mm=f)
             truth[name] = {"kappa_factor": f.tolist()}
+        elif name == "stiffness_ratio":
+            nu0 = tubes.E[0] / (2 * tubes.G[0]) - 1
+            target = rng.uniform(0.05, 0.2) if rng.random() < 0.5 else rng.uniform(0.4, 0.48)
+            nu = nu0 + mag * (target - nu0)
+            tubes = replace(tubes, G=tubes.E / (2 * (1 + nu)))
+            truth[name] = {"poisson_ratio": float(nu)}
+        elif name == "transmission":
+            d = mag * rng.uniform(10.0, 40.0, 3)
+            tubes = replace(tubes, transmission_mm=d)
+            truth[name] = {"transmission_mm": d.tolist()}
         elif name == "joint_offset":
-            off = np.zeros(6)
-            for j in moving:
+            for j in moved:
                 off[j] = mag * (rng.uniform(1.0, 2.0) if j < N else math.radians(rng.uniform(2, 4))) \
                     * rng.choice([-1, 1])
-            for _ in range(8):    # the true joints must be physical: else flip, then shrink
-                if _physical(qt + off, tubes):
-                    break
-                off[:N] = -off[:N] if _physical(qt + np.r_[-off[:N], off[N:]], tubes) else off[:N] / 2
-            qt = qt + off
-            truth[name] = {"offset": off.tolist()}
-    d = _directions(q)
+        elif name in SINGLE_OFFSETS:
+            off[SINGLE_OFFSETS[name]] = mag
+    if rows == "random":      # draw rows until n of them are physical as commanded and as reached
+        q = np.empty((0, 6))
+        while len(q) < n:
+            c = random_rows(2 * n, rng)
+            q = np.concatenate([q, c[_physical_rows(c, tubes) & _physical_rows(c + off, tubes)]])
+        q = q[:n]
+    else:
+        q = sweep(n, rng, moving, step)
+        for _ in range(8):    # the true joints must be physical: else flip, then shrink
+            if _physical(q + off, tubes):
+                break
+            off[:N] = -off[:N] if _physical(q + np.r_[-off[:N], off[N:]], tubes) else off[:N] / 2
+    if off.any():
+        truth["joint_offset"] = {"offset": off.tolist()}
+    lags: dict = {}   # the joint-side effects' parameters
     for name, mag in effects.items():
         if name == "backlash":
-            b = np.radians(rng.uniform(1.5, 3.0, N)) * mag
-            qt[:, N:] -= b * d[:, N:]
-            truth[name] = {"backlash_rad": b.tolist()}
+            lags[name] = np.radians(rng.uniform(1.5, 3.0, N)) * mag
+            truth[name] = {"backlash_rad": lags[name].tolist()}
         elif name == "torsional_windup":
             tau = rng.uniform(0.02, 0.06) * mag * np.array([1.0, 8.0, 40.0])   # N mm, ~ tube stiffness
-            qt[:, N:] -= (tau / tubes.gj) * (-q[:, :N]) * d[:, N:]
+            lags[name] = tau / tubes.gj
             truth[name] = {"friction_torque_nmm": tau.tolist()}
         elif name == "alpha_scale":
-            s = 1.0 + mag * rng.uniform(0.04, 0.06) * rng.choice([-1, 1])
-            qt[:, N:] *= s
-            truth[name] = {"scale": s}
+            lags[name] = 1.0 + mag * rng.uniform(0.04, 0.06) * rng.choice([-1, 1])
+            truth[name] = {"scale": lags[name]}
         elif name == "encoder_wobble":
-            a = mag * math.radians(rng.uniform(3.0, 5.0))
-            qt[:, N:] += a * np.sin(q[:, N:])
-            truth[name] = {"amplitude_rad": a}
-    sol = solve(qt, tubes)
+            lags[name] = mag * math.radians(rng.uniform(3.0, 5.0))
+            truth[name] = {"amplitude_rad": lags[name]}
+
+    def reached(q: np.ndarray) -> np.ndarray:
+        """The joints the tubes reach for reported joints q in acquisition order."""
+        qt, d = q + off, _directions(q)
+        for name, v in lags.items():
+            if name == "backlash":
+                qt[:, N:] -= v * d[:, N:]
+            elif name == "torsional_windup":
+                qt[:, N:] -= v * (-q[:, :N]) * d[:, N:]
+            elif name == "alpha_scale":
+                qt[:, N:] *= v
+            elif name == "encoder_wobble":
+                qt[:, N:] += v * np.sin(q[:, N:])
+        return qt
+
+    with np.errstate(over="ignore", invalid="ignore"):   # rows past the snap of this robot diverge
+        sol = solve(reached(q), tubes)
+        for _ in range(20 if rows == "random" else 0):   # random rows: draw others for those
+            failed = np.flatnonzero(~sol["converged"])
+            if not failed.size:
+                break
+            c = random_rows(4 * failed.size, rng)
+            c = c[_physical_rows(c, tubes) & _physical_rows(c + off, tubes)]
+            q[failed[:len(c)]] = c[:failed.size]
+            sol = solve(reached(q), tubes)
     assert sol["converged"].all()
     tips = sol["tips_mm"].copy()
     if "sensor_offset" in effects:
-        v = rng.normal(size=3)
-        dv = v / np.linalg.norm(v) * rng.uniform(2.0, 4.0) * effects["sensor_offset"]
+        side = rng.normal(size=2)
+        dv = np.r_[side / np.linalg.norm(side) * rng.uniform(0.0, 0.4), rng.uniform(2.0, 6.0)] \
+            * effects["sensor_offset"]
         tips[:, 0] += sol["tip_rotation"] @ dv
         truth["sensor_offset"] = {"offset_mm": dv.tolist()}
     if "registration" in effects:
