@@ -187,9 +187,27 @@ def test_transmission_length_against_the_independent_integrator():
     assert np.abs(ours - CosseratBackend(robot).forward(q, points=2, check=False).tips_mm).max() > 0.5
 
 
-def test_the_pinn_refuses_a_transmission_it_does_not_model():
+def test_the_pinn_boundary_loss_models_a_transmission():
+    """theta_i(0) = alpha_i - (beta_i - d_i) u_iz(0): the boundary loss vanishes on the exact states of a
+    robot whose tube 2 twists over 20 mm more than -beta_2, and not on those of the robot without."""
+    import torch
+
+    from ctrplan.training.losses import boundary_residual
     from ctrplan.training.physics import TubeTensors
 
-    ext = make_effect("transmission").with_values(Robot.nominal(), np.array([0.0, 20.0, 0.0]))
-    with pytest.raises(InputError, match=r"does not model transmission lengths \(tubes 2: "):
-        TubeTensors.from_robot(ext)
+    robot = Robot.nominal()
+    ext = make_effect("transmission").with_values(robot, np.array([0.0, 20.0, 0.0]))
+    q = robot.sample_joints(6, rng=3)
+    solver = CosseratBackend(ext)
+
+    class Exact:
+        scales = torch.ones(robot.n_states, dtype=torch.float64)
+
+        def __call__(self, sigma, qq):
+            return torch.tensor(np.array([solver.forward(qi.numpy(), np.array([float(si)])).state[0, 0]
+                                          for si, qi in zip(sigma, qq, strict=True)]))
+
+    qt = torch.tensor(q)
+    with_d, without = (TubeTensors.from_robot(r, dtype=torch.float64) for r in (ext, robot))
+    assert float(boundary_residual(Exact(), qt, with_d).max()) < 1e-12
+    assert float(boundary_residual(Exact(), qt, without).sum()) > 1e-6

@@ -59,15 +59,16 @@ def test_fk_writes_measured_data_format_matching_the_solver(tmp_path, capsys, co
 
 
 def test_fk_reports_non_converged_rows(tmp_path, capsys):
-    """A robot with strongly curved outer tubes has configurations the shooting cannot solve."""
+    """A robot with strongly curved outer tubes has configurations the shooting cannot solve, even
+    with continuation in the relative rotations (opposed tubes past the snap)."""
     robot_file = tmp_path / "curved.yaml"
     text = resources.files("ctrplan.data").joinpath("nominal.yaml").read_text()
     robot_file.write_text(text.replace("curvature_1_per_m: 12.4", "curvature_1_per_m: 40.0")
                           .replace("curvature_1_per_m: 4.37", "curvature_1_per_m: 30.0"))
     q = np.array([[0, 0, 0, 0, 0, 0],
                   [-37.18, -25.81, -0.51, -0.02, 0.18, 1.8],
-                  [-70.45, -58.82, -5.11, -1.2, -1.45, 2.28],
-                  [-29.34, -14.71, -4.2, -2.47, -0.3, -0.66],
+                  [-70.08, -57.63, -4.06, 2.64, 0.15, -2.66],
+                  [-60.35, -52.29, -1.32, -1.85, 0.16, 3.14],
                   [-46.25, -35.26, -3.06, 0.13, -0.23, -1.34]])
     configs = tmp_path / "configs.csv"
     configs.write_text(format_csv(JOINT_NAMES, q, ["%r"] * 6))

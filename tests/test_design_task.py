@@ -15,7 +15,6 @@ import yaml
 
 from ctrplan.cli import main
 from ctrplan.collision import CollisionWorld, RobotCollisionChecker
-from ctrplan.design.evaluate import domain_problem
 from ctrplan.design.space import (
     DIAMETERS,
     build_robot,
@@ -167,7 +166,8 @@ def test_bad_options(task_file, capsys, tmp_path, args, needle):
 
 def test_domain_corners_decide_tube_order():
     """Tube 2 may not reach past tube 1 anywhere in the domain: with beta2 - beta1 up to 20 mm that
-    needs L1 - L2 >= 20 (closed form at the corner), whatever the rotations."""
+    needs L1 - L2 >= 20 (closed form at the corner), whatever the rotations. A design that breaks
+    it is refused by the robot loader, so it never reaches the stability sweep."""
     def robot(l2: float) -> Robot:
         from ctrplan.robot import JointDomain
 
@@ -175,8 +175,9 @@ def test_domain_corners_decide_tube_order():
         dom = JointDomain(((-10.0, 0.0), (0.0, 20.0), (-math.pi, math.pi), (0.5, 1.0)))
         return Robot(tubes=tubes, domain=dom)
 
-    assert domain_problem(robot(140.0 - 20.0)) is None
-    assert "tube 2 reaches past tube 1" in domain_problem(robot(140.0 - 19.0))
+    assert robot(140.0 - 20.0).n_tubes == 2
+    with pytest.raises(InputError, match="tube 2's tip past tube 1's: need beta2 - beta1 <= L1 - L2 = 19 mm"):
+        robot(140.0 - 19.0)
 
 
 def _crossings(origin: np.ndarray, direction: np.ndarray, triangles: np.ndarray) -> int:

@@ -1,7 +1,9 @@
 """Few-shot fine-tuning (`ctrplan train --measured`, paper stage b) on generated data with a hidden
-cause (tube 1 pre-curved 10 % more than nominal, 0.1 mm tracker noise): a short run must lower the
-held-out tip error of the PINN well below that of the model it started from; the card records the
-data and the model still loads for the robot file; bad input is one line and exit code 2."""
+cause (tube 1 pre-curved 10 % more than nominal, 0.1 mm tracker noise): a short run (diagnose, adapt
+the PINN to the extended mechanics, learn from the shots) must lower the held-out tip error of the
+PINN well below that of the model it started from; the card records the data and every stage's time,
+and the model loads for the extended robot file written beside it; bad input is one line and exit
+code 2."""
 
 from __future__ import annotations
 
@@ -43,7 +45,8 @@ def finetuned(measured, tmp_path_factory):
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
         rc = main(["train", "--measured", str(measured), "--shots", str(SHOTS), "--heldout", str(HELDOUT),
-                   "--steps", "60", "--threads", "1", "--out-dir", str(out), "--name", "ft", "--json"])
+                   "--steps", "60", "--adapt-minutes", "0.3", "--threads", "1", "--out-dir", str(out),
+                   "--name", "ft", "--json"])
     assert rc == 0
     return out / "ft", json.loads(stdout.getvalue())
 
@@ -52,7 +55,7 @@ def test_finetuning_lowers_heldout_error(finetuned):
     _, card = finetuned
     table = card["metrics"]["measured_heldout"]
     models = {m["key"]: m for m in table["models"]}
-    assert list(models) == ["nominal", "extended", "pinn_start", "pinn_finetuned"]
+    assert list(models) == ["nominal", "extended", "pinn_start", "pinn_adapted", "pinn_finetuned"]
     noise = 0.1 * np.sqrt(3)
     start, tuned = models["pinn_start"]["mean_mm"], models["pinn_finetuned"]["mean_mm"]
     assert start > 5 * noise                  # the hidden cause is visible to the shipped model
@@ -70,11 +73,17 @@ def test_card_records_data_and_model_loads(finetuned, measured):
     assert on["shots"] == SHOTS and on["rows"] == ROWS
     assert on["heldout_rows"] == card["metrics"]["measured_heldout"]["rows"] == ROWS * HELDOUT
     assert on["init_model"] == "pinn_nominal" and on["extended_model"]["cause"] == "curvature"
-    assert card["robot_fingerprint"] == Robot.nominal().fingerprint
+    assert set(on["stage_seconds"]) == {"diagnose_s", "adapt_s", "learn_s"}
+    assert all(v > 0 for v in on["stage_seconds"].values())
+    extended = Robot.load(path.with_suffix(".robot.yaml"))   # the extended robot, written beside it
+    kappa1 = extended.tubes[0].curvature_per_mm / Robot.nominal().tubes[0].curvature_per_mm
+    assert 1.05 < kappa1 < 1.15                                  # the hidden 10 % found
+    assert card["robot_fingerprint"] == extended.fingerprint != Robot.nominal().fingerprint
     assert json.loads(path.with_suffix(".json").read_text())["finetuned_on"] == on
-    # `--backend pinn --model PATH` loads it for the robot file it was fine-tuned for
-    pinn = make_backend("pinn", Robot.nominal(), path.with_suffix(".safetensors"))
-    q = Robot.nominal().sample_joints(4, rng=0)
+    assert path.with_name("ft_adapted.safetensors").exists()    # stage 2's model of the mechanics
+    # `--backend pinn --model PATH` loads it for the extended robot
+    pinn = make_backend("pinn", extended, path.with_suffix(".safetensors"))
+    q = extended.sample_joints(4, rng=0)
     assert np.isfinite(pinn.forward(q, points=10).tips_mm).all()
 
 

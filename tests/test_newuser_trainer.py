@@ -8,13 +8,13 @@ import pytest
 import torch
 
 from ctrplan.kinematics.pinn import PinnNet
-from ctrplan.training.samples import state_scales
 from ctrplan.training.trainer import (
     CosineSchedule,
     Trainer,
     TrainingData,
     get_recipe,
     make_optimizer,
+    new_net,
     train,
 )
 
@@ -43,7 +43,8 @@ def test_trainer_object_form_equals_train(tmp_path, robot):
 
     torch.manual_seed(4)
     data = TrainingData.build(robot, recipe, 4, torch.device("cpu"))
-    net = PinnNet(robot, scales=state_scales(data.pool, recipe.features), features=recipe.features)
+    net = new_net(robot, recipe, data)
+    assert net.harmonics == recipe.harmonics and net.n_inputs > PinnNet(robot).n_inputs
     result = Trainer(robot, data, net).compile(recipe, seed=4).train(tmp_path / "b").finish(tmp_path / "b")
 
     assert result.steps == one_call.steps == 20

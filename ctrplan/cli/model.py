@@ -63,6 +63,10 @@ def train(
     heldout_last: Annotated[float | None, typer.Option(
         "--heldout-last", metavar="FRACTION", show_default=False,
         help="With --measured: hold out the last FRACTION of the rows in acquisition order instead.")] = None,
+    adapt_minutes: Annotated[float, typer.Option(
+        "--adapt-minutes", min=0.0,
+        help="With --measured: minutes to adapt the PINN to the extended mechanics diagnose finds "
+             "(0: fine-tune the PINN as it is).")] = 4.0,
     out_dir: Annotated[Path, typer.Option("--out-dir", help="Where models are written.")] = MODELS_DIR,
     settings: Annotated[list[str] | None, typer.Option(
         "--set", metavar="FIELD=VALUE",
@@ -133,7 +137,8 @@ def train(
         if fewshot is not None:
             from ctrplan.training.finetune import finetune, table_text
 
-            result = finetune(fewshot, start, out, rec, init_model=str(init), **common)
+            result = finetune(fewshot, start, out, rec, init_model=str(init), log=console.print,
+                              adapt_minutes=adapt_minutes, **common)
         else:
             result = run_training(
                 model_robot, rec, out, init_from=start.net if start else None, **common,
@@ -158,6 +163,9 @@ def train(
                       f"domain with `ctrplan stability --robot ...`: unsolvable configurations usually lie "
                       f"where the robot snaps.")
     if fewshot is not None:
+        stages = card["finetuned_on"]["stage_seconds"]
+        console.print("stages: " + ", ".join(f"{k[:-2]} {v:.0f} s" for k, v in stages.items())
+                      + f"; extended robot in {out.with_suffix('.robot.yaml')}")
         console.print(table_text(card["metrics"]["measured_heldout"]))
     if as_json:
         typer.echo(out.with_suffix(".json").read_text())  # the card as written, with robot and hash

@@ -124,9 +124,6 @@ def _feasible(task: DesignTask, record: dict):
     if record["max_strain"] > task.max_strain:
         return _refuse(record, "max_strain", f"pre-curvature strain {100 * record['max_strain']:.2f} % "
                                              f"above the limit {100 * task.max_strain:.2f} %")
-    problem = domain_problem(robot)
-    if problem:
-        return _refuse(record, "domain", problem)
     if task.snap_free:
         t = time.perf_counter()
         verdict = record["stability"] = stability_verdict(robot)
@@ -144,21 +141,6 @@ def _feasible(task: DesignTask, record: dict):
     record["start"] = start.tolist()
     record["feasible"] = True
     return replace(scene, start=start), checker
-
-
-def domain_problem(robot: Robot) -> str | None:
-    """Why some configuration of the robot's joint domain is physically impossible for its tubes
-    (tube order, a tube reaching past an inner one, a tube behind the plate), or None. The
-    conditions are linear in the box coordinates, so the corners of the translation box decide."""
-    d = robot.domain
-    n = robot.n_tubes
-    corners = np.array(list(itertools.product(*[d.bounds[c] for c in range(n)])))
-    box = np.hstack([corners, np.broadcast_to(d.box_lower[n:], (len(corners), n))])
-    try:
-        robot.check_joints(d.from_box(box), where="joint domain corner")
-    except InputError as exc:
-        return str(exc)
-    return None
 
 
 _VERDICTS: dict[str, dict] = {}

@@ -20,6 +20,7 @@ from ctrplan.calibration.split import contiguous_subsample, split_rows
 from ctrplan.errors import InputError
 from ctrplan.measurement import motion_direction
 from ctrplan.robot import Robot
+from ctrplan.training.trainer import Observations
 
 
 @dataclass(frozen=True)
@@ -62,24 +63,23 @@ def split_shots(data: MeasuredData, shots: int | None = None, heldout_fraction: 
                    heldout_last=heldout_last)
 
 
-def check_trainable(robot: Robot) -> None:
-    """Few-shot training applies the robot's joint offsets and its calibration's joints side (backlash,
-    windup) and frame side (registration); refuse (one line) what it does not model."""
-    if robot.calibration.needs_tip_rotation:
-        raise InputError(f"robot {robot.name!r}: its calibration has sensor_offset_mm, which PINN training "
-                         f"does not model; use the Cosserat backend, or remove sensor_offset_mm from the "
-                         f"robot file's calibration")
-
-
 def model_joints(robot: Robot, fs: FewShot, rows: np.ndarray) -> np.ndarray:
     """Joints (R, 2N) the model sees for ``rows``: the robot's calibration maps the reported joints to
     the mechanics (backlash, windup), then its joint offsets (mm, rad)."""
     return robot.apply_offset(robot.calibration.mechanics_joints(fs.data.q[rows], fs.direction[rows]))
 
 
-def observations(robot: Robot, fs: FewShot) -> tuple[np.ndarray, np.ndarray]:
-    """Training observations of the shots for `trainer.train`: joints (S, 6) with offsets applied and
-    measured tips (S, 3, 3) mm in the robot frame, NaN for tubes that were not measured."""
-    check_trainable(robot)
+def sensor_offset_mm(robot: Robot) -> np.ndarray | None:
+    """The tracked point's offset (3,) mm in the tip frame of tube 1, if the calibration has one."""
+    if not robot.calibration.needs_tip_rotation:
+        return None
+    return robot.calibration.values("sensor_offset", 3)
+
+
+def observations(robot: Robot, fs: FewShot) -> Observations:
+    """Training observations of the shots for `trainer.train`: the model's joints, the measured tips
+    in the robot frame (NaN for tubes that were not measured) and the sensor offset, all from the
+    robot's calibration."""
     rows = fs.shots
-    return model_joints(robot, fs, rows), robot.calibration.to_robot_frame(fs.data.tips_mm[rows])
+    tips = robot.calibration.to_robot_frame(fs.data.tips_mm[rows])
+    return Observations(model_joints(robot, fs, rows), tips, sensor_offset_mm(robot))

@@ -7,7 +7,7 @@ from __future__ import annotations
 import torch
 
 from ctrplan.kinematics.pinn import P_REF_MM, PinnNet
-from ctrplan.training.physics import TubeTensors, initial_theta_and_quat, rhs
+from ctrplan.training.physics import TubeTensors, initial_theta_and_quat, quat_to_matrix, rhs
 
 
 def groups(n_tubes: int) -> dict[str, slice]:
@@ -53,7 +53,7 @@ def boundary_residual(net: PinnNet, q: torch.Tensor, tt: TubeTensors, norm: str 
                      torch.ones(b, device=q.device, dtype=q.dtype)])
     x = net(sig, q.repeat(n + 1, 1)).view(n + 1, b, -1)
     x0, at_end = x[0], x[1:].flip(0)            # at_end[i]: states at l_{i+1}
-    theta0, h0 = initial_theta_and_quat(x0[:, 2:2 + n], q)
+    theta0, h0 = initial_theta_and_quat(x0[:, 2:2 + n], q, tt)
     e = torch.cat([
         at_end[0][:, 0:2],
         torch.stack([at_end[i][:, 2 + i] for i in range(n)], -1),
@@ -73,12 +73,25 @@ def tube_tips(net: PinnNet, q: torch.Tensor, tt: TubeTensors) -> torch.Tensor:
     return net(sig, q.repeat(n, 1))[:, ip:ip + 3].view(n, b, 3).transpose(0, 1)
 
 
+def tracked_tips(net: PinnNet, q: torch.Tensor, tt: TubeTensors,
+                 sensor_offset_mm: torch.Tensor | None = None) -> torch.Tensor:
+    """`tube_tips` (B, N, 3) mm, with tube 1's tracked point moved by ``sensor_offset_mm`` (3,), a
+    vector fixed in its tip frame (what a sensor on the tip sees)."""
+    tips = tube_tips(net, q, tt)
+    if sensor_offset_mm is None:
+        return tips
+    h = net(torch.ones(len(q), dtype=q.dtype, device=q.device), q)[:, -4:]
+    moved = tips[:, 0] + quat_to_matrix(h) @ sensor_offset_mm
+    return torch.cat([moved[:, None], tips[:, 1:]], 1)
+
+
 def observation_residual(net: PinnNet, q: torch.Tensor, tips: torch.Tensor, tt: TubeTensors,
-                         norm: str = "mse") -> torch.Tensor:
-    """Paper eq. 17: tube-tip positions (B, N, 3) mm at s = l1 … lN; NaN marks a tip that was not
-    measured (left out). Returns a scalar (in mm^2 for ``mse``)."""
+                         norm: str = "mse", sensor_offset_mm: torch.Tensor | None = None) -> torch.Tensor:
+    """Paper eq. 17: tube-tip positions (B, N, 3) mm at s = l1 … lN (tube 1's at its tracked point,
+    see `tracked_tips`); NaN marks a tip that was not measured (left out). Returns a scalar (in mm^2
+    for ``mse``)."""
     seen = torch.isfinite(tips).all(-1)
-    sq = ((tube_tips(net, q, tt) - tips.nan_to_num()) ** 2).sum(-1)[seen]
+    sq = ((tracked_tips(net, q, tt, sensor_offset_mm) - tips.nan_to_num()) ** 2).sum(-1)[seen]
     return (sq + 1e-30).sqrt().mean() if norm == "l2" else sq.mean()
 
 

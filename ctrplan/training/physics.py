@@ -13,7 +13,6 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
-from ctrplan.errors import InputError
 from ctrplan.kinematics.cosserat import RodArrays
 from ctrplan.robot import Robot
 
@@ -21,7 +20,9 @@ from ctrplan.robot import Robot
 @dataclass(frozen=True)
 class TubeTensors:
     """`RodArrays` as tensors on one device/dtype: per tube (N,) lengths and straight lengths (mm),
-    kappa (1/mm), EI and GJ (N*mm^2); ``weight`` (N, 3) N/mm, ``force`` (3,) N."""
+    kappa (1/mm), EI and GJ (N*mm^2); ``weight`` (N, 3) N/mm, ``force`` (3,) N; ``transmission``
+    (N,) mm, how far behind the plate beyond -beta_i each tube twists (`Tube.transmission_length_mm`:
+    it changes only the twist at s = 0)."""
 
     lengths: torch.Tensor
     straight: torch.Tensor
@@ -30,6 +31,7 @@ class TubeTensors:
     GJ: torch.Tensor
     weight: torch.Tensor
     force: torch.Tensor
+    transmission: torch.Tensor
 
     @property
     def n_tubes(self) -> int:
@@ -38,16 +40,11 @@ class TubeTensors:
     @classmethod
     def from_robot(cls, robot: Robot, device: torch.device | str = "cpu",
                    dtype: torch.dtype = torch.float32) -> TubeTensors:
-        """The robot's tube arrays; `InputError` for what these equations do not model (a tube's
-        transmission length, which the Cosserat backend solves)."""
-        twisting = [i + 1 for i, t in enumerate(robot.tubes) if t.transmission_length_mm]
-        if twisting:
-            raise InputError(f"robot {robot.name!r}: the PINN does not model transmission lengths (tubes "
-                             f"{', '.join(map(str, twisting))}: transmission_length_mm); use the Cosserat "
-                             f"backend, or remove them from the robot file")
         rod = RodArrays.of(robot)
-        return cls(**{f.name: torch.as_tensor(np.asarray(getattr(rod, f.name), dtype=float), dtype=dtype,
-                                              device=device) for f in fields(cls)})
+        arrays = {f.name: getattr(rod, f.name) for f in fields(cls) if f.name != "transmission"}
+        arrays["transmission"] = [t.transmission_length_mm for t in robot.tubes]
+        return cls(**{k: torch.as_tensor(np.asarray(v, dtype=float), dtype=dtype, device=device)
+                      for k, v in arrays.items()})
 
 
 def segment_flags(s: torch.Tensor, q: torch.Tensor, tt: TubeTensors) -> tuple[torch.Tensor, torch.Tensor]:
@@ -106,10 +103,12 @@ def rhs(x: torch.Tensor, s: torch.Tensor, q: torch.Tensor, tt: TubeTensors) -> t
     return torch.cat([dmb, duz, dth, dp, dh], -1)
 
 
-def initial_theta_and_quat(u0: torch.Tensor, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Paper eq. 10 and 12 from u_z(0) (B, N): theta(0) (B, N) and h(0) (B, 4)."""
+def initial_theta_and_quat(u0: torch.Tensor, q: torch.Tensor, tt: TubeTensors
+                           ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Paper eq. 10 and 12 from u_z(0) (B, N): theta(0) (B, N) and h(0) (B, 4). Tube i twists over
+    -beta_i + d_i behind the plate (d_i its transmission length, 0 unless measured)."""
     n = u0.shape[1]
-    beta, alpha = q[:, :n], q[:, n:]
+    beta, alpha = q[:, :n] - tt.transmission, q[:, n:]
     phi = alpha - beta * u0
     theta0 = phi - phi[:, 0:1]
     half = 0.5 * phi[:, 0]

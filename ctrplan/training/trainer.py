@@ -97,12 +97,13 @@ RECIPES = {
     "polish": Recipe(name="polish", optimizer="lbfgs", steps=1000, lr=1.0, collocation=2048, boundary=512,
                      observations=2000, dense_configs=3_000, dense_points=65, dense_batch=8192,
                      weights={"ode": 0.05, "bc": 0.05, "obs": 0.05, "dense": 1.0}),
-    # paper stage (b), with init_from and measured observations. Measured on one CPU core (500 shots,
-    # tube-1 curvature +10 %, held-out tube-1 tip error 1.88 mm before): this recipe 0.38 mm in 70 s;
-    # L-BFGS 30 steps 0.39 mm in 160 s; without the warm-up Adam first moves away (1.1 mm at step 40)
-    "finetune": Recipe(name="finetune", optimizer="adam", steps=300, lr=3e-4, collocation=2048,
-                       boundary=512, observations=0, warmup_steps=50,
-                       weights={"ode": 0.05, "bc": 0.05, "obs": 1.0}),
+    # paper stage (b), with init_from and measured observations (`ctrplan.training.finetune`): the tips,
+    # plus exact states of the robot's mechanics (dense supervision) and the physics residuals, so
+    # the network learns what the physics does not explain and stays a model of a robot
+    "finetune": Recipe(name="finetune", optimizer="adam", steps=800, lr=3e-4, collocation=1024,
+                       boundary=256, observations=0, warmup_steps=50, dense_configs=20_000, dense_points=33,
+                       dense_batch=1024, physics_every=4, orientation_weight=10.0,
+                       weights={"ode": 0.05, "bc": 0.05, "obs": 1.0, "dense": 0.1}),
 }
 DEFAULT_RECIPE = "fast"
 
@@ -181,6 +182,17 @@ class TrainResult:
     card: dict
 
 
+@dataclass(frozen=True)
+class Observations:
+    """Tube tips to fit: joints q (B, 2N) as the network sees them (offsets applied), tips (B, N, 3)
+    mm in the robot frame (NaN where a tube was not measured) and, for a sensor on the tip, the
+    tracked point's offset (3,) mm in the tip frame of tube 1."""
+
+    q: np.ndarray
+    tips_mm: np.ndarray
+    sensor_offset_mm: np.ndarray | None = None
+
+
 @dataclass
 class TrainingData:
     """What the losses draw on, on the training device: exact Cosserat solutions (dense supervision,
@@ -195,13 +207,14 @@ class TrainingData:
     sigma_grid: torch.Tensor
     obs_q: torch.Tensor
     obs_tips: torch.Tensor
+    obs_sensor_offset: torch.Tensor | None
     fixed_colloc: tuple[torch.Tensor, torch.Tensor] | None
     fixed_bc: torch.Tensor | None
     hard: HardExamples | None
 
     @classmethod
     def build(cls, robot: Robot, recipe: Recipe, seed: int, device: torch.device,
-              observations: tuple[np.ndarray, np.ndarray] | None = None,
+              observations: Observations | None = None,
               progress: Callable[[int, int], None] | None = None) -> TrainingData:
         """Solve the exact pool (its size: the largest of dense configurations, observations and
         2000; ``progress(done, total)`` while it is solved) and draw the fixed sets; ``observations``
@@ -217,8 +230,8 @@ class TrainingData:
             return torch.as_tensor(np.asarray(a, dtype=np.float32), device=device)
 
         q_model = robot.apply_offset(pool.q)
-        obs = (q_model[:recipe.observations], pool.tips[:recipe.observations]) \
-            if observations is None else observations
+        obs = observations or Observations(q_model[:recipe.observations], pool.tips[:recipe.observations])
+        offset = None if obs.sensor_offset_mm is None else to_dev(obs.sensor_offset_mm)
         sampler = Sampler(robot, seed, device)
         fixed_colloc = None if recipe.resample else sampler.collocation(recipe.collocation,
                                                                         sampler.generator(0, 1))
@@ -226,7 +239,8 @@ class TrainingData:
         hard = (HardExamples(robot, recipe.mining, recipe.dense_points, seed, device)
                 if recipe.mining else None)
         return cls(pool=pool, sampler=sampler, dense_q=to_dev(q_model), dense_x=to_dev(pool.states),
-                   sigma_grid=to_dev(pool.sigma), obs_q=to_dev(obs[0]), obs_tips=to_dev(obs[1]),
+                   sigma_grid=to_dev(pool.sigma), obs_q=to_dev(obs.q), obs_tips=to_dev(obs.tips_mm),
+                   obs_sensor_offset=offset,
                    fixed_colloc=fixed_colloc, fixed_bc=fixed_bc, hard=hard)
 
 
@@ -272,7 +286,8 @@ class Losses:
                                                                             d.sampler.generator(k, 2))
             terms["bc"] = (gw * boundary_residual(net, qb, self.tubes, r.norm)).sum()
         if w.get("obs", 0) and len(d.obs_q):
-            terms["obs"] = observation_residual(net, d.obs_q, d.obs_tips, self.tubes, r.norm)
+            terms["obs"] = observation_residual(net, d.obs_q, d.obs_tips, self.tubes, r.norm,
+                                                d.obs_sensor_offset)
         if w.get("dense", 0) and r.dense_batch:
             sigma, q, x = self._dense_batch(d.sampler.generator(k if r.resample else 0, 3))
             terms["dense"] = (gw * supervised_residual(net, sigma, q, x, r.orientation_weight)).sum()
@@ -500,13 +515,21 @@ class Trainer:
         return TrainResult(net=net, steps=step, wall_time_s=wall, history=self.history, card=card)
 
 
+def new_net(robot: Robot, recipe: Recipe, data: TrainingData) -> PinnNet:
+    """An untrained network of the recipe's shape and encoding for ``robot``, its output scales
+    from the exact states of ``data``'s pool."""
+    return PinnNet(robot, hidden=recipe.hidden, layers=recipe.layers,
+                   scales=state_scales(data.pool, recipe.features), features=recipe.features,
+                   harmonics=recipe.harmonics)
+
+
 def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str = "cpu",
           resume: bool = False, init_from: PinnNet | None = None, time_limit_s: float | None = None,
           checkpoint_every_s: float = 120.0,
           progress: Callable[[int, int, dict], None] | None = None,
           data_progress: Callable[[int, int], None] | None = None,
           evaluate: Callable[[PinnNet], dict] | None = None,
-          observations: tuple[np.ndarray, np.ndarray] | None = None,
+          observations: Observations | None = None,
           extra_card: dict | None = None) -> TrainResult:
     """Train a PINN for ``robot`` with ``recipe``; write ``out.safetensors`` + ``out.json``.
 
@@ -514,9 +537,8 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
     ``data_progress(done, total)`` reports while the exact pool is solved, ``progress(step, total,
     stats)`` every few steps; ``evaluate(net) -> metrics`` runs at the end (metrics go into the model
     card). Stops at ``recipe.steps`` or after ``time_limit_s`` (default: the recipe's ``minutes``),
-    data generation included. ``observations`` = (q (B, 2N) with offsets applied, tips (B, N, 3) mm
-    in the robot frame, NaN where not measured) replaces the Cosserat tip observations (measured
-    data, paper stage b); ``extra_card`` holds extra model-card fields. The card's ``stages`` lists
+    data generation included. ``observations`` (measured tips, paper stage b) replace the Cosserat
+    tip observations; ``extra_card`` holds extra model-card fields. The card's ``stages`` lists
     the training stages that made the model: ``extra_card["stages"]`` (those of the ``init_from``
     model) followed by this one.
     """
@@ -524,14 +546,8 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
     torch.manual_seed(seed)
     t_start = time.perf_counter()
     data = TrainingData.build(robot, recipe, seed, dev, observations, data_progress)
-    if init_from is not None:
-        net = init_from.to(dev).train()
-        for p in net.parameters():
-            p.requires_grad_(True)
-    else:
-        net = PinnNet(robot, hidden=recipe.hidden, layers=recipe.layers,
-                      scales=state_scales(data.pool, recipe.features), features=recipe.features,
-                      harmonics=recipe.harmonics).to(dev)
+    net = (new_net(robot, recipe, data) if init_from is None else init_from).to(dev).train()
+    net.requires_grad_(True)
     data_time_s = time.perf_counter() - t_start
     limit_s = time_limit_s if time_limit_s is not None else (recipe.minutes * 60 if recipe.minutes else None)
     trainer = Trainer(robot, data, net, data_time_s=data_time_s)

@@ -25,6 +25,9 @@ transmission        each tube twists over 10-40 mm more than -beta_i (a complian
                     drive): psi_i = alpha_i - (beta_i - d_i) u_iz(0)
 alpha_scale         rotation transmission ratio off by 4-6 % (alpha_true = s alpha)     no
 encoder_wobble      eccentric rotation encoder: alpha_true = alpha + a sin(alpha)       no
+stroke_offset       the tracked tip of tube 1 moves with the insertion of tube 1: a      no
+                    fixed direction in the base frame, 0.8-1.2 mm over the stroke of
+                    beta1 (a guide or cable that flexes as the tube advances)
 ==================  ==================================================================  ==========
 
 Every true configuration is physical: joint offsets on a sweep are flipped or shrunk until it is;
@@ -46,7 +49,7 @@ IN_LIBRARY = ("registration", "sensor_offset", "bending_stiffness", "curvature",
               "backlash", "joint_offset", "torsional_windup", "transmission")
 #: Single-joint zero offsets: effect name -> the joint (index into q) it offsets; library cause joint_offset.
 SINGLE_OFFSETS = {"beta1_offset": 0, "beta2_offset": 1, "beta3_offset": 2}
-OUTSIDE = ("alpha_scale", "encoder_wobble")
+OUTSIDE = ("alpha_scale", "encoder_wobble", "stroke_offset")
 
 
 def test_seed() -> int:
@@ -257,6 +260,12 @@ def make(n: int, effects: dict[str, float], seed: int, sigma_mm: float = 0.1, mo
             * effects["sensor_offset"]
         tips[:, 0] += sol["tip_rotation"] @ dv
         truth["sensor_offset"] = {"offset_mm": dv.tolist()}
+    if "stroke_offset" in effects:
+        v = rng.normal(size=3)
+        v = v / np.linalg.norm(v) * rng.uniform(0.8, 1.2) * effects["stroke_offset"]
+        lo, hi = q[:, 0].min(), q[:, 0].max()
+        tips[:, 0] += np.outer((q[:, 0] - lo) / max(hi - lo, 1e-9), v)
+        truth["stroke_offset"] = {"offset_at_full_stroke_mm": v.tolist()}
     if "registration" in effects:
         mag = effects["registration"]
         ax = rng.normal(size=3)
