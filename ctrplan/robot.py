@@ -356,11 +356,13 @@ class Robot:
 
     @cached_property
     def fingerprint(self) -> str:
-        """SHA-256 of every parameter that changes the mechanics or the domain (not the name).
+        """SHA-256 of every parameter that changes the mechanics or the domain (not the name, not the
+        measurement-side calibration: a PINN or a stability certificate of the mechanics holds for
+        every way of measuring it).
 
         Numbers enter at 12 significant digits, so a robot survives a round trip through its file.
         """
-        d = self.to_dict()
+        d = self.mechanics.to_dict()
         d.pop("name")
         text = json.dumps(_rounded(d), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest()

@@ -75,7 +75,8 @@ def test_card_records_data_and_model_loads(finetuned, measured):
     assert on["init_model"] == "pinn_nominal" and on["extended_model"]["cause"] == "curvature"
     assert set(on["stage_seconds"]) == {"diagnose_s", "adapt_s", "learn_s"}
     assert all(v > 0 for v in on["stage_seconds"].values())
-    extended = Robot.load(path.with_suffix(".robot.yaml"))   # the extended robot, written beside it
+    extended = Robot.load(path.with_suffix(".robot.yaml"))   # its mechanics, written beside it
+    assert extended.calibration.is_identity                  # a robot file `plan` accepts
     kappa1 = extended.tubes[0].curvature_per_mm / Robot.nominal().tubes[0].curvature_per_mm
     assert 1.05 < kappa1 < 1.15                                  # the hidden 10 % found
     assert card["robot_fingerprint"] == extended.fingerprint != Robot.nominal().fingerprint

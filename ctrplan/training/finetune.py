@@ -117,11 +117,11 @@ def finetune(fs: FewShot, start: PinnBackend, out: Path, recipe: Recipe, *, init
              diagnose_options: DiagnoseOptions | None = None, adapt_minutes: float = ADAPT_MINUTES,
              log=None, **train_kwargs) -> TrainResult:
     """Fine-tune the PINN ``start`` (loaded as ``init_model``) on the shots of ``fs`` (data read from a
-    file) in the three stages of this module; write ``out`` (a model of the extended robot, whose file
-    is written beside it as ``out.robot.yaml``) and ``out_adapted`` (stage 2). The card records the
-    data file (name, SHA-256), the split, every stage's time and the held-out table
-    (``metrics.measured_heldout``). ``log(message)`` reports the stages; ``train_kwargs`` go to
-    `trainer.train` (seed, device, time_limit_s, progress, ...)."""
+    file) in the three stages of this module; write ``out`` (a model of the extended robot, whose
+    mechanics are written beside it as ``out.robot.yaml``, the robot file to plan with) and
+    ``out_adapted`` (stage 2). The card records the data file (name, SHA-256), the split, every
+    stage's time and the held-out table (``metrics.measured_heldout``). ``log(message)`` reports the
+    stages; ``train_kwargs`` go to `trainer.train` (seed, device, time_limit_s, progress, ...)."""
     say = log or (lambda _msg: None)
     seconds: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -149,13 +149,15 @@ def finetune(fs: FewShot, start: PinnBackend, out: Path, recipe: Recipe, *, init
     card = {"finetuned_on": {**_data_record(fs, diag), "init_model": init_model,
                              "init_weights_sha256": start.card.get("weights_sha256")},
             "note": f"fine-tuned from {init_model} on measured tips (paper stage b) as a model of the "
-                    f"extended robot ({out.name}.robot.yaml); 'metrics' compares it with the exact model "
-                    f"of that robot's mechanics, 'metrics.measured_heldout' with the measurements"}
+                    f"extended robot (its mechanics: {out.name}.robot.yaml); 'metrics' compares it with the "
+                    f"exact model of that robot's mechanics, 'metrics.measured_heldout' with the "
+                    f"measurements"}
     result = train(ext, recipe, out, init_from=adapted.with_absolute_angles(ext),
                    observations=observations(ext, fs), evaluate=evaluate, extra_card=card, **train_kwargs)
     seconds["learn_s"] = time.perf_counter() - t0
-    ext.save(out.with_suffix(".robot.yaml"),
-             comment=f"the extended robot of {out.name} (ctrplan train --measured)")
+    ext.mechanics.save(out.with_suffix(".robot.yaml"),
+                       comment=f"the extended mechanics of {out.name} (ctrplan train --measured): plan with "
+                               f"it; the measurement side is in the model card")
     record = {**result.card["finetuned_on"], "stage_seconds": {k: round(v, 1) for k, v in seconds.items()}}
     write_card_field(out.with_suffix(".safetensors"), "finetuned_on", record)
     result.card["finetuned_on"] = record
