@@ -104,7 +104,7 @@ def test_ctrl_c_prints_one_line(tmp_path):
     result = subprocess.run([sys.executable, "-c", script, "plan", str(scene), "--backend", "cosserat",
                              "--time-limit", "60", "--json"], capture_output=True, text=True,
                             timeout=120, env=env, check=False)
-    assert result.returncode == 130
+    assert result.returncode == 130, (result.stdout[-3000:], result.stderr[-3000:])
     assert result.stderr.strip() == "ctrplan: aborted", result.stderr
     assert result.stdout == ""
 
