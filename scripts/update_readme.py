@@ -105,8 +105,10 @@ def render_training(cards: list[dict[str, Any]]) -> str:
         m = c["metrics"]["backbone_error_pct"]
         start = " (from the previous row)" if c["recipe"]["name"] == "polish" else ""
         rows.append([c["recipe"]["name"] + start, c["hardware"], str(c["steps"]),
-                     f"{c['wall_time_s'] / 60:.1f}", f"{m['mean']:.3f}", f"{m['max']:.3f}"])
-    return markdown_table(["recipe", "hardware", "steps", "minutes", "mean error %", "max error %"], rows)
+                     f"{c['wall_time_s'] / 60:.1f}", f"{c['metrics']['configurations']:,}",
+                     f"{m['mean']:.3f}", f"{m['max']:.3f}"])
+    return markdown_table(["recipe", "hardware", "steps", "minutes", "unseen configurations",
+                           "backbone error mean %", "max %"], rows)
 
 
 ROBOTS_JSON = README.parent / "docs" / "training" / "robots.json"
@@ -383,7 +385,8 @@ def main(argv: list[str] | None = None) -> None:
         cards = [json.loads(p.read_text()) for p in sorted(TRAINING_CARDS.glob("*.json"))]
         marker = "pinn:training"
         body = render_training(cards) + ("\n\nFrom the model cards in `docs/training/` (written by "
-                                         "`ctrplan train`; errors on 100 unseen configurations).")
+                                         "`ctrplan train`; backbone error / arc length on the "
+                                         "card's unseen configurations).")
     elif ns.block == "robots":
         marker, body = "pinn:robots", render_robots(json.loads(ROBOTS_JSON.read_text()))
     elif ns.block == "finetune":

@@ -35,10 +35,10 @@ def write_configs(path: Path, robot, n: int, seed: int = 3) -> np.ndarray:
 def test_shipped_model_lives_in_the_package_and_is_found_from_anywhere(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # no models/ here
     package = Path(ctrplan.__file__).resolve().parent
-    for name in (None, "pinn_nominal", "pinn_nominal_cpu", "pinn_two_tube"):
+    for name in (None, "pinn_nominal", "pinn_nominal_h100", "pinn_two_tube"):
         weights = resolve_model(name)
         assert weights.exists() and package in weights.resolve().parents
-    assert shipped_models() == ["pinn_nominal", "pinn_nominal_cpu", "pinn_two_tube"]
+    assert shipped_models() == ["pinn_nominal", "pinn_nominal_h100", "pinn_two_tube"]
 
 
 def test_users_models_dir_comes_first(tmp_path, monkeypatch):
@@ -50,15 +50,15 @@ def test_users_models_dir_comes_first(tmp_path, monkeypatch):
 
 def test_fk_and_shape_take_a_model(tmp_path, capsys):
     tips = {}
-    for model in ("pinn_nominal", "pinn_nominal_cpu"):
+    for model in ("pinn_nominal", "pinn_nominal_h100"):
         out = tmp_path / f"{model}.csv"
         rc, _, err = run(capsys, "fk", str(EXAMPLE), "--backend", "pinn", "--model", model, "-o", str(out))
         assert rc == 0, err
         tips[model] = np.loadtxt(out, delimiter=",", skiprows=1)[:, 6:15]
     assert np.isfinite(tips["pinn_nominal"]).all()
-    diff = np.abs(tips["pinn_nominal"] - tips["pinn_nominal_cpu"]).max()
+    diff = np.abs(tips["pinn_nominal"] - tips["pinn_nominal_h100"]).max()
     assert 0 < diff < 5.0  # two different models of the same robot
-    rc, _, err = run(capsys, "shape", str(EXAMPLE), "--backend", "hybrid", "--model", "pinn_nominal_cpu",
+    rc, _, err = run(capsys, "shape", str(EXAMPLE), "--backend", "hybrid", "--model", "pinn_nominal_h100",
                      "--points", "5", "-o", str(tmp_path / "s.csv"))
     assert rc == 0, err
 

@@ -51,7 +51,7 @@ def test_unusable_model_is_an_error_not_a_fallback(tmp_path, capsys):
     one_line_error(*run(capsys, "plan", str(scene), "--model", str(tmp_path / "broken"), "--json"),
                    "--backend pinn", "broken.safetensors", "SHA-256")
     one_line_error(*run(capsys, "plan", str(scene), "--model", "no_such_model"),
-                   "no_such_model", "not found", "pinn_nominal_cpu")
+                   "no_such_model", "not found", "pinn_nominal_h100")
     one_line_error(*run(capsys, "plan", str(scene), "--backend", "cosserat", "--model", "pinn_nominal"),
                    "--model", "cosserat")
 

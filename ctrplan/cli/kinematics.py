@@ -39,7 +39,7 @@ RobotOpt = Annotated[str | None, typer.Option(
 ModelOpt = Annotated[str | None, typer.Option(
     "--model", metavar="NAME|PATH", show_default=False,
     help="PINN for the pinn and hybrid backends: a name (looked up in models/, then among the shipped "
-         "models pinn_nominal, pinn_nominal_cpu, pinn_two_tube) or a .safetensors path; default: the "
+         "models pinn_nominal, pinn_nominal_h100, pinn_two_tube) or a .safetensors path; default: the "
          "model trained for the robot in use (pinn_nominal for the nominal robot).")]
 OutputOpt = Annotated[Path | None, typer.Option(
     "-o", "--output", metavar="OUT.csv", show_default=False,
