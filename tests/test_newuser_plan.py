@@ -7,8 +7,10 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -88,25 +90,35 @@ def test_blocked_goal_reports_our_cause_not_ompl_noise(tmp_path, capfd):
 
 
 def test_ctrl_c_prints_one_line(tmp_path):
+    """Ctrl-C 3 s into planning (the planner would search for 60 s), sent from outside as a terminal
+    does: a timer thread inside the process would need the interpreter lock, which a long compiled
+    call holds."""
     scene = tmp_path / "blocked.yaml"
     scene.write_text(BLOCKED)
-    # Ctrl-C 3 s into planning (the planner would search for 60 s)
-    script = ("import os, signal, sys, threading\n"
+    started = tmp_path / "planning"
+    script = ("import sys\n"
+              "from pathlib import Path\n"
               "import ctrplan.planning as planning\n"
               "from ctrplan.cli import main\n"
               "plan = planning.plan\n"
-              "def interrupted_plan(*args, **kwargs):\n"
-              "    threading.Timer(3.0, lambda: os.kill(os.getpid(), signal.SIGINT)).start()\n"
+              "def announced_plan(*args, **kwargs):\n"
+              f"    Path({str(started)!r}).touch()\n"
               "    return plan(*args, **kwargs)\n"
-              "planning.plan = interrupted_plan\n"
+              "planning.plan = announced_plan\n"
               "sys.exit(main(sys.argv[1:]))\n")
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    result = subprocess.run([sys.executable, "-c", script, "plan", str(scene), "--backend", "cosserat",
-                             "--time-limit", "60", "--json"], capture_output=True, text=True,
-                            timeout=120, env=env, check=False)
-    assert result.returncode == 130, (result.stdout[-3000:], result.stderr[-3000:])
-    assert result.stderr.strip() == "ctrplan: aborted", result.stderr
-    assert result.stdout == ""
+    proc = subprocess.Popen([sys.executable, "-c", script, "plan", str(scene), "--backend", "cosserat",
+                             "--time-limit", "60", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env)
+    deadline = time.monotonic() + 120
+    while not started.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(3.0)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, (out[-3000:], err[-3000:])
+    assert err.strip() == "ctrplan: aborted", err
+    assert out == ""
 
 
 def test_plan_figure_names_every_obstacle_target_and_tip_trace(tmp_path):
