@@ -91,8 +91,8 @@ def test_blocked_goal_reports_our_cause_not_ompl_noise(tmp_path, capfd):
 
 def test_ctrl_c_prints_one_line(tmp_path):
     """Ctrl-C 3 s into planning (the planner would search for 60 s), sent from outside as a terminal
-    does: a timer thread inside the process would need the interpreter lock, which a long compiled
-    call holds."""
+    sends it, to a process that does not ignore it (a shell starts background jobs, e.g. a CI script
+    run with `&`, with SIGINT ignored, and ctrplan keeps an ignored SIGINT ignored)."""
     scene = tmp_path / "blocked.yaml"
     scene.write_text(BLOCKED)
     started = tmp_path / "planning"
@@ -109,7 +109,9 @@ def test_ctrl_c_prints_one_line(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     proc = subprocess.Popen([sys.executable, "-c", script, "plan", str(scene), "--backend", "cosserat",
                              "--time-limit", "60", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=env)
+                            text=True, env=env,
+                            # as at a terminal: a shell starts background jobs with SIGINT ignored
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     while not started.exists() and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
