@@ -9,7 +9,8 @@ Split-conformal: the exact Cosserat model is the truth on N configurations drawn
 `ctrplan.training.evaluate.error_bound`). The planner adds the bound of each region, at the scene's
 ``surrogate_coverage``, to the capsule radii there while planning with the PINN. The weights (and
 their hash in the card) are untouched. The bound holds for the backend as loaded (its network nodes,
-`ctrplan.kinematics.pinn.DEFAULT_NODES`): recalibrate after changing them.
+`ctrplan.kinematics.pinn.DEFAULT_NODES`): recalibrate after changing them. `ctrplan train` writes
+the same bound into every card it makes; this script recalibrates an existing model.
 """
 
 from __future__ import annotations

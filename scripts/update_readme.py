@@ -275,6 +275,8 @@ def render_design(doc: dict[str, Any]) -> str:
     return "\n\n".join(parts)
 
 
+DESIGN_OUT = Path("docs/bench/design_skullbase")  # the design block's --out (relative to the README)
+
 BLOCKS = {
     "kinematics": Block(marker="bench:kinematics", args=("bench", "kinematics"), render=render_kinematics),
     "pinn": Block(marker="pinn:accuracy", args=("eval-model", "--n", "5000"), render=render_pinn),
@@ -284,7 +286,7 @@ BLOCKS = {
                          args=("bench", "plan", "scenes/open.yaml", "scenes/pipe.yaml", "--out",
                                "docs/bench/plan_scenes"), render=render_plan),
     "design": Block(marker="design:skullbase", args=("design", "scenes/skullbase_design.yaml", "--out",
-                                                     "docs/bench/design_skullbase"), render=render_design),
+                                                     str(DESIGN_OUT)), render=render_design),
 }
 TRAINING_CARDS = README.parent / "docs" / "training"
 
@@ -342,6 +344,81 @@ def run_finetune(extra: list[str]) -> str:
     return render_finetune(card, command, wall)
 
 
+LOOP_MARKER = "design:loop"
+LOOP_MODEL = "skullbase_design"
+LOOP_TRAIN_ARGS = ("--time-limit", "25", "--threads", "2")
+
+
+def render_design_loop(design: dict[str, Any], stability: dict[str, Any], card: dict[str, Any],
+                       plans: dict[str, dict[str, Any]], walls: dict[str, float]) -> str:
+    """Certify -> train -> plan for the design block's best design: the stability verdict, the
+    PINN's card and, per target, planning with that PINN next to the design run's exact planning."""
+    best, m = design["best"], card["metrics"]
+    tip, ori = m["tip_error_pct_length"], m["tip_orientation_error_deg"]
+    rows = []
+    for name, doc in plans.items():
+        v, exact = doc["validated"], best["targets"][name]
+        check = "–" if v is None else (
+            f"{'in' if v['tip_in_target'] else 'outside'} the target, "
+            f"{'collision-free' if v['collision_free'] else 'COLLIDES'}, {_fmt(v['min_clearance_mm'])} mm"
+            + (" (repaired)" if v["repaired"] else ""))
+        rows.append([name, "solved" if doc["solved"] else f"not solved ({doc['message']})",
+                     f"{doc['planning_time_s']:.2f}", check,
+                     "–" if v is None else _fmt(v["max_position_error_mm"]),
+                     f"{exact['planning_time_s']:.2f}" if exact["reached"] else "not reached"])
+    solved = sum(doc["solved"] for doc in plans.values())
+    verdict = "snap-free" if stability["snap_free"] else "NOT snap-free"
+    bound = card.get("backbone_error_bound")
+    return "\n\n".join([
+        f"1. **certify** (`ctrplan stability --robot {DESIGN_OUT}/best_robot.yaml`): {verdict} over "
+        f"{stability['checked']:,} configurations ({100 * stability['unstable_fraction']:.2f} % flagged), "
+        f"{walls['stability'] / 60:.1f} min.\n"
+        f"2. **train** (`ctrplan train --robot ... --name {LOOP_MODEL} {' '.join(LOOP_TRAIN_ARGS)}`): "
+        f"{card['steps']:,} steps in {card['wall_time_s'] / 60:.1f} min on {card['hardware']}; on "
+        f"{m['configurations']:,} unseen configurations tube-1 tip error mean {tip['mean']:.3f} %, max "
+        f"{tip['max']:.3f} % of arc length, tip orientation max {ori['max']:.2f} deg"
+        + ("" if bound is None else "; error bound calibrated into the card") + ".\n"
+        f"3. **plan** every target with that PINN (`ctrplan plan {DESIGN_OUT}/paths/TARGET/scene.yaml "
+        f"--model {DESIGN_OUT}/pinn/{LOOP_MODEL}.safetensors --seed 0`): {solved} of {len(plans)} "
+        f"solved and confirmed by the exact model.",
+        markdown_table(["target", "PINN plan", "planning s", "exact check: tip, collisions, clearance",
+                        "PINN vs exact max mm", "exact planning s (design run)"], rows)])
+
+
+def run_design_loop(extra: list[str]) -> str:
+    """The whole loop on the design block's best design (run the design block first): certify it
+    with `ctrplan stability`, train a PINN for it with `ctrplan train` (``extra`` goes to train) and
+    plan every target with that PINN; outputs under `DESIGN_OUT`."""
+    import time
+
+    design_json = README.parent / DESIGN_OUT / "design.json"
+    if not design_json.exists():
+        raise SystemExit(f"{design_json}: not found; run `scripts/update_readme.py design` first")
+    design = json.loads(design_json.read_text())
+    if design["best"] is None:
+        raise SystemExit(f"{design_json}: the study has no feasible design")
+    robot, walls = str(DESIGN_OUT / "best_robot.yaml"), {}
+
+    def timed(stage: str, args: list[str], ok: tuple[int, ...] = (0,)) -> dict[str, Any]:
+        t0 = time.perf_counter()
+        doc = ctrplan_json(args, ok)
+        walls[stage] = walls.get(stage, 0.0) + time.perf_counter() - t0
+        return doc
+
+    stability = timed("stability", ["stability", "--robot", robot, "--out", str(DESIGN_OUT / "stability"),
+                                    "--json"])
+    card = timed("train", ["train", "--robot", robot, "--name", LOOP_MODEL, *LOOP_TRAIN_ARGS, *extra,
+                           "--out-dir", str(DESIGN_OUT / "pinn"), "--json"])
+    model = str(DESIGN_OUT / "pinn" / f"{LOOP_MODEL}.safetensors")
+    plans = {name: timed("plan", ["plan", str(DESIGN_OUT / "paths" / name / "scene.yaml"), "--model", model,
+                                  "--seed", "0", "--out", str(DESIGN_OUT / "paths" / name / "pinn"),
+                                  "--json"], ok=(0, 1))  # 1: not solved, reported in the table
+             for name in design["targets"]}
+    return (render_design_loop(design, stability, card, plans, walls)
+            + f"\n\nGenerated by `python scripts/update_readme.py design-loop` "
+              f"({sum(walls.values()) / 60:.0f} min).")
+
+
 def replace_block(text: str, marker: str, content: str) -> str:
     """``text`` with the body of block ``marker`` replaced by ``content``; the markers must exist once."""
     start, end = f"<!-- {marker}:start -->", f"<!-- {marker}:end -->"
@@ -351,12 +428,13 @@ def replace_block(text: str, marker: str, content: str) -> str:
     return pattern.sub(lambda _: f"{start}\n{content}\n{end}", text)
 
 
-def ctrplan_json(args: list[str]) -> dict[str, Any]:
-    """Run ``ctrplan ARGS`` (ending in --json) with this interpreter; its JSON document."""
+def ctrplan_json(args: list[str], ok: tuple[int, ...] = (0,)) -> dict[str, Any]:
+    """Run ``ctrplan ARGS`` (ending in --json) with this interpreter; its JSON document. An exit code
+    outside ``ok`` stops the script."""
     entry = "from ctrplan.cli import main; raise SystemExit(main())"  # `ctrplan` of this interpreter
     result = subprocess.run([sys.executable, "-c", entry, *args], stdout=subprocess.PIPE, check=False,
                             text=True, cwd=README.parent)
-    if result.returncode != 0:
+    if result.returncode not in ok:
         raise SystemExit(f"ctrplan {shlex.join(args)} failed with exit code {result.returncode}")
     return json.loads(result.stdout)
 
@@ -374,7 +452,7 @@ def run_block(name: str, extra: list[str], results: Path | None = None) -> str:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      epilog="Other arguments are passed on to the block's command.")
-    parser.add_argument("block", choices=sorted([*BLOCKS, "training", "finetune", "robots"]),
+    parser.add_argument("block", choices=sorted([*BLOCKS, "training", "finetune", "robots", "design-loop"]),
                         help="README block to regenerate")
     parser.add_argument("--readme", type=Path, default=README, help="README file to update")
     parser.add_argument("--results", type=Path, default=None,
@@ -391,6 +469,8 @@ def main(argv: list[str] | None = None) -> None:
         marker, body = "pinn:robots", render_robots(json.loads(ROBOTS_JSON.read_text()))
     elif ns.block == "finetune":
         marker, body = FINETUNE_MARKER, run_finetune(extra)
+    elif ns.block == "design-loop":
+        marker, body = LOOP_MARKER, run_design_loop(extra)
     else:
         marker, body = BLOCKS[ns.block].marker, run_block(ns.block, extra, ns.results)
     # read the README only now: the command may have run for minutes while it was edited

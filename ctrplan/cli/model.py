@@ -15,10 +15,10 @@ from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, RobotOpt, as_option
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
-from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
-from ctrplan.kinematics.pinn import PinnBackend
+from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR, write_card_field
+from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnBackend
 from ctrplan.robot import Robot
-from ctrplan.training.evaluate import compare
+from ctrplan.training.evaluate import calibrate, compare
 from ctrplan.training.trainer import DEFAULT_RECIPE, RECIPES, get_recipe, remove_checkpoint
 from ctrplan.training.trainer import train as run_training
 
@@ -79,8 +79,9 @@ def train(
     budget; the bar shows the loss and, after each mining round, the network's tube-1 tip error on
     that round's fresh configurations. Checkpoints go to NAME.ckpt.* beside the model every two
     minutes; `--resume` picks them up. The card records the robot (and its fingerprint), recipe,
-    sample counts, the configurations the exact solver could not solve, wall time, hardware and
-    accuracy on 2,000 unseen configurations.
+    sample counts, the configurations the exact solver could not solve, wall time, hardware,
+    accuracy on 2,000 unseen configurations and the calibrated backbone error bound the planner
+    adds to the capsule radii when it plans with this model (5,000 more configurations).
 
     With `--measured DATA.csv --shots N` it continues training a model (default: the shipped one) on
     N measured training rows plus the physics residuals, and prints the held-out tip error of the
@@ -146,6 +147,9 @@ def train(
                 extra_card={"stages": training_stages(start.card)} if start else None,
                 evaluate=lambda net: compare(PinnBackend(model_robot, net), model_robot,
                                              n=CARD_EVAL_CONFIGURATIONS).metrics())
+            # the planner's safety margin for this model, as scripts/calibrate_pinn.py measures it
+            result.card[ERROR_BOUND_KEY] = calibrate(PinnBackend(model_robot, result.net), model_robot)
+            write_card_field(out.with_suffix(".safetensors"), ERROR_BOUND_KEY, result.card[ERROR_BOUND_KEY])
     remove_checkpoint(out)  # the run finished: nothing to resume
     card = result.card
     m = card["metrics"]
@@ -156,6 +160,14 @@ def train(
                   f"(vs the robot file's Cosserat model): tube-1 tip error mean {tip['mean']:.3f} %, "
                   f"max {tip['max']:.3f} % of arc length, backbone error mean "
                   f"{m['backbone_error_pct']['mean']:.3f} %")
+    if ERROR_BOUND_KEY in card:
+        from ctrplan.scene import PlannerSettings
+        from ctrplan.training.evaluate import region_bounds_mm
+
+        coverage = PlannerSettings.surrogate_coverage
+        margins = ", ".join(f"{b:.2f}" for b in region_bounds_mm(card[ERROR_BOUND_KEY], coverage))
+        console.print(f"planning margin (calibrated error bound at the default coverage {coverage:g}, "
+                      f"base to tip): {margins} mm")
     unsolved = card.get("unsolved_configurations", {}).get("count", 0) + m["unsolved"]["count"]
     if unsolved:
         console.print(f"note: the exact solver could not solve {unsolved} configuration(s) of the domain "

@@ -68,7 +68,9 @@ def evaluate_job(job: DesignJob) -> dict:
     """`evaluate` a `DesignJob` (the task is loaded once per process)."""
     from ompl import util as ou
 
-    ou.setLogLevel(ou.LOG_ERROR)
+    # a target a design cannot reach is a result (recorded with its stage), not an error to print
+    # over the progress bar ("Unable to sample any valid states for goal tree")
+    ou.setLogLevel(ou.LOG_NONE)
     if job.task_file not in _TASKS:
         _TASKS[job.task_file] = load_task(job.task_file)
     return evaluate(_TASKS[job.task_file], job.parameters, job.seed)

@@ -59,8 +59,9 @@ def _quiet(_trial: int | None, _record: dict, _finished: int) -> None:
 
 
 def default_storage(out: Path) -> str:
-    """SQLite in the output folder."""
-    return f"sqlite:///{(Path(out) / 'study.db').resolve()}"
+    """SQLite in the output folder, as given (a relative folder gives a URL relative to the working
+    directory, like every other output, so reports name no machine's paths)."""
+    return f"sqlite:///{Path(out) / 'study.db'}"
 
 
 def objective_value(record: dict, name: str) -> float:

@@ -64,24 +64,25 @@ def boundary_residual(net: PinnNet, q: torch.Tensor, tt: TubeTensors, norm: str 
     return group_norms(e, norm)
 
 
-def tube_tips(net: PinnNet, q: torch.Tensor, tt: TubeTensors) -> torch.Tensor:
-    """Predicted tips of tubes 1…N (B, N, 3) mm, i.e. p at s = l1 … lN, for joints q (B, 2N)."""
+def tube_end_states(net: PinnNet, q: torch.Tensor, tt: TubeTensors) -> torch.Tensor:
+    """Predicted states (B, N, 2N + 9) at s = l1 … lN (the tube ends) for joints q (B, 2N)."""
     b, n = q.shape[0], tt.n_tubes
-    ip = 2 * n + 2
     ends = q[:, :n] + tt.lengths
     sig = (ends / ends[:, :1]).T.reshape(-1)
-    return net(sig, q.repeat(n, 1))[:, ip:ip + 3].view(n, b, 3).transpose(0, 1)
+    return net(sig, q.repeat(n, 1)).view(n, b, -1).transpose(0, 1)
 
 
 def tracked_tips(net: PinnNet, q: torch.Tensor, tt: TubeTensors,
                  sensor_offset_mm: torch.Tensor | None = None) -> torch.Tensor:
-    """`tube_tips` (B, N, 3) mm, with tube 1's tracked point moved by ``sensor_offset_mm`` (3,), a
-    vector fixed in its tip frame (what a sensor on the tip sees)."""
-    tips = tube_tips(net, q, tt)
+    """Predicted tips of tubes 1…N (B, N, 3) mm, p at s = l1 … lN for joints q (B, 2N), with tube 1's
+    tracked point moved by ``sensor_offset_mm`` (3,), a vector fixed in its tip frame (what a sensor on
+    the tip sees)."""
+    ip = 2 * tt.n_tubes + 2
+    states = tube_end_states(net, q, tt)
+    tips = states[..., ip:ip + 3]
     if sensor_offset_mm is None:
         return tips
-    h = net(torch.ones(len(q), dtype=q.dtype, device=q.device), q)[:, -4:]
-    moved = tips[:, 0] + quat_to_matrix(h) @ sensor_offset_mm
+    moved = tips[:, 0] + quat_to_matrix(states[:, 0, ip + 3:]) @ sensor_offset_mm
     return torch.cat([moved[:, None], tips[:, 1:]], 1)
 
 
