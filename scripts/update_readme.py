@@ -103,7 +103,8 @@ def render_training(cards: list[dict[str, Any]]) -> str:
     rows = []
     for c in cards:
         m = c["metrics"]["backbone_error_pct"]
-        start = " (from the previous row)" if c["recipe"]["name"] == "polish" else ""
+        continued = c["recipe"]["name"] == "polish" or len(c.get("stages", [])) > 1
+        start = " (from the previous row)" if continued else ""
         rows.append([c["recipe"]["name"] + start, c["hardware"], str(c["steps"]),
                      f"{c['wall_time_s'] / 60:.1f}", f"{c['metrics']['configurations']:,}",
                      f"{m['mean']:.3f}", f"{m['max']:.3f}"])
@@ -460,7 +461,7 @@ def main(argv: list[str] | None = None) -> None:
                              "the same extra arguments) instead of running it again")
     ns, extra = parser.parse_known_args(argv)  # the rest goes to the ctrplan command
     if ns.block == "training":
-        cards = [json.loads(p.read_text()) for p in sorted(TRAINING_CARDS.glob("*.json"))]
+        cards = [json.loads(p.read_text()) for p in sorted(TRAINING_CARDS.glob("[0-9]*_*.json"))]
         marker = "pinn:training"
         body = render_training(cards) + ("\n\nFrom the model cards in `docs/training/` (written by "
                                          "`ctrplan train`; backbone error / arc length on the "
