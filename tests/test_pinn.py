@@ -267,7 +267,7 @@ def test_fk_cli_accepts_learned_backends(backend, tmp_path):
     assert all(r.endswith(f",1,{stable}") for r in rows[1:])
 
 
-@pytest.mark.parametrize("setting", ["nope=1", "dense_batch"])
+@pytest.mark.parametrize("setting", ["nope=1", "dense_batch", "steps=5", "name=fast"])
 def test_train_rejects_bad_recipe_overrides(setting, capsys):
     from ctrplan.cli import main
 

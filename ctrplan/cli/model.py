@@ -103,7 +103,12 @@ def train(
         model_robot.calibration.refuse(model_robot.name, "train")
     recipe = recipe or (DEFAULT_RECIPE if measured is None else "finetune")
     try:
-        rec = get_recipe(recipe, steps=steps, **_parse_settings(settings or []))
+        overrides = _parse_settings(settings or [])
+        if steps is not None:
+            if "steps" in overrides:
+                raise InputError("--set: steps is given twice (also as --steps); give it once")
+            overrides["steps"] = steps
+        rec = get_recipe(recipe, **overrides)
     except InputError as exc:
         raise as_option(exc, {"recipe": "--recipe", "overrides": "--set"}) from None
     fewshot = None

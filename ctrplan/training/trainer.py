@@ -108,10 +108,12 @@ RECIPES = {
 DEFAULT_RECIPE = "fast"
 
 
-def get_recipe(name: str, **overrides) -> Recipe:
+def get_recipe(name: str, /, **overrides) -> Recipe:
     """Recipe ``name`` with fields replaced by ``overrides`` (None values are ignored)."""
     if name not in RECIPES:
         raise InputError(f"recipe: unknown recipe {name!r} (available: {', '.join(RECIPES)})")
+    if "name" in overrides:
+        raise InputError("overrides: name: a recipe is chosen by its name (--recipe), not overridden")
     unknown = set(overrides) - set(Recipe.__dataclass_fields__)
     if unknown:
         raise InputError(f"overrides: unknown recipe field(s) {', '.join(sorted(unknown))} "
