@@ -8,8 +8,9 @@ named.
   every parameter plausible (`effects.Param.plausible`); a fit that needs an implausible value is
   reported, never named;
 * **grown**: from the best significant single (and up to ``grow_from`` - 1 next ones it does not
-  beat), the ``pairs`` partners a score test ranks first are added and fitted; the best one
-  significant against the set it grew from is kept, up to ``max_causes`` causes;
+  beat), and from the best single that beats the nominal model only with an implausible value, the
+  ``pairs`` partners a score test ranks first are added and fitted; the best one significant against
+  the set it grew from is kept, up to ``max_causes`` causes;
 * **contenders**: significant, against the nominal model and against the set they grew from, and not
   beaten on the main split by another contender; each is refitted on ``resamples`` other splits
   (warm-started from its main fit) and scored against the nominal model there;
@@ -227,7 +228,12 @@ class Selector:
             cands[frozenset(effect.causes)] = Candidate(fit=fit, main=score, nominal=score)
         singles = sorted((c for c in cands.values() if c.significant), key=lambda c: c.heldout_mean(None))
         seeds = singles[:1] + [c for c in singles[1:] if not beats(singles[0], c, opt, pooled=False)]
-        for seed in seeds[:opt.grow_from]:
+        # a single that beats the nominal model only with an implausible value may stand in for a cause
+        # it lacks (a sensor offset pushed sideways by backlash): grow from the best one too; only a
+        # plausible set can be named
+        stand_ins = sorted((c for c in cands.values() if c.main.beats and c.fit.implausible),
+                           key=lambda c: c.heldout_mean(None))
+        for seed in seeds[:opt.grow_from] + stand_ins[:1]:
             self._grow(seed, split, cands, nom_err, nom_bic)
         sel = Selection(split=split, resample_splits=resample_splits, nominal_bic=nom_bic,
                         nominal_err=nom_err, candidates=list(cands.values()), not_fitted=not_fitted)
