@@ -15,7 +15,7 @@ from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, RobotOpt, as_option
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
-from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR, write_card_field
+from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnBackend
 from ctrplan.robot import Robot
 from ctrplan.training.evaluate import calibrate, compare
@@ -151,10 +151,9 @@ def train(
                 data_progress=data_progress,
                 extra_card={"stages": training_stages(start.card)} if start else None,
                 evaluate=lambda net: compare(PinnBackend(model_robot, net), model_robot,
-                                             n=CARD_EVAL_CONFIGURATIONS).metrics())
-            # the planner's safety margin for this model, as scripts/calibrate_pinn.py measures it
-            result.card[ERROR_BOUND_KEY] = calibrate(PinnBackend(model_robot, result.net), model_robot)
-            write_card_field(out.with_suffix(".safetensors"), ERROR_BOUND_KEY, result.card[ERROR_BOUND_KEY])
+                                             n=CARD_EVAL_CONFIGURATIONS).metrics(),
+                # the planner's safety margin for this model, as scripts/calibrate_pinn.py measures it
+                calibrate=lambda net: calibrate(PinnBackend(model_robot, net), model_robot))
     remove_checkpoint(out)  # the run finished: nothing to resume
     card = result.card
     m = card["metrics"]

@@ -35,7 +35,7 @@ from safetensors.torch import load_file, save_file
 from ctrplan.bench import cpu_model
 from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import save_model
-from ctrplan.kinematics.pinn import PinnNet
+from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnNet
 from ctrplan.robot import Robot
 from ctrplan.training.losses import (
     boundary_residual,
@@ -478,8 +478,9 @@ class Trainer:
         return self
 
     def finish(self, out: Path, *, evaluate: Callable[[PinnNet], dict] | None = None,
+               calibrate: Callable[[PinnNet], dict] | None = None,
                extra_card: dict | None = None) -> TrainResult:
-        """Evaluate the network, write ``out.safetensors`` and its card ``out.json``."""
+        """Evaluate and calibrate the network, write ``out.safetensors`` and its card ``out.json``."""
         net = self.net.cpu().eval()
         recipe, step, wall = self.recipe, self.step, self.wall_time_s
         metrics = evaluate(net) if evaluate is not None else {}
@@ -513,6 +514,7 @@ class Trainer:
                               "unsolved_candidates": sum(r.unsolved for r in hard.rounds),
                               "history": [r.to_json() for r in hard.rounds[::max(1, len(hard.rounds) // 20)]],
                               "last": hard.rounds[-1].to_json() if hard.rounds else None}
+        card |= {ERROR_BOUND_KEY: calibrate(net)} if calibrate is not None else {}
         save_model(net, self.robot, out, card)
         return TrainResult(net=net, steps=step, wall_time_s=wall, history=self.history, card=card)
 
@@ -531,6 +533,7 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
           progress: Callable[[int, int, dict], None] | None = None,
           data_progress: Callable[[int, int], None] | None = None,
           evaluate: Callable[[PinnNet], dict] | None = None,
+          calibrate: Callable[[PinnNet], dict] | None = None,
           observations: Observations | None = None,
           extra_card: dict | None = None) -> TrainResult:
     """Train a PINN for ``robot`` with ``recipe``; write ``out.safetensors`` + ``out.json``.
@@ -538,8 +541,9 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
     ``init_from`` continues from an existing network (its input encoding and output scales are kept).
     ``data_progress(done, total)`` reports while the exact pool is solved, ``progress(step, total,
     stats)`` every few steps; ``evaluate(net) -> metrics`` runs at the end (metrics go into the model
-    card). Stops at ``recipe.steps`` or after ``time_limit_s`` (default: the recipe's ``minutes``),
-    data generation included. ``observations`` (measured tips, paper stage b) replace the Cosserat
+    card), and ``calibrate(net) -> error bound`` (the planner's margin, in the card too). Stops at
+    ``recipe.steps`` or after ``time_limit_s`` (default: the recipe's ``minutes``), data generation
+    included. ``observations`` (measured tips, paper stage b) replace the Cosserat
     tip observations; ``extra_card`` holds extra model-card fields. The card's ``stages`` lists
     the training stages that made the model: ``extra_card["stages"]`` (those of the ``init_from``
     model) followed by this one.
@@ -558,4 +562,4 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
     if resume:
         trainer.resume(out)
     trainer.train(out, checkpoint_every_s=checkpoint_every_s, progress=progress)
-    return trainer.finish(out, evaluate=evaluate, extra_card=extra_card)
+    return trainer.finish(out, evaluate=evaluate, calibrate=calibrate, extra_card=extra_card)
