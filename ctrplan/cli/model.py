@@ -141,7 +141,7 @@ def train(
 
         common = dict(seed=seed, device=device, resume=resume, progress=progress, time_limit_s=limit_s)
         if fewshot is not None:
-            from ctrplan.training.finetune import finetune, table_text
+            from ctrplan.training.finetune import finetune
 
             result = finetune(fewshot, start, out, rec, init_model=str(init), log=console.print,
                               adapt_minutes=adapt_minutes, **common)
@@ -179,10 +179,15 @@ def train(
                       f"domain with `ctrplan stability --robot ...`: unsolvable configurations usually lie "
                       f"where the robot snaps.")
     if fewshot is not None:
+        from ctrplan.training.finetune import kept_text, table_text
+
         stages = card["finetuned_on"]["stage_seconds"]
         console.print("stages: " + ", ".join(f"{k[:-2]} {v:.0f} s" for k, v in stages.items())
-                      + f"; extended robot in {out.with_suffix('.robot.yaml')}")
+                      + f"; its robot in {out.with_suffix('.robot.yaml')} (with the calibration: `fk`, "
+                        f"`shape`), its mechanics in {out.with_suffix('.mechanics.robot.yaml')} (`plan`); "
+                        f"the adapted model in {out.name}_adapted.safetensors")
         console.print(table_text(card["metrics"]["measured_heldout"]))
+        console.print(kept_text(card["finetuned_on"]["kept"]))
     if as_json:
         typer.echo(out.with_suffix(".json").read_text())  # the card as written, with robot and hash
 

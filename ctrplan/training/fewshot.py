@@ -63,10 +63,29 @@ def split_shots(data: MeasuredData, shots: int | None = None, heldout_fraction: 
                    heldout_last=heldout_last)
 
 
-def model_joints(robot: Robot, fs: FewShot, rows: np.ndarray) -> np.ndarray:
-    """Joints (R, 2N) the model sees for ``rows``: the robot's calibration maps the reported joints to
-    the mechanics (backlash, windup), then its joint offsets (mm, rad)."""
-    return robot.apply_offset(robot.calibration.mechanics_joints(fs.data.q[rows], fs.direction[rows]))
+#: Share of the shots (the last ones in acquisition order) kept apart to choose between the stages.
+VALIDATION_FRACTION = 0.2
+
+
+def validation_split(fs: FewShot) -> tuple[np.ndarray, np.ndarray]:
+    """The shots split into rows to fit and validation rows (the last `VALIDATION_FRACTION` of them,
+    at least one; none when there are fewer than 5 shots)."""
+    k = int(round(VALIDATION_FRACTION * len(fs.shots))) if len(fs.shots) >= 5 else 0
+    return fs.shots[:len(fs.shots) - k], fs.shots[len(fs.shots) - k:]
+
+
+def mechanics_joints(robot: Robot, fs: FewShot, rows: np.ndarray, alone: bool = False) -> np.ndarray:
+    """Joints (R, 2N) the mechanics of ``robot`` sees for ``rows`` (its joint offsets not applied): the
+    robot's calibration maps the reported joints (backlash, windup, a learned lag) in the order of the
+    whole sequence, or with ``alone`` of the rows by themselves -- as `ctrplan fk` sees a file of them."""
+    if alone:
+        return robot.calibration.mechanics_joints(fs.data.q[rows])
+    return robot.calibration.mechanics_joints(fs.data.q, fs.direction)[rows]
+
+
+def model_joints(robot: Robot, fs: FewShot, rows: np.ndarray, alone: bool = False) -> np.ndarray:
+    """Joints (R, 2N) the model sees for ``rows``: `mechanics_joints`, then the joint offsets (mm, rad)."""
+    return robot.apply_offset(mechanics_joints(robot, fs, rows, alone))
 
 
 def sensor_offset_mm(robot: Robot) -> np.ndarray | None:
@@ -76,10 +95,9 @@ def sensor_offset_mm(robot: Robot) -> np.ndarray | None:
     return robot.calibration.values("sensor_offset", 3)
 
 
-def observations(robot: Robot, fs: FewShot) -> Observations:
-    """Training observations of the shots for `trainer.train`: the model's joints, the measured tips
-    in the robot frame (NaN for tubes that were not measured) and the sensor offset, all from the
+def observations(robot: Robot, fs: FewShot, rows: np.ndarray) -> Observations:
+    """Training observations of ``rows`` (shots) for `trainer.train`: the model's joints, the measured
+    tips in the robot frame (NaN for tubes that were not measured) and the sensor offset, all from the
     robot's calibration."""
-    rows = fs.shots
     tips = robot.calibration.to_robot_frame(fs.data.tips_mm[rows])
     return Observations(model_joints(robot, fs, rows), tips, sensor_offset_mm(robot))

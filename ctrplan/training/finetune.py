@@ -10,15 +10,22 @@ Stages (each timed; the card and the printout say how long each took):
    recipe's supervised training on exact solutions of the extended mechanics, started from the given
    PINN and given `ADAPT_MINUTES` (hard-example mining included). This PINN is as good a model of the
    extended robot as the start PINN was of its own.
-3. **learn from the shots** what the physics does not explain: the network (with absolute-angle
-   inputs added at zero weight, so it can learn what breaks the rotation symmetry -- a tracker offset
-   fixed in the base frame, an encoder error) is fitted to the shots through the extended robot's
-   calibration, with exact solutions of the extended mechanics (dense supervision) and the ODE and
-   boundary residuals kept in the loss, so it stays a model of a robot; its error against the exact
-   mechanics is reported with the card's metrics.
+3. **learn from the shots** what the physics does not explain: first the lag of the rotation joints
+   after a reversal (`ctrplan.training.lag`: a small correction whose inputs are the direction of
+   motion and play operators of the commanded angles), kept when it lowers the validation error; then
+   the network (with absolute-angle inputs added at zero weight, so it can learn what breaks the
+   rotation symmetry -- a tracker offset fixed in the base frame, an encoder error) is fitted to the
+   shots through the extended robot's calibration, with exact solutions of the extended mechanics
+   (dense supervision) and the ODE and boundary residuals kept in the loss, so it stays a model of a
+   robot; its error against the exact mechanics is reported with the card's metrics.
 
-Neither the extended model nor the PINN sees a held-out row. The held-out table compares the nominal
-and extended Cosserat models with the PINN before, adapted and fine-tuned.
+The last `VALIDATION_FRACTION` of the shots (acquisition order) are fitted by no stage: the PINN
+before, adapted and fine-tuned are compared on them and the best one is written (**never a model worse
+on them than the one the user started from**); the card and the printout say which was kept. Neither
+the extended model nor the PINN sees a held-out row. The held-out table compares the nominal and
+extended Cosserat models (with the learned lag) with the PINN before, adapted and fine-tuned; the
+held-out rows are predicted as one sequence by themselves, as `ctrplan fk` predicts a file of them with
+the robot file written beside the model.
 """
 
 from __future__ import annotations
@@ -31,12 +38,13 @@ import numpy as np
 import torch
 
 from ctrplan.calibration.diagnosis import DiagnoseOptions, Diagnosis, diagnose, error_stats
-from ctrplan.calibration.fit import Evaluator
-from ctrplan.kinematics.model_file import file_sha256, write_card_field
+from ctrplan.kinematics.cosserat import CosseratBackend
+from ctrplan.kinematics.model_file import file_sha256, read_card, save_model, write_card_field
 from ctrplan.kinematics.pinn import PinnBackend, PinnNet
 from ctrplan.robot import Robot
 from ctrplan.training.evaluate import compare
-from ctrplan.training.fewshot import FewShot, model_joints, observations
+from ctrplan.training.fewshot import FewShot, mechanics_joints, model_joints, observations, validation_split
+from ctrplan.training.lag import fit_lag, with_lag
 from ctrplan.training.physics import quat_to_matrix
 from ctrplan.training.trainer import Recipe, TrainResult, get_recipe, remove_checkpoint, train
 
@@ -44,21 +52,27 @@ from ctrplan.training.trainer import Recipe, TrainResult, get_recipe, remove_che
 ADAPT_MINUTES = 4.0
 
 #: Rows of the comparison table: key -> label.
-MODELS = {"nominal": "nominal Cosserat", "extended": "extended Cosserat", "pinn_start": "PINN before",
+MODELS = {"nominal": "nominal Cosserat", "extended": "extended Cosserat",
+          "extended_lag": "extended + learned lag", "pinn_start": "PINN before",
           "pinn_adapted": "PINN adapted", "pinn_finetuned": "PINN fine-tuned"}
+#: The PINN stages one of which is written as the model (the best on the validation shots).
+STAGES = ("pinn_start", "pinn_adapted", "pinn_finetuned")
 
 
-def cosserat_tips(robot: Robot, fs: FewShot, rows: np.ndarray) -> np.ndarray:
-    """Tips (R, T, 3) mm, tracker frame, of the Cosserat model of ``robot`` (its calibration applied);
-    NaN where it does not converge."""
-    pred = Evaluator(fs.data.q[rows], fs.direction[rows]).predict([robot])[0]
-    return np.where(pred.converged[:, None, None], pred.tips_mm, np.nan)
+def cosserat_tips(robot: Robot, fs: FewShot, rows: np.ndarray, alone: bool = False) -> np.ndarray:
+    """Tips (R, T, 3) mm, tracker frame, of the Cosserat model of ``robot`` (its calibration applied;
+    ``alone``: the rows as a sequence by themselves, see `mechanics_joints`); NaN where it does not
+    converge."""
+    bb = CosseratBackend(robot.mechanics).forward(mechanics_joints(robot, fs, rows, alone), points=2,
+                                                  check=False)
+    tips = robot.calibration.tracked_tips(bb.tips_mm, bb.rotations[:, -1])
+    return np.where(bb.converged[:, None, None], tips, np.nan)
 
 
-def pinn_tips(net: PinnNet, robot: Robot, fs: FewShot, rows: np.ndarray) -> np.ndarray:
+def pinn_tips(net: PinnNet, robot: Robot, fs: FewShot, rows: np.ndarray, alone: bool = False) -> np.ndarray:
     """Tips (R, N, 3) mm, tracker frame, of a PINN for ``robot`` (its calibration applied: joints,
     sensor offset through the predicted tip frame, registration)."""
-    q = torch.as_tensor(model_joints(robot, fs, rows), dtype=torch.float32)
+    q = torch.as_tensor(model_joints(robot, fs, rows, alone), dtype=torch.float32)
     n, net = robot.n_tubes, net.cpu()
     with torch.no_grad():
         ends = q[:, :n] + net.lengths
@@ -84,24 +98,40 @@ def heldout_table(fs: FewShot, robot: Robot, predictions: dict[str, np.ndarray])
         models.append({"key": key, "model": MODELS[key], **error_stats(e[:, 0], L[:, 0]),
                        "per_tube": per_tube})
     return {"rows": int(ok.sum()), "unsolved_rows": [int(v) for v in fs.data.lines[rows[~ok]]],
-            "scope": "held-out rows, tip of tube 1 (per_tube: every measured tube)", "models": models}
+            "scope": "held-out rows, tip of tube 1 (per_tube: every measured tube); the rows predicted "
+                     "as one sequence by themselves, as `ctrplan fk` predicts a file of them",
+            "models": models}
 
 
 def table_text(table: dict) -> str:
     """The comparison table as aligned text lines (tube-1 tip, held-out rows)."""
     lines = [f"held-out tip error of tube 1 on {table['rows']} rows:",
-             f"  {'model':<20s} {'mean mm':>8s} {'median':>8s} {'p95':>8s} {'% length':>9s}"]
-    lines += [f"  {m['model']:<20s} {m['mean_mm']:8.3f} {m['median_mm']:8.3f} {m['p95_mm']:8.3f} "
+             f"  {'model':<24s} {'mean mm':>8s} {'median':>8s} {'p95':>8s} {'% length':>9s}"]
+    lines += [f"  {m['model']:<24s} {m['mean_mm']:8.3f} {m['median_mm']:8.3f} {m['p95_mm']:8.3f} "
               f"{m['mean_pct_length']:8.3f} %" for m in table["models"]]
     return "\n".join(lines)
+
+
+def kept_text(kept: dict) -> str:
+    """Which stage was written as the model, and why (the card's ``finetuned_on.kept``)."""
+    errors = ", ".join(f"{MODELS[k]} {v:.3f}" for k, v in kept["validation_mean_mm"].items())
+    text = (f"kept: {MODELS[kept['stage']]} (tube-1 tip error on {kept['validation_rows']} validation "
+            f"shots, mean mm: {errors})")
+    if kept["stage"] != "pinn_finetuned":
+        text += (f"; the fine-tuned PINN was worse there than the {MODELS[kept['stage']]}, so the "
+                 f"{MODELS[kept['stage']]} is written instead")
+    return text
 
 
 def adapt(start: PinnBackend, mechanics: Robot, out: Path, minutes: float = ADAPT_MINUTES,
           **train_kwargs) -> PinnNet:
     """Stage 2: the start PINN trained on exact solutions of ``mechanics`` (the default recipe for
-    ``minutes``, continuing its weights at a lower learning rate); written to ``out``. The start
-    network itself when the mechanics are its robot's."""
+    ``minutes``, continuing its weights at a lower learning rate); written to ``out`` either way (the
+    start network itself, noted in its card, when the mechanics are its robot's or ``minutes`` is 0)."""
     if mechanics.fingerprint == start.robot.mechanics.fingerprint or minutes <= 0:
+        why = "the mechanics are the start model's" if minutes > 0 else "--adapt-minutes 0"
+        save_model(start.net, mechanics, out, {"note": f"the start network unchanged ({why})",
+                                              "stages": start.card.get("stages", [])})
         return start.net
     recipe = get_recipe("fast", lr=5e-4, warmup_steps=100)
     net = copy.deepcopy(start.net)
@@ -113,58 +143,130 @@ def adapt(start: PinnBackend, mechanics: Robot, out: Path, minutes: float = ADAP
     return net
 
 
+def tube1_error_mm(tips: np.ndarray, fs: FewShot, rows: np.ndarray) -> float:
+    """Mean tube-1 tip error (mm) of predicted tips (R, T, 3) on ``rows`` (NaN rows left out)."""
+    return float(np.nanmean(np.linalg.norm(tips[:, 0] - fs.data.tips_mm[rows, 0], axis=1)))
+
+
+def learn_lag(ext: Robot, fs: FewShot, fit: np.ndarray, val: np.ndarray, say) -> tuple[Robot, dict]:
+    """The extended robot with a lag correction learned on the ``fit`` shots (`ctrplan.training.lag`)
+    when it lowers the extended Cosserat model's error on the validation shots ``val``; its record."""
+    lag = fit_lag(ext, fs.data.q, fs.direction, fit, fs.data.tips_mm[fit, 0])
+    if lag is None or not len(val):
+        say("learned lag: none (no rotation reverses in the shots, or no validation shots)")
+        return ext, {"kept": False, "reason": "no rotation reverses in the shots, or no validation shots"}
+    model = with_lag(ext, lag)
+    before = tube1_error_mm(cosserat_tips(ext, fs, val), fs, val)
+    after = tube1_error_mm(cosserat_tips(model, fs, val), fs, val)
+    keep = after < before
+    say(f"learned lag of the rotations (direction of motion and play as inputs): validation mean "
+        f"{before:.3f} -> {after:.3f} mm, {'kept' if keep else 'not kept'}")
+    return (model if keep else ext), {"kept": bool(keep), "validation_mean_mm": {"without": round(before, 4),
+                                                                             "with": round(after, 4)},
+                                      **lag.to_dict()}
+
+
+def choose_stage(fs: FewShot, val: np.ndarray, stages: dict[str, tuple[PinnNet, Robot]]) -> dict:
+    """The stage (key of `STAGES`) with the lowest mean tube-1 tip error on the validation shots (the
+    earliest of equals: the start model unless another one is better); without validation shots the
+    fine-tuned one."""
+    if not len(val):
+        return {"stage": "pinn_finetuned", "validation_rows": 0, "validation_mean_mm": {}}
+    errors = {k: round(tube1_error_mm(pinn_tips(net, robot, fs, val), fs, val), 4)
+              for k, (net, robot) in stages.items()}
+    return {"stage": min(errors, key=lambda k: (errors[k], STAGES.index(k))), "validation_rows": len(val),
+            "validation_mean_mm": errors}
+
+
 def finetune(fs: FewShot, start: PinnBackend, out: Path, recipe: Recipe, *, init_model: str,
              diagnose_options: DiagnoseOptions | None = None, adapt_minutes: float = ADAPT_MINUTES,
              log=None, **train_kwargs) -> TrainResult:
     """Fine-tune the PINN ``start`` (loaded as ``init_model``) on the shots of ``fs`` (data read from a
-    file) in the three stages of this module; write ``out`` (a model of the extended robot, whose
-    mechanics are written beside it as ``out.robot.yaml``, the robot file to plan with) and
-    ``out_adapted`` (stage 2). The card records the data file (name, SHA-256), the split, every
-    stage's time and the held-out table (``metrics.measured_heldout``). ``log(message)`` reports the
-    stages; ``train_kwargs`` go to `trainer.train` (seed, device, time_limit_s, progress, ...)."""
+    file) in the three stages of this module; write ``out`` (the stage best on the validation shots),
+    ``out.robot.yaml`` (its robot: mechanics and calibration, what `fk` needs to predict the tracker),
+    ``out.mechanics.robot.yaml`` (its mechanics: plan with it) and ``out_adapted`` (stage 2). The card
+    records the data file (name, SHA-256), the split, every stage's time, the learned lag, the stage
+    kept (``finetuned_on.kept``) and the held-out table (``metrics.measured_heldout``). ``log(message)``
+    reports the stages; ``train_kwargs`` go to `trainer.train` (seed, device, time_limit_s, ...)."""
     say = log or (lambda _msg: None)
     seconds: dict[str, float] = {}
+    fit, val = validation_split(fs)
     t0 = time.perf_counter()
-    say(f"stage 1/3: diagnose on {len(fs.shots)} shots")
-    diag = diagnose(fs.data.subset(fs.shots), start.robot, diagnose_options, direction=fs.direction[fs.shots])
+    say(f"stage 1/3: diagnose on {len(fit)} shots (the last {len(val)} shots validate the stages)")
+    diag = diagnose(fs.data.subset(fit), start.robot, diagnose_options, direction=fs.direction[fit])
     ext = diag.extended_robot
-    held = fs.heldout
-    fixed = {"nominal": cosserat_tips(start.robot, fs, held), "extended": cosserat_tips(ext, fs, held),
-             "pinn_start": pinn_tips(start.net, start.robot, fs, held)}
     seconds["diagnose_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     say(f"stage 2/3: adapt the PINN to the extended mechanics (named: {diag.cause})")
     adapt_kwargs = {k: v for k, v in train_kwargs.items() if k in ("seed", "device", "progress")}
     adapted = adapt(start, ext.mechanics, out.with_name(out.name + "_adapted"), adapt_minutes, **adapt_kwargs)
-    fixed["pinn_adapted"] = pinn_tips(adapted, ext, fs, held)
     seconds["adapt_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     say("stage 3/3: learn from the shots what the physics does not explain")
+    model, lag_record = learn_lag(ext, fs, fit, val, say)
+    _save_robots(model, out.with_name(out.name + "_adapted"))
+    held = fs.heldout
+    fixed = {"nominal": cosserat_tips(start.robot, fs, held, True),
+             "extended": cosserat_tips(ext, fs, held, True),
+             "extended_lag": cosserat_tips(model, fs, held, True),
+             "pinn_start": pinn_tips(start.net, start.robot, fs, held, True),
+             "pinn_adapted": pinn_tips(adapted, model, fs, held, True)}
 
     def evaluate(net: PinnNet) -> dict:
-        table = heldout_table(fs, ext, {**fixed, "pinn_finetuned": pinn_tips(net, ext, fs, held)})
-        exact = compare(PinnBackend(ext.mechanics, net), ext.mechanics).metrics()
+        table = heldout_table(fs, ext, {**fixed, "pinn_finetuned": pinn_tips(net, model, fs, held, True)})
+        exact = compare(PinnBackend(model.mechanics, net), model.mechanics).metrics()
         return {**exact, "measured_heldout": table}
 
-    card = {"finetuned_on": {**_data_record(fs, diag), "init_model": init_model,
+    card = {"finetuned_on": {**_data_record(fs, diag, fit, val), "learned_lag": lag_record,
+                             "init_model": init_model,
                              "init_weights_sha256": start.card.get("weights_sha256")},
             "note": f"fine-tuned from {init_model} on measured tips (paper stage b) as a model of the "
-                    f"extended robot (its mechanics: {out.name}.robot.yaml); 'metrics' compares it with the "
-                    f"exact model of that robot's mechanics, 'metrics.measured_heldout' with the "
-                    f"measurements"}
-    result = train(ext, recipe, out, init_from=adapted.with_absolute_angles(ext),
-                   observations=observations(ext, fs), evaluate=evaluate, extra_card=card, **train_kwargs)
+                    f"extended robot ({out.name}.robot.yaml; its mechanics: "
+                    f"{out.name}.mechanics.robot.yaml); "
+                    f"'metrics' compares it with the exact model of those mechanics, "
+                    f"'metrics.measured_heldout' with the measurements"}
+    result = train(model, recipe, out, init_from=adapted.with_absolute_angles(model),
+                   observations=observations(model, fs, fit), evaluate=evaluate, extra_card=card,
+                   **train_kwargs)
     seconds["learn_s"] = time.perf_counter() - t0
-    ext.mechanics.save(out.with_suffix(".robot.yaml"),
-                       comment=f"the extended mechanics of {out.name} (ctrplan train --measured): plan with "
-                               f"it; the measurement side is in the model card")
-    record = {**result.card["finetuned_on"], "stage_seconds": {k: round(v, 1) for k, v in seconds.items()}}
-    write_card_field(out.with_suffix(".safetensors"), "finetuned_on", record)
-    result.card["finetuned_on"] = record
-    return result
+    stages = {"pinn_start": (start.net, start.robot), "pinn_adapted": (adapted, model),
+              "pinn_finetuned": (result.net, model)}
+    kept = choose_stage(fs, val, stages)
+    say(kept_text(kept))
+    record = {**result.card["finetuned_on"], "stage_seconds": {k: round(v, 1) for k, v in seconds.items()},
+              "kept": kept}
+    return _write_kept(result, out, stages[kept["stage"]], record)
 
 
-def _data_record(fs: FewShot, diag: Diagnosis) -> dict:
+def _save_robots(robot: Robot, out: Path) -> None:
+    """``out.robot.yaml`` (the robot, calibration included) and ``out.mechanics.robot.yaml`` (its
+    mechanics, what `plan` takes) beside the model ``out``."""
+    robot.save(out.with_suffix(".robot.yaml"),
+               comment=f"the robot of {out.name} as the measurements see it (ctrplan train --measured): "
+                       f"`fk`/`shape` with --model {out.name} predict the tracker; plan with "
+                       f"{out.name}.mechanics.robot.yaml")
+    robot.mechanics.save(out.with_suffix(".mechanics.robot.yaml"),
+                         comment=f"the mechanics of {out.name} (ctrplan train --measured): plan with it")
+
+
+def _write_kept(result: TrainResult, out: Path, kept: tuple[PinnNet, Robot], record: dict) -> TrainResult:
+    """Write the kept stage's network as ``out`` (the fine-tuned one is there already) with the card of
+    the run, its robot files beside it; the card's ``finetuned_on`` is ``record``."""
+    net, robot = kept
+    card = {**result.card, "finetuned_on": record}
+    if net is not result.net:
+        table = card["metrics"]["measured_heldout"]
+        card["metrics"] = {**compare(PinnBackend(robot.mechanics, net), robot.mechanics).metrics(),
+                           "measured_heldout": table}
+        save_model(net, robot, out, card)
+        card = read_card(out.with_suffix(".safetensors"))
+    else:
+        write_card_field(out.with_suffix(".safetensors"), "finetuned_on", record)
+    _save_robots(robot, out)
+    return TrainResult(net=net, steps=result.steps, wall_time_s=result.wall_time_s, history=result.history,
+                       card=card)
+
+def _data_record(fs: FewShot, diag: Diagnosis, fit: np.ndarray, val: np.ndarray) -> dict:
     d = fs.data
     j = diag.to_json()
     return {
@@ -174,6 +276,8 @@ def _data_record(fs: FewShot, diag: Diagnosis) -> dict:
         "rows": len(d),
         "tubes_measured": [t + 1 for t in d.tubes],
         "shots": int(len(fs.shots)),
+        "fit_shots": int(len(fit)),
+        "validation_shots": int(len(val)),
         "train_rows": fs.train_rows,
         "heldout_rows": int(len(fs.heldout)),
         "heldout_fraction": fs.heldout_fraction,

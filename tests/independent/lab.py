@@ -276,3 +276,98 @@ def make(n: int, effects: dict[str, float], seed: int, sigma_mm: float = 0.1, mo
         truth["registration"] = {"rotation_vector_rad": rv.tolist(), "translation_mm": tr.tolist()}
     noisy = tips + rng.normal(0.0, sigma_mm, tips.shape)
     return LabData(q=q, tips_mm=noisy, clean_mm=tips, sigma_mm=sigma_mm, effects=truth)
+
+
+# ---- a lab that fails like real data -----------------------------------------------------------------
+# What a third-party data set of a three-tube robot showed (1,307 rows in acquisition order, EM tracker on
+# the tip of tube 1 only): beta2, beta3 and alpha3 never move; alpha1 and alpha2 lag 1.7 and 4.4 deg
+# behind the command in the direction of motion (backlash plus hysteresis); the tracker registration is
+# about 9 mm and 4 deg; 0.24 mm noise. `real_like` makes data of that kind.
+
+#: The real data's figures the lab reproduces (tube-1 tip, last 30 % held out, mm).
+REAL_LAG_DEG = (1.7, 4.4)           # total lag of alpha1, alpha2 after a long move in one direction
+REAL_REGISTRATION = (9.0, 4.0)      # tracker translation mm, rotation deg
+REAL_SIGMA_MM = 0.24
+REAL_ROWS = 1307
+#: The share of each lag that is play (a dead band: after a reversal the tube does not turn until the
+#: drive has crossed twice this); the rest is hysteresis that builds up over `HYSTERESIS_SCALE_RAD`.
+PLAY_SHARE = 0.6
+HYSTERESIS_SCALE_RAD = math.radians(3.0)
+
+
+def play_lag(x: np.ndarray, half_width: float) -> np.ndarray:
+    """Lag (n,) rad of a play (backlash) operator behind the commanded angle sequence x (n,): the output
+    y follows x only when it is more than ``half_width`` away, y_k = clip(y_(k-1), x_k - w, x_k + w),
+    y_0 = x_0; lag = x - y, in [-w, w]."""
+    y, out = x[0], np.empty_like(x)
+    for k, xk in enumerate(x):
+        y = min(max(y, xk - half_width), xk + half_width)
+        out[k] = xk - y
+    return out
+
+
+def hysteresis_lag(x: np.ndarray, amplitude: float, scale: float) -> np.ndarray:
+    """Lag (n,) rad of a first-order (Dahl-type) hysteresis behind the commanded angles x (n,): on a
+    move dx it relaxes to sign(dx) * amplitude as h <- s a + (h - s a) exp(-|dx| / scale); 0 at start."""
+    h, out = 0.0, np.zeros_like(x)
+    for k in range(1, len(x)):
+        dx = x[k] - x[k - 1]
+        if dx:
+            target = math.copysign(amplitude, dx)
+            h = target + (h - target) * math.exp(-abs(dx) / scale)
+        out[k] = h
+    return out
+
+
+def walk(n: int, rng: np.random.Generator, fixed: dict[int, float], speed=(0.35, 0.0, 0.0, 0.035, 0.035, 0.0),
+         turn: float = 0.04) -> np.ndarray:
+    """``n`` rows (n, 6) of a random walk with momentum: each moving joint keeps its direction and
+    reverses with probability ``turn`` per row (and at its limits), its step ``speed`` (mm / rad)
+    times a factor in [0.3, 1.7]; the ``fixed`` joints (index -> value) never move. Limits: beta1 in
+    [beta2 - 14, beta2 - 1] mm, alpha in [-2.8, 2.8] rad."""
+    q = np.array([fixed.get(j, 0.0) for j in range(6)])
+    lo = np.array([q[1] - 14.0, 0, 0, -2.8, -2.8, -2.8])
+    hi = np.array([q[1] - 1.0, 0, 0, 2.8, 2.8, 2.8])
+    moving = [j for j in range(6) if j not in fixed]
+    q[moving] = rng.uniform(lo[moving], hi[moving])
+    sign = rng.choice([-1.0, 1.0], 6)
+    out = np.empty((n, 6))
+    for r in range(n):
+        for j in moving:
+            nxt = q[j] + sign[j] * speed[j] * rng.uniform(0.3, 1.7)
+            if rng.random() < turn or not lo[j] <= nxt <= hi[j]:
+                sign[j] = -sign[j]
+                nxt = q[j] + sign[j] * speed[j] * rng.uniform(0.3, 1.7)
+            q[j] = float(np.clip(nxt, lo[j], hi[j]))
+        out[r] = q
+    return out
+
+
+def real_like(n: int = REAL_ROWS, seed: int = 0, curvature: tuple = (1.08, 0.94, 1.0),
+              lag_deg: tuple = REAL_LAG_DEG, registration: tuple = REAL_REGISTRATION,
+              sigma_mm: float = REAL_SIGMA_MM) -> LabData:
+    """Data like the real set: beta2 = -30, beta3 = -5 mm and alpha3 = 0.3 rad fixed; beta1, alpha1 and
+    alpha2 random-walk (`walk`); tube pre-curvatures scaled by ``curvature``; alpha1, alpha2 lag
+    ``lag_deg`` (`PLAY_SHARE` play, the rest hysteresis); a tracker rotated ``registration[1]`` deg and
+    shifted ``registration[0]`` mm; Gaussian noise ``sigma_mm`` per coordinate. Write it with
+    ``write_csv(path, tubes=(0,))``: only the tip of tube 1 is measured."""
+    rng = np.random.default_rng(seed)
+    tubes = Tubes.paper().scaled(kappa_per_mm=np.asarray(curvature, dtype=float))
+    q = walk(n, rng, {1: -30.0, 2: -5.0, 5: 0.3})
+    reached = q.copy()
+    for i, lag in zip((3, 4), np.radians(lag_deg), strict=True):
+        reached[:, i] -= play_lag(q[:, i], PLAY_SHARE * lag) \
+            + hysteresis_lag(q[:, i], (1 - PLAY_SHARE) * lag, HYSTERESIS_SCALE_RAD)
+    sol = solve(reached, tubes)
+    assert sol["converged"].all()
+    axis, shift = rng.normal(size=3), rng.normal(size=3)
+    rv = axis / np.linalg.norm(axis) * math.radians(registration[1])
+    tr = shift / np.linalg.norm(shift) * registration[0]
+    tips = sol["tips_mm"] @ _rodrigues(rv).T + tr
+    truth = {"curvature": {"kappa_factor": list(curvature)},
+             "lag": {"total_deg": list(lag_deg), "play_share": PLAY_SHARE,
+                     "hysteresis_scale_rad": HYSTERESIS_SCALE_RAD},
+             "registration": {"rotation_vector_rad": rv.tolist(), "translation_mm": tr.tolist()},
+             "fixed": {"beta2": -30.0, "beta3": -5.0, "alpha3": 0.3}}
+    noisy = tips + rng.normal(0.0, sigma_mm, tips.shape)
+    return LabData(q=q, tips_mm=noisy, clean_mm=tips, sigma_mm=sigma_mm, effects=truth)

@@ -1,0 +1,102 @@
+"""The real-like lab (`tests/independent/lab.real_like`: fixed joints, play + hysteresis lag, a large
+tracker registration, only tube 1 measured) and the learned lag correction of `ctrplan.measurement`,
+checked against closed forms."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from ctrplan.measurement import LagCorrection, motion_direction, play_features
+from ctrplan.robot import Robot
+from tests.independent import lab
+
+
+def test_play_lag_closed_form():
+    """From rest a move of d gives a lag min(d, w); a reversal then takes 2 w of travel to cross."""
+    w = 0.05
+    up = np.linspace(0.0, 0.2, 41)                      # steps of 0.005
+    lag = lab.play_lag(up, w)
+    assert np.allclose(lag, np.minimum(up, w))
+    down = np.concatenate([up, 0.2 - np.linspace(0.005, 0.2, 40)])
+    lag = lab.play_lag(down, w)[41:]
+    travel = np.linspace(0.005, 0.2, 40)
+    assert np.allclose(lag, np.maximum(w - travel, -w))
+
+
+def test_hysteresis_lag_closed_form():
+    """A monotone move of d from rest: a (1 - exp(-d / rho)) whatever the steps; a reversal relaxes
+    towards -a from where it was."""
+    a, rho = 0.03, 0.05
+    x = np.concatenate([[0.0], np.cumsum(np.random.default_rng(0).uniform(0.001, 0.02, 30))])
+    assert np.allclose(lab.hysteresis_lag(x, a, rho), a * (1 - np.exp(-x / rho)))
+    back = np.concatenate([x, x[-1] - np.array([0.01, 0.03])])
+    h0 = a * (1 - math.exp(-x[-1] / rho))
+    expected = -a + (h0 + a) * np.exp(-np.array([0.01, 0.03]) / rho)
+    assert np.allclose(lab.hysteresis_lag(back, a, rho)[-2:], expected)
+
+
+def test_walk_keeps_fixed_joints_and_limits():
+    q = lab.walk(400, np.random.default_rng(3), {1: -30.0, 2: -5.0, 5: 0.3})
+    assert (q[:, 1] == -30.0).all() and (q[:, 2] == -5.0).all() and (q[:, 5] == 0.3).all()
+    assert (q[:, 0] >= -44.0).all() and (q[:, 0] <= -31.0).all()
+    assert (np.abs(q[:, 3:5]) <= 2.8).all()
+    steps = np.abs(np.diff(q, axis=0))
+    assert steps[:, 3:5].max() <= 0.035 * 1.7 + 1e-12 and steps[:, 0].max() <= 0.35 * 1.7 + 1e-12
+    reversals = (np.diff(np.sign(np.diff(q[:, 3]))) != 0).sum()
+    assert 5 <= reversals <= 60                         # a realistic back and forth, not noise
+
+
+@pytest.fixture(scope="module")
+def real():
+    return lab.real_like(n=120, seed=1)
+
+
+def test_real_like_registration_lag_and_noise(real):
+    reg = real.effects["registration"]
+    assert math.isclose(np.linalg.norm(reg["translation_mm"]), lab.REAL_REGISTRATION[0])
+    assert math.isclose(math.degrees(np.linalg.norm(reg["rotation_vector_rad"])), lab.REAL_REGISTRATION[1])
+    noise = real.tips_mm - real.clean_mm
+    assert 0.18 < noise.std() < 0.30                   # 0.24 mm per coordinate, 360 samples
+    # after a long move in one direction the lag is the full one: play w plus hysteresis a (1 - e^-x)
+    x = np.linspace(0.0, 0.5, 100)
+    for total in np.radians(lab.REAL_LAG_DEG):
+        lag = lab.play_lag(x, lab.PLAY_SHARE * total) + lab.hysteresis_lag(
+            x, (1 - lab.PLAY_SHARE) * total, lab.HYSTERESIS_SCALE_RAD)
+        assert math.isclose(lag[-1], total, rel_tol=1e-3)
+
+
+def test_real_like_writes_only_tube1(real, tmp_path):
+    path = tmp_path / "m.csv"
+    real.write_csv(path, tubes=(0,))
+    head = path.read_text().splitlines()[0].split(",")
+    assert head == ["beta1", "beta2", "beta3", "alpha1", "alpha2", "alpha3", "tip1_x", "tip1_y", "tip1_z"]
+
+
+def test_play_features_closed_form():
+    """Radius 0 is the direction of motion; radius r ramps from +1 to -1 over 2 r after a reversal."""
+    x = np.r_[0.0, 0.1, 0.2, 0.18, 0.16, 0.14, 0.12, 0.3][:, None]
+    d = motion_direction(x)
+    phi = play_features(x, [0.0, 0.02], d)[:, 0]
+    assert np.array_equal(phi[:, 0], d[:, 0])
+    assert np.allclose(phi[:, 1], [0, 1, 1, 0, -1, -1, -1, 1])
+
+
+def test_lag_correction_joints_and_robot_file(tmp_path):
+    """alpha_i reaches alpha_i - sum_k w_ik phi_ik; the robot file keeps the correction."""
+    lag = LagCorrection((0.0, 0.02), ((0.01, 0.03), (0.0, 0.0), (0.0, 0.0)))
+    q = np.zeros((4, 6))
+    q[:, 3] = [0.0, 0.1, 0.2, 0.18]
+    robot = Robot.nominal()
+    robot = robot.with_changes(calibration=robot.calibration.with_lag(lag))
+    qm = robot.calibration.mechanics_joints(q)
+    assert np.allclose(qm[:, 3], q[:, 3] - (0.01 * np.r_[0, 1, 1, -1] + 0.03 * np.r_[0, 1, 1, 0]))
+    assert np.array_equal(qm[:, [0, 1, 2, 4, 5]], q[:, [0, 1, 2, 4, 5]])
+    path = tmp_path / "r.yaml"
+    robot.save(path)
+    assert yaml.safe_load(path.read_text())["calibration"]["lag_correction"]["radii_rad"] == [0.0, 0.02]
+    back = Robot.load(path)
+    assert back.calibration.lag == lag and back.fingerprint == Robot.nominal().fingerprint
