@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from ctrplan.calibration.data import write_measured_csv
+from ctrplan.calibration.split import split_rows
 from ctrplan.calibration.synthetic import generate
 from ctrplan.cli import main
 from ctrplan.kinematics import make_backend
@@ -55,7 +56,8 @@ def test_finetuning_lowers_heldout_error(finetuned):
     _, card = finetuned
     table = card["metrics"]["measured_heldout"]
     models = {m["key"]: m for m in table["models"]}
-    assert list(models) == ["nominal", "extended", "pinn_start", "pinn_adapted", "pinn_finetuned"]
+    assert list(models) == ["nominal", "extended", "extended_lag", "pinn_start", "pinn_adapted",
+                            "pinn_finetuned"]
     noise = 0.1 * np.sqrt(3)
     start, tuned = models["pinn_start"]["mean_mm"], models["pinn_finetuned"]["mean_mm"]
     assert start > 5 * noise                  # the hidden cause is visible to the shipped model
@@ -71,21 +73,50 @@ def test_card_records_data_and_model_loads(finetuned, measured):
     assert on["file"] == measured.name
     assert on["sha256"] == hashlib.sha256(measured.read_bytes()).hexdigest()
     assert on["shots"] == SHOTS and on["rows"] == ROWS
+    assert on["fit_shots"] + on["validation_shots"] == SHOTS and on["validation_shots"] == SHOTS // 5
     assert on["heldout_rows"] == card["metrics"]["measured_heldout"]["rows"] == ROWS * HELDOUT
     assert on["init_model"] == "pinn_nominal" and on["extended_model"]["cause"] == "curvature"
     assert set(on["stage_seconds"]) == {"diagnose_s", "adapt_s", "learn_s"}
     assert all(v > 0 for v in on["stage_seconds"].values())
-    extended = Robot.load(path.with_suffix(".robot.yaml"))   # its mechanics, written beside it
+    extended = Robot.load(path.with_suffix(".mechanics.robot.yaml"))   # its mechanics, written beside it
     assert extended.calibration.is_identity                  # a robot file `plan` accepts
     kappa1 = extended.tubes[0].curvature_per_mm / Robot.nominal().tubes[0].curvature_per_mm
     assert 1.05 < kappa1 < 1.15                                  # the hidden 10 % found
-    assert card["robot_fingerprint"] == extended.fingerprint != Robot.nominal().fingerprint
+    kept = on["kept"]
+    assert kept["stage"] in ("pinn_start", "pinn_adapted", "pinn_finetuned")
+    if kept["stage"] != "pinn_start":   # the model of the extended mechanics
+        assert card["robot_fingerprint"] == extended.fingerprint != Robot.nominal().fingerprint
+    errors = kept["validation_mean_mm"]
+    assert errors[kept["stage"]] == min(errors.values()) and len(errors) == 3
     assert json.loads(path.with_suffix(".json").read_text())["finetuned_on"] == on
     assert path.with_name("ft_adapted.safetensors").exists()    # stage 2's model of the mechanics
+    assert path.with_name("ft_adapted.robot.yaml").exists()
     # `--backend pinn --model PATH` loads it for the extended robot
     pinn = make_backend("pinn", extended, path.with_suffix(".safetensors"))
     q = extended.sample_joints(4, rng=0)
     assert np.isfinite(pinn.forward(q, points=10).tips_mm).all()
+
+
+def test_fk_with_the_written_robot_agrees_with_train(finetuned, measured, tmp_path):
+    """`fk --robot NAME.robot.yaml --model NAME` on the held-out rows gives the error `train` reported
+    for the stage it kept: the calibration is applied once, not twice and not never."""
+    path, card = finetuned
+    table = card["metrics"]["measured_heldout"]
+    kept = {m["key"]: m for m in table["models"]}[card["finetuned_on"]["kept"]["stage"]]
+    data = np.genfromtxt(measured, delimiter=",", names=True)
+    rows = split_rows(ROWS, HELDOUT).heldout
+    configs = tmp_path / "heldout.csv"
+    joints = ["beta1", "beta2", "beta3", "alpha1", "alpha2", "alpha3"]
+    np.savetxt(configs, np.column_stack([data[j][rows] for j in joints]), delimiter=",",
+               header=",".join(joints), comments="", fmt="%.17g")
+    out = tmp_path / "fk.csv"
+    assert main(["fk", str(configs), "--backend", "pinn", "--robot", str(path.with_suffix(".robot.yaml")),
+                 "--model", str(path.with_suffix(".safetensors")), "-o", str(out)]) == 0
+    fk = np.genfromtxt(out, delimiter=",", names=True)
+    err = np.hypot(np.hypot(fk["tip1_x"] - data["tip1_x"][rows], fk["tip1_y"] - data["tip1_y"][rows]),
+                   fk["tip1_z"] - data["tip1_z"][rows])
+    assert table["rows"] == len(rows)
+    assert abs(err.mean() - kept["mean_mm"]) < 0.01 and abs(np.percentile(err, 95) - kept["p95_mm"]) < 0.02
 
 
 BAD = {

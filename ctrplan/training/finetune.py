@@ -117,8 +117,10 @@ def kept_text(kept: dict) -> str:
     errors = ", ".join(f"{MODELS[k]} {v:.3f}" for k, v in kept["validation_mean_mm"].items())
     text = (f"kept: {MODELS[kept['stage']]} (tube-1 tip error on {kept['validation_rows']} validation "
             f"shots, mean mm: {errors})")
-    if kept["stage"] != "pinn_finetuned":
-        text += (f"; the fine-tuned PINN was worse there than the {MODELS[kept['stage']]}, so the "
+    errs = kept["validation_mean_mm"]
+    if kept["stage"] != "pinn_finetuned" and errs:
+        worse = "worse" if errs["pinn_finetuned"] > errs[kept["stage"]] else "no better"
+        text += (f"; the fine-tuned PINN was {worse} there than the {MODELS[kept['stage']]}, so the "
                  f"{MODELS[kept['stage']]} is written instead")
     return text
 
