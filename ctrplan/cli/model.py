@@ -85,8 +85,11 @@ def train(
 
     With `--measured DATA.csv --shots N` it continues training a model (default: the shipped one) on
     N measured training rows plus the physics residuals, and prints the held-out tip error of the
-    nominal and extended Cosserat models (`diagnose` on the same rows) and of the PINN before and
-    after; the card records the data file (name, SHA-256), the split and that table.
+    nominal and extended Cosserat models (`diagnose` on the same rows) and of the PINN before, adapted
+    and after; the last fifth of the shots choose the stage written (never one worse there than the
+    model it started from; it says which), NAME_adapted is written too, and NAME.robot.yaml carries the
+    calibration so `fk --robot NAME.robot.yaml --model NAME` predicts what the tracker measures; the card
+    records the data file (name, SHA-256), the split, the stage kept and that table.
     """
     import torch
 

@@ -3,7 +3,8 @@ and the observations the PINN is trained on.
 
 The rows are split as `ctrplan diagnose` splits them (`ctrplan.calibration.split.split_rows`: a
 fraction held out in contiguous blocks, or the last rows); the ``shots`` training rows are taken from
-the training rows as contiguous runs spread over them (`contiguous_subsample`; rows are sequences).
+the training rows as contiguous runs spread over them (`contiguous_subsample`; rows are sequences); the
+last `VALIDATION_FRACTION` of the shots validate the stages of `ctrplan.training.finetune`.
 Rows outside the snap-free domain -- which the reader accepts and flags -- are used neither for
 training nor in the held-out error: the PINN and its collocation points cover the snap-free domain
 only.

@@ -268,6 +268,7 @@ def _write_kept(result: TrainResult, out: Path, kept: tuple[PinnNet, Robot], rec
     return TrainResult(net=net, steps=result.steps, wall_time_s=result.wall_time_s, history=result.history,
                        card=card)
 
+
 def _data_record(fs: FewShot, diag: Diagnosis, fit: np.ndarray, val: np.ndarray) -> dict:
     d = fs.data
     j = diag.to_json()
