@@ -99,6 +99,7 @@ def main() -> None:
     parser.add_argument("extra", nargs="*")
     ns = parser.parse_args()
     report = run_lab(ns.out, ns.seed, ns.shots, ns.extra)
+    (ns.out / "report.json").write_text(json.dumps(report, indent=1))   # what update_readme renders
     print(json.dumps({k: v for k, v in report.items() if k != "card"}, indent=1))
 
 

@@ -326,11 +326,16 @@ def render_finetune(report: dict[str, Any]) -> str:
               f"(via `scripts/update_readme.py finetune`, which runs `scripts/fewshot_lab.py`).")
 
 
-def run_finetune(extra: list[str]) -> str:
+def run_finetune(extra: list[str], results: Path | None = None) -> str:
     """Fine-tune the shipped PINN on 500 shots of the real-like lab (`scripts/fewshot_lab.py`) and render
-    the held-out table."""
+    the held-out table; or render the ``report.json`` an earlier `scripts/fewshot_lab.py OUT` wrote
+    (its model card is read from OUT/ft.json where the report lacks it)."""
     import tempfile
 
+    if results is not None:
+        report = json.loads(results.read_text())
+        report.setdefault("card", json.loads((results.parent / "ft.json").read_text()))
+        return render_finetune(report)
     sys.path.insert(0, str(README.parent / "scripts"))
     from fewshot_lab import run_lab
 
@@ -463,7 +468,7 @@ def main(argv: list[str] | None = None) -> None:
     elif ns.block == "robots":
         marker, body = "pinn:robots", render_robots(json.loads(ROBOTS_JSON.read_text()))
     elif ns.block == "finetune":
-        marker, body = FINETUNE_MARKER, run_finetune(extra)
+        marker, body = FINETUNE_MARKER, run_finetune(extra, ns.results)
     elif ns.block == "design-loop":
         marker, body = LOOP_MARKER, run_design_loop(extra)
     else:
