@@ -100,3 +100,37 @@ def test_lag_correction_joints_and_robot_file(tmp_path):
     assert yaml.safe_load(path.read_text())["calibration"]["lag_correction"]["radii_rad"] == [0.0, 0.02]
     back = Robot.load(path)
     assert back.calibration.lag == lag and back.fingerprint == Robot.nominal().fingerprint
+
+
+def test_learned_lag_recovers_the_lab_lag():
+    """On real-like lab rows, with the true mechanics and registration (and no backlash term), the lag
+    correction fitted on the first rows recovers the total lag of alpha1 and alpha2 (the sum of its
+    weights: the lag after a long move) and brings later rows near the noise, which backlash alone with
+    the true total lag does not."""
+    from dataclasses import replace
+
+    from ctrplan.training.lag import fit_lag, tube1_tips, with_lag
+
+    data = lab.real_like(n=360, seed=4)
+    nominal = Robot.nominal()
+    kappa = data.effects["curvature"]["kappa_factor"]
+    reg = data.effects["registration"]
+    tubes = tuple(replace(t, curvature_per_mm=t.curvature_per_mm * k)
+                  for t, k in zip(nominal.tubes, kappa, strict=True))
+    frame = reg["rotation_vector_rad"] + reg["translation_mm"]
+    calibration = nominal.calibration.with_term("registration", frame)
+    robot = nominal.with_changes(tubes=tubes, calibration=calibration)
+    q, d = data.q, motion_direction(data.q)
+    fit, test = np.arange(240), np.arange(240, 360)
+    lag = fit_lag(robot, q, d, fit, data.tips_mm[fit, 0])
+    total = np.degrees(np.sum(lag.weights_rad, axis=1))
+    assert np.allclose(total[:2], lab.REAL_LAG_DEG, atol=0.5) and total[2] == 0.0   # alpha3 never moves
+
+    def mean_error(model: Robot) -> float:
+        tips = tube1_tips(model, model.calibration.mechanics_joints(q, d)[test])
+        return float(np.linalg.norm(tips - data.tips_mm[test, 0], axis=1).mean())
+
+    backlash = robot.with_changes(calibration=robot.calibration.with_term(
+        "backlash", [*np.radians(lab.REAL_LAG_DEG), 0.0]))
+    noise = 1.596 * lab.REAL_SIGMA_MM           # mean norm of 3-D Gaussian noise: 2 sqrt(2 / pi) sigma
+    assert mean_error(with_lag(robot, lag)) < 1.15 * noise < mean_error(backlash)
