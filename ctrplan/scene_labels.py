@@ -14,15 +14,13 @@ new scene loads; files already written are removed again when a later step fails
 
 from __future__ import annotations
 
-import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
-from ctrplan.robot import BUILTIN_ROBOTS
-from ctrplan.scene import Scene, scene_from_yaml
+from ctrplan.scene import Scene, relocated, scene_from_yaml
 from ctrplan.segmentation import LabelVolume, label_mesh, read_label_volume
 from ctrplan.yamlio import YamlDoc, dump_yaml, load_yaml
 
@@ -60,18 +58,6 @@ def read_names(path: str | Path) -> tuple[NamedLabel, ...]:
     return tuple(named)
 
 
-def _robot_entry(template: YamlDoc, out: Path) -> str:
-    """The template's ``robot`` value as NEW.yaml must say it (a file renamed relative to ``out``)."""
-    spec = template.data.get("robot")
-    if not isinstance(spec, str) or spec in BUILTIN_ROBOTS or Path(spec).is_absolute():
-        return spec
-    target = (template.path.parent / spec).resolve()
-    try:
-        return os.path.relpath(target, out.parent.resolve())
-    except ValueError:  # another drive (Windows): no relative path exists
-        return str(target)
-
-
 def scene_from_labels(labels: str | Path, names: str | Path, template: str | Path,
                       out: str | Path) -> tuple[Scene, LabelVolume]:
     """Write NEW.yaml (``out``) and its meshes; return the loaded new scene and the volume."""
@@ -87,8 +73,7 @@ def scene_from_labels(labels: str | Path, names: str | Path, template: str | Pat
     meshes = {n.name: _mesh_of(volume, n, names) for n in named}
     check_output_dir(out.parent)
     mesh_dir = out.parent / f"{out.stem}_meshes"
-    data = dict(template_doc.data)
-    data["robot"] = _robot_entry(template_doc, out)
+    data = relocated(template_doc, out)
     data["obstacles"] = [{"name": name, "mesh": f"{mesh_dir.name}/{name}.stl"} for name in meshes]
     created = [p for p in (mesh_dir, *mesh_dir.parents) if not p.exists()]
     written: list[Path] = []
