@@ -19,6 +19,7 @@ from typing import Annotated
 import numpy as np
 import typer
 
+from ctrplan import console as console_state
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, load_backend
 from ctrplan.dataio import check_output_dir, output_dir
@@ -103,6 +104,8 @@ def plan_command(
         be = load_backend(backend, sc.robot, model)
         result = plan(sc, be, planner=planner, time_limit_s=time_limit, seed=seed,
                       progress=progress.update)
+    if console_state.interrupted():  # Ctrl-C inside an OMPL callback ends the search, not the command
+        raise KeyboardInterrupt
     pinn = getattr(be, "pinn", be)  # hybrid keeps its PINN in .pinn
     doc = plan_document(result, sc, scene, getattr(pinn, "card", {}).get("weights_file"))
     if out is not None:
