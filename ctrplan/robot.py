@@ -14,7 +14,7 @@ import hashlib
 import json
 import math
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from functools import cached_property
 from importlib import resources
 from pathlib import Path
@@ -92,6 +92,25 @@ class Loads:
         """Loads along z only (or none): rotating every tube by the same angle then rotates the whole
         robot about z, a symmetry the PINN's equivariant encoding builds in."""
         return not any(self.gravity_m_s2[:2]) and not any(self.tip_force_n[:2])
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """Actuation limits for timed trajectories (robot file ``limits:``): speed and acceleration of
+    every translation (mm/s, mm/s^2) and rotation (rad/s, rad/s^2). The defaults are those of a
+    bench-top CTR actuation unit, slow enough for a surgeon to follow."""
+
+    speed_mm_per_s: float = 10.0
+    speed_rad_per_s: float = 1.0
+    acceleration_mm_per_s2: float = 50.0
+    acceleration_rad_per_s2: float = 5.0
+
+    def per_joint(self, n_tubes: int) -> tuple[np.ndarray, np.ndarray]:
+        """Speed and acceleration limits (2N,) in joint order (betas, then alphas)."""
+        speed = np.r_[np.full(n_tubes, self.speed_mm_per_s), np.full(n_tubes, self.speed_rad_per_s)]
+        accel = np.r_[np.full(n_tubes, self.acceleration_mm_per_s2),
+                      np.full(n_tubes, self.acceleration_rad_per_s2)]
+        return speed, accel
 
 
 def joint_names(n_tubes: int) -> tuple[str, ...]:
@@ -252,6 +271,7 @@ class Robot:
     joint_offset: tuple[float, ...] = ()
     calibration: Calibration = field(default_factory=Calibration)
     name: str = "custom"
+    limits: JointLimits = field(default_factory=JointLimits)
 
     def __post_init__(self) -> None:
         n = len(self.tubes)
@@ -352,6 +372,8 @@ class Robot:
         }
         if not self.calibration.is_identity:  # absent when unused: fingerprints stay stable
             out[CALIBRATION_KEY] = self.calibration.to_dict()
+        if self.limits != JointLimits():
+            out["limits"] = dict(vars(self.limits))
         return out
 
     @cached_property
@@ -364,6 +386,7 @@ class Robot:
         """
         d = self.mechanics.to_dict()
         d.pop("name")
+        d.pop("limits", None)  # how fast it is driven is not mechanics
         text = json.dumps(_rounded(d), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest()
 
@@ -558,7 +581,7 @@ def _domain_from_yaml(doc: YamlDoc, n: int) -> JointDomain:
 def robot_from_yaml(doc: YamlDoc) -> Robot:
     """Build a validated `Robot` from a parsed robot file; errors name the key and line."""
     d = doc.data
-    _unknown(doc, (), d, {"name", "tubes", "domain", "loads", "joint_offset", CALIBRATION_KEY})
+    _unknown(doc, (), d, {"name", "tubes", "domain", "loads", "joint_offset", "limits", CALIBRATION_KEY})
     tubes_raw = d.get("tubes")
     if not isinstance(tubes_raw, list) or not 1 <= len(tubes_raw) <= MAX_TUBES:
         raise doc.error(("tubes",), f"expected a list of 1 to {MAX_TUBES} tubes (innermost first)")
@@ -597,5 +620,20 @@ def robot_from_yaml(doc: YamlDoc) -> Robot:
     calibration = Calibration.from_doc(doc, n)
     name = d.get("name", doc.path.stem)
     robot = Robot(tubes=tuple(tubes), domain=domain, loads=loads, joint_offset=offset,
-                  calibration=calibration, name=str(name))
+                  calibration=calibration, name=str(name), limits=_limits_from_yaml(doc))
     return robot
+
+
+def _limits_from_yaml(doc: YamlDoc) -> JointLimits:
+    raw = doc.data.get("limits")
+    if raw is None:
+        return JointLimits()
+    if not isinstance(raw, dict):
+        raise doc.error(("limits",), "expected a mapping")
+    allowed = {f.name for f in fields(JointLimits)}
+    _unknown(doc, ("limits",), raw, allowed)
+    values = {k: _number(doc, ("limits", k), v) for k, v in raw.items()}
+    for k, v in values.items():
+        if not 0.0 < v < 1e6:
+            raise doc.error(("limits", k), f"must be > 0 (and finite), got {v:g}")
+    return JointLimits(**values)

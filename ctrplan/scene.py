@@ -55,7 +55,9 @@ direction or a ``rotation`` (local z = axis).
 
 from __future__ import annotations
 
+import copy
 import math
+import os
 from dataclasses import dataclass, field, fields, replace
 from functools import cached_property
 from pathlib import Path
@@ -698,8 +700,11 @@ def _joint_limits(doc: YamlDoc, raw: Any, robot: Robot) -> tuple[np.ndarray, np.
     return lo, hi
 
 
-def scene_from_yaml(doc: YamlDoc) -> Scene:
-    """Build a validated `Scene` from a parsed YAML document (errors name key and line)."""
+def scene_from_yaml(doc: YamlDoc, *, check_start: bool = True, robot: Robot | None = None) -> Scene:
+    """Build a validated `Scene` from a parsed YAML document (errors name key and line). With
+    ``check_start=False`` a start outside the joint domain (or the scene's joint limits) is kept, for
+    `ctrplan.planning.scene_check` to report and repair. ``robot`` replaces the scene's ``robot:``
+    (``plan --robot``)."""
     d = doc.data
     for k in d:
         if k not in _TOP_KEYS:
@@ -708,23 +713,7 @@ def scene_from_yaml(doc: YamlDoc) -> Scene:
         if k not in d:
             raise doc.error((), f"missing required key {k!r}")
 
-    spec = d["robot"]
-    if not isinstance(spec, str) or not spec:
-        raise doc.error(("robot",), f"expected a built-in robot name or a robot file, got {spec!r}")
-    from ctrplan.robot import BUILTIN_ROBOTS
-
-    if spec not in BUILTIN_ROBOTS:
-        rpath = Path(spec)
-        if not rpath.is_absolute():
-            rpath = doc.path.parent / rpath
-        if not rpath.is_file():
-            raise doc.error(("robot",), f"not a built-in robot ({', '.join(BUILTIN_ROBOTS)}) and no "
-                                        f"such file: {rpath}")
-        spec = rpath
-    try:
-        robot = Robot.load(spec)
-    except InputError as exc:
-        raise doc.error(("robot",), str(exc)) from None
+    robot = robot or _robot(doc, d["robot"])
 
     base_pose = _pose(doc, ("base_pose",), d["base_pose"])
 
@@ -748,17 +737,18 @@ def scene_from_yaml(doc: YamlDoc) -> Scene:
         raise doc.error(("target",), f"out of reach: the target region is {gap:.1f} mm from the robot "
                                      f"base, but the robot is at most {reach:.1f} mm long")
     start = _vec(doc, ("start",), d["start"], robot.n_joints)
-    try:
-        robot.check_joints(start, where="start")
-    except InputError as exc:
-        raise doc.error(("start",), str(exc).removeprefix("start: ").removeprefix("row 0: ")) from None
+    if check_start:
+        try:
+            robot.check_joints(start, where="start")
+        except InputError as exc:
+            raise doc.error(("start",), str(exc).removeprefix("start: ").removeprefix("row 0: ")) from None
     settings = _settings(doc, d["planner"]) if "planner" in d else PlannerSettings()
     limits = None
     if "joint_limits" in d:
         limits = _joint_limits(doc, d["joint_limits"], robot)
         box = robot.domain.to_box(start)
         out = np.flatnonzero((box < limits[0] - 1e-9) | (box > limits[1] + 1e-9))
-        if out.size:
+        if out.size and check_start:
             i = int(out[0])
             names = joint_limit_keys(robot.n_tubes)
             raise doc.error(("start",), f"outside the scene's joint_limits: {names[i]}")
@@ -776,9 +766,53 @@ def scene_from_yaml(doc: YamlDoc) -> Scene:
                  key_lines={k: doc.lines[(k,)] for k in d if (k,) in doc.lines})
 
 
-def load_scene(path: str | Path) -> Scene:
-    """Load and validate a scene file (see the module docstring for the format)."""
+def _robot(doc: YamlDoc, spec: Any) -> Robot:
+    """The robot a scene's ``robot:`` names: built-in, or a file relative to the scene."""
+    if not isinstance(spec, str) or not spec:
+        raise doc.error(("robot",), f"expected a built-in robot name or a robot file, got {spec!r}")
+    from ctrplan.robot import BUILTIN_ROBOTS
+
+    if spec not in BUILTIN_ROBOTS:
+        rpath = Path(spec)
+        if not rpath.is_absolute():
+            rpath = doc.path.parent / rpath
+        if not rpath.is_file():
+            raise doc.error(("robot",), f"not a built-in robot ({', '.join(BUILTIN_ROBOTS)}) and no "
+                                        f"such file: {rpath}")
+        spec = rpath
+    try:
+        return Robot.load(spec)
+    except InputError as exc:
+        raise doc.error(("robot",), str(exc)) from None
+
+
+def load_scene(path: str | Path, *, check_start: bool = True, robot: Robot | None = None) -> Scene:
+    """Load and validate a scene file (see the module docstring for the format; ``check_start`` and
+    ``robot`` as in `scene_from_yaml`)."""
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{path}: is a directory, expected a scene YAML file")
-    return scene_from_yaml(load_yaml(path))
+    return scene_from_yaml(load_yaml(path), check_start=check_start, robot=robot)
+
+
+def relocated(doc: YamlDoc, out: Path) -> dict[str, Any]:
+    """The scene file ``doc``'s mapping as a file at ``out`` must say it: the robot file and mesh
+    paths, relative to ``doc``, made relative to ``out`` (absolute where no relative path exists)."""
+    from ctrplan.robot import BUILTIN_ROBOTS
+
+    def moved(rel: str) -> str:
+        if Path(rel).is_absolute():
+            return rel
+        target = (doc.path.parent / rel).resolve()
+        try:
+            return os.path.relpath(target, out.parent.resolve())
+        except ValueError:  # another drive (Windows)
+            return str(target)
+
+    data = copy.deepcopy(doc.data)
+    if isinstance(data.get("robot"), str) and data["robot"] not in BUILTIN_ROBOTS:
+        data["robot"] = moved(data["robot"])
+    for obstacle in data.get("obstacles") or []:
+        if isinstance(obstacle, dict) and isinstance(obstacle.get("mesh"), str):
+            obstacle["mesh"] = moved(obstacle["mesh"])
+    return data

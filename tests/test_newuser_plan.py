@@ -23,9 +23,14 @@ from ctrplan.kinematics.model_file import resolve_model
 REPO = Path(__file__).resolve().parents[1]
 OPEN = (REPO / "scenes" / "open.yaml").read_text()
 TARGET = "target:\n  point: [37.2, -27.2, 181.6]\n  tolerance_mm: 3.0\n"
-#: an ellipsoid target around the centre of the obstacle `ball`: every goal configuration collides
-BLOCKED = OPEN.replace(TARGET, "target:\n  ellipsoid:\n    center: [43.0, -47.0, 150.0]\n"
-                               "    semi_axes_mm: [2.0, 3.0, 4.0]\n")
+#: The target behind a wall across the whole workspace: every goal configuration collides.
+BLOCKED = OPEN.replace(TARGET, "target:\n  ellipsoid:\n    center: [37.2, -27.2, 181.6]\n"
+                               "    semi_axes_mm: [2.0, 3.0, 4.0]\n").replace(
+    "obstacles:\n", "obstacles:\n- {name: wall, box: {center: [0.0, 0.0, 165.0], "
+                     "size: [400.0, 400.0, 2.0]}}\n")
+#: The target inside the ball: refused before any search.
+INSIDE = OPEN.replace(TARGET, "target:\n  ellipsoid:\n    center: [43.0, -47.0, 150.0]\n"
+                              "    semi_axes_mm: [2.0, 3.0, 4.0]\n")
 
 
 def run(capsys, *args: str) -> tuple[int, str, str]:
@@ -87,6 +92,13 @@ def test_blocked_goal_reports_our_cause_not_ompl_noise(tmp_path, capfd):
     assert doc["goal_tolerance_mm"] is None
     assert doc["target"]["kind"] == "ellipsoid" and doc["target"]["semi_axes_mm"] == [2.0, 3.0, 4.0]
     assert "Skipping invalid goal" not in err and "at line" not in err and "Warning:" not in err
+
+
+def test_a_target_inside_an_obstacle_is_refused_before_searching(tmp_path, capsys):
+    scene = tmp_path / "inside.yaml"
+    scene.write_text(INSIDE)
+    one_line_error(*run(capsys, "plan", str(scene), "--backend", "cosserat", "--time-limit", "60"),
+                   "target", "inside the obstacle 'ball'")
 
 
 def test_ctrl_c_prints_one_line(tmp_path):

@@ -19,10 +19,12 @@ from typing import Annotated
 import numpy as np
 import typer
 
+from ctrplan import console as console_state
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, load_backend
 from ctrplan.dataio import check_output_dir, output_dir
 from ctrplan.errors import InputError
+from ctrplan.robot import Robot
 from ctrplan.scene import PLANNERS
 
 SceneArg = Annotated[Path, typer.Argument(metavar="SCENE.yaml", show_default=False,
@@ -61,6 +63,10 @@ def plan_command(
              "fallback, if the PINN cannot be used). The path is always re-validated with the exact "
              "Cosserat model.")] = "pinn",
     model: ModelOpt = None,
+    robot: Annotated[str | None, typer.Option(
+        "--robot", metavar="R.yaml", show_default=False,
+        help="Robot file or built-in name that replaces the scene's `robot:` (the scene's start must "
+             "fit it: `ctrplan scene check --robot R.yaml --fix OUT.yaml` finds one).")] = None,
     planner: Annotated[str | None, typer.Option(
         "--planner", metavar="NAME", show_default=False,
         help=f"OMPL planner: {' | '.join(PLANNERS)} (default: the scene's, rrtconnect).")] = None,
@@ -94,7 +100,7 @@ def plan_command(
     from ctrplan.scene import load_scene
 
     ou.setLogLevel(ou.LOG_WARN)
-    sc = load_scene(scene)
+    sc = load_scene(scene, robot=None if robot is None else Robot.load(robot))
     console = Console(stderr=json_out, highlight=False)
     err = Console(stderr=True, highlight=False)
 
@@ -103,6 +109,8 @@ def plan_command(
         be = load_backend(backend, sc.robot, model)
         result = plan(sc, be, planner=planner, time_limit_s=time_limit, seed=seed,
                       progress=progress.update)
+    if console_state.interrupted():  # Ctrl-C inside an OMPL callback ends the search, not the command
+        raise KeyboardInterrupt
     pinn = getattr(be, "pinn", be)  # hybrid keeps its PINN in .pinn
     doc = plan_document(result, sc, scene, getattr(pinn, "card", {}).get("weights_file"))
     if out is not None:

@@ -69,7 +69,8 @@ def default_model_for(robot: Robot) -> Path:
         except InputError:  # an unreadable card elsewhere does not stop the search
             continue
     raise InputError(f"no PINN model trained for robot {robot.name!r} (fingerprint "
-                     f"{robot.fingerprint[:12]}) in {MODELS_DIR.resolve()} or among the shipped models "
+                     f"{robot.fingerprint[:12]}; the robot comes from --robot or the scene's `robot:` "
+                     f"key) in {MODELS_DIR.resolve()} or among the shipped models "
                      f"({', '.join(shipped_models())}); train one with `ctrplan train --robot ROBOT.yaml "
                      f"--name {robot.name}_pinn`, or use the exact model (--backend cosserat)")
 
@@ -136,12 +137,18 @@ def load_model(model: str | Path | None, robot: Robot) -> tuple[PinnNet, dict[st
     card = read_card(weights)
     if card.get("robot_fingerprint") != robot.fingerprint:
         trained_for = card.get("robot", {}).get("name", "?")
+        own = weights.with_name(f"{weights.stem}.robot.yaml")
+        if own.is_file():  # a fine-tuned model carries the robot it was fitted to
+            raise InputError(
+                f"{weights}: model was trained for robot {trained_for!r}, not for robot {robot.name!r} "
+                f"(fingerprint {robot.fingerprint[:12]}); its robot file is {own}: pass it with "
+                f"`--robot {own}` (fk, shape, plan) or name it in the scene's `robot:` key")
         raise InputError(
             f"{weights}: model was trained for robot {trained_for!r} "
             f"(fingerprint {str(card.get('robot_fingerprint'))[:12]}), not for robot {robot.name!r} "
-            f"(fingerprint {robot.fingerprint[:12]}); train one for it with "
-            f"`ctrplan train --robot ROBOT.yaml --name {robot.name}_pinn` and use "
-            f"`--model {robot.name}_pinn` (with measured tips, then "
+            f"(fingerprint {robot.fingerprint[:12]}; the robot comes from --robot or the scene's "
+            f"`robot:` key); train one for it with `ctrplan train --robot ROBOT.yaml --name "
+            f"{robot.name}_pinn` and use `--model {robot.name}_pinn` (with measured tips, then "
             f"`ctrplan train --robot ROBOT.yaml --init {robot.name}_pinn --measured DATA.csv --shots 500`)")
     if file_sha256(weights) != card.get("weights_sha256"):
         raise InputError(f"{weights}: weights do not match the SHA-256 in the model card "

@@ -393,19 +393,14 @@ class PlanResult:
 
 
 def check_start(scene: Scene, checker: ConfigurationChecker, exact: Backend) -> None:
-    """Raise `InputError` if the start collides under the exact model (bad input)."""
-    from ctrplan.collision import RobotCollisionChecker
+    """Raise `InputError` with what `ctrplan.planning.scene_check` finds before a search (obstacles
+    of the wrong scale, a target inside an obstacle, a start outside the domain, not converged,
+    unstable or colliding under the exact model -- with the nearest valid start), one line."""
+    from ctrplan.planning.scene_check import check_scene
 
-    bb = exact.forward(scene.start, points=checker.points, check=False)
-    rc = RobotCollisionChecker(checker.world, scene.base_pose, checker.points, scene.settings.margin_mm)
-    if not bb.converged[0]:
-        raise InputError(f"{scene.where('start')}: the exact model does not converge at the start "
-                         f"configuration")
-    contacts = rc.contacts(bb.positions_mm[0], bb.radius_mm[0])
-    if contacts:
-        names = ", ".join(sorted({n for _, n in contacts}))
-        raise InputError(f"{scene.where('start')}: the start configuration is in collision with "
-                         f"{names} (margin {scene.settings.margin_mm:g} mm)")
+    report = check_scene(scene, reach=False, exact=exact, world=checker.world)
+    if not report.usable:
+        raise InputError("; ".join(p.message for p in report.problems))
 
 
 def compile_kernels(backends: list[Backend], q: np.ndarray, points: int) -> None:

@@ -1,0 +1,113 @@
+"""`ctrplan scene ...`: make and check planning scenes."""
+
+from __future__ import annotations
+
+from contextlib import nullcontext
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+from ctrplan.cli import HELP_SETTINGS, app
+from ctrplan.cli.kinematics import RobotOpt
+
+SCENE_HELP = "Make and check planning scenes."
+scene_app = typer.Typer(help=SCENE_HELP, short_help=SCENE_HELP, no_args_is_help=True,
+                        rich_markup_mode=None, context_settings=HELP_SETTINGS)
+app.add_typer(scene_app, name="scene")
+
+
+@scene_app.command("from-labels")
+def from_labels(
+    labels: Annotated[Path, typer.Argument(metavar="LABELS.nii[.gz]|LABELS.nrrd",
+                                           help="Label volume (integer voxels, with its affine).")],
+    names: Annotated[Path, typer.Option(
+        "--names", metavar="NAMES.yaml",
+        help="Label value -> obstacle name, e.g. '3: right_internal_carotid'.")],
+    template: Annotated[Path, typer.Option(
+        "--template", metavar="SCENE.yaml",
+        help="Scene whose robot, base pose, target, start and planner are kept; its frame must be the "
+             "volume's world frame (mm).")],
+    out: Annotated[Path, typer.Option("--out", metavar="NEW.yaml",
+                                      help="The new scene; its meshes go to NEW_meshes/ beside it.")],
+) -> None:
+    """Turn a segmentation into a scene: one watertight mesh per named label, in world mm.
+
+    Each label named in NAMES.yaml becomes an obstacle mesh placed by the volume's affine (voxel
+    spacing, orientation, origin): marching cubes, light smoothing and decimation, within one voxel
+    of the segmentation. NEW.yaml is the template with its obstacles replaced by these meshes.
+    """
+    from ctrplan.scene_labels import scene_from_labels
+
+    console = Console(stderr=True)
+    with console.status("meshing labels", spinner="dots") if console.is_terminal else nullcontext():
+        scene, volume = scene_from_labels(labels, names, template, out)
+    shape = "x".join(str(n) for n in volume.labels.shape)
+    spacing = "x".join(f"{v:.3g}" for v in volume.spacing_mm)
+    console.print(f"{volume.source}: {shape} voxels of {spacing} mm -> {len(scene.obstacles)} meshes")
+    for obstacle in scene.obstacles:
+        lo, hi = obstacle.bounds
+        console.print(f"  {obstacle.name}: {len(obstacle.faces)} triangles, extent "
+                      f"{' x '.join(f'{v:.1f}' for v in hi - lo)} mm")
+    console.print(f"wrote {out}")
+
+
+
+@scene_app.command("check")
+def check(
+    scene_file: Annotated[Path, typer.Argument(metavar="SCENE.yaml", help="The scene to check.")],
+    robot: RobotOpt = None,
+    fix: Annotated[Path | None, typer.Option(
+        "--fix", metavar="OUT.yaml",
+        help="Write the scene with the nearest valid start found to OUT.yaml.")] = None,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the reachability samples.")] = 0,
+) -> None:
+    """Check that a scene is usable before planning: units, target, reach, start.
+
+    Exit 0 with a short summary when it is; otherwise one line per problem and exit 2: obstacles of
+    the wrong scale (metres or micrometres against the robot's length), a target inside an obstacle,
+    a target no configuration reaches from the base pose (sampled, then inverse kinematics), a start
+    outside the domain, in collision (naming what it hits), not converged or unstable -- with the
+    nearest valid start found. With --fix, a scene whose only problem is its start is written to
+    OUT.yaml with that start (paths made relative to OUT.yaml) and the command exits 0.
+    """
+    from ctrplan.planning.scene_check import check_scene
+    from ctrplan.robot import Robot
+    from ctrplan.scene import load_scene
+
+    override = Robot.load(robot) if robot is not None else None
+    scene = load_scene(scene_file, check_start=False, robot=override)
+    console = Console(stderr=True)
+    with console.status("checking the scene", spinner="dots") if console.is_terminal else nullcontext():
+        report = check_scene(scene, seed=seed)
+    for key, fact in report.facts.items():
+        typer.echo(f"{key}: {fact}")
+    for problem in report.problems:
+        typer.echo(f"ctrplan: error: {problem.message}", err=True)
+    if report.usable:
+        typer.echo(f"{scene_file}: usable")
+        return
+    if fix is not None and report.fixed_start is not None:
+        write_fixed(scene_file, fix, report.fixed_start, robot)
+        if all(p.kind == "start" for p in report.problems):
+            typer.echo(f"wrote {fix} with the start {report.fixed_start.round(4).tolist()}")
+            return
+    raise typer.Exit(2)
+
+
+def write_fixed(scene_file: Path, out: Path, start, robot: str | None) -> None:
+    """``scene_file`` with ``start`` (and ``robot``, if given) as OUT.yaml, paths relative to it."""
+    from ctrplan.dataio import atomic_write, check_output_dir
+    from ctrplan.robot import BUILTIN_ROBOTS
+    from ctrplan.scene import relocated
+    from ctrplan.yamlio import dump_yaml, load_yaml
+
+    check_output_dir(out.parent, "--fix")
+    data = relocated(load_yaml(scene_file), out)
+    data["start"] = [round(float(v), 6) for v in start]
+    if robot is not None:
+        data["robot"] = robot if robot in BUILTIN_ROBOTS else str(Path(robot).resolve())
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(out) as fh:
+        fh.write(f"# {scene_file} with the start found by `ctrplan scene check --fix`.\n" + dump_yaml(data))

@@ -1,0 +1,196 @@
+"""Is a scene usable for planning? Checks that find, before any search, what would otherwise cost a
+planner its whole time budget or give a meaningless "solved".
+
+1. **Scale**: the obstacles' extent against the robot's length (meshes in metres are 1000x too
+   small, in micrometres 1000x too large).
+2. **Target inside an obstacle**: the target region lies wholly inside a closed obstacle (named).
+3. **Target out of reach**: no sampled configuration of the robot puts its tip in (or near) the
+   target from this base pose (the closest distance is reported).
+4. **Start**: outside the joint domain, in collision under the exact model (naming what it hits),
+   not converged or elastically unstable. The nearest valid start (`ctrplan.design.evaluate.
+   design_start`'s candidates: the start's own translations and the fully retracted ones, every
+   tube turned by 1/8 turns, nearest in the planning metric first) is proposed.
+
+`check_scene` returns the problems found; `plan` and `ctrplan scene check` report the same lines.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ctrplan.errors import InputError
+from ctrplan.kinematics import Backend, CosseratBackend
+from ctrplan.scene import Scene
+from ctrplan.stability import is_certified
+
+#: Obstacles spanning less than this fraction of the robot's length, or more than this multiple of
+#: it, are reported as a likely unit error.
+SCALE_TOO_SMALL = 0.02
+SCALE_TOO_LARGE = 100.0
+#: Configurations sampled (seeded) for the reachability check, and the closest of them from which
+#: inverse kinematics tries the target before it is called unreachable.
+REACH_SAMPLES = 4000
+REACH_IK_SEEDS = 16
+
+
+@dataclass(frozen=True)
+class SceneProblem:
+    """One thing that makes a scene unusable: ``kind`` is scale | target | reach | start."""
+
+    kind: str
+    message: str
+
+
+@dataclass
+class SceneCheck:
+    """What `check_scene` found: the problems (empty: usable), facts for a summary, and a valid
+    start (joints, mm and rad) when the scene's start is not one."""
+
+    problems: list[SceneProblem] = field(default_factory=list)
+    facts: dict[str, str] = field(default_factory=dict)
+    fixed_start: np.ndarray | None = None
+
+    @property
+    def usable(self) -> bool:
+        return not self.problems
+
+
+def check_scene(scene: Scene, *, samples: int = REACH_SAMPLES, seed: int = 0, reach: bool = True,
+                exact: Backend | None = None, world=None) -> SceneCheck:
+    """Run every check on ``scene`` (its start may lie outside the domain: see
+    `ctrplan.scene.load_scene(..., check_start=False)`). ``reach=False`` skips the sampled
+    reachability check (seconds; `plan` runs the others, which take milliseconds, before every
+    search). ``exact``: the exact backend to judge the start with (default: Cosserat, testing
+    stability unless the robot is certified); ``world``: a prebuilt `CollisionWorld` of the scene."""
+    report = SceneCheck()
+    robot_mm = float(scene.robot.lengths_mm[0] + scene.robot.domain.box_upper[0])
+    _check_scale(scene, robot_mm, report)
+    _check_target_inside(scene, report)
+    if reach:
+        _check_reach(scene, samples, seed, report)
+    _check_start(scene, report, exact or exact_backend(scene), world)
+    return report
+
+
+def exact_backend(scene: Scene) -> Backend:
+    """The exact model of the scene's robot, testing stability per state unless the robot has a
+    snap-free certificate (`ctrplan stability`)."""
+    exact: Backend = CosseratBackend(scene.robot)
+    return exact if is_certified(scene.robot) else exact.checking_stability()
+
+
+def _check_scale(scene: Scene, robot_mm: float, report: SceneCheck) -> None:
+    if not scene.obstacles:
+        report.facts["obstacles"] = "none"
+        return
+    bounds = np.stack([o.bounds for o in scene.obstacles])
+    extent = float(np.linalg.norm(bounds[:, 1].max(axis=0) - bounds[:, 0].min(axis=0)))
+    report.facts["obstacles"] = f"{len(scene.obstacles)}, spanning {extent:.1f} mm"
+    if extent < SCALE_TOO_SMALL * robot_mm:
+        report.problems.append(SceneProblem(
+            "scale", f"obstacles: they span {extent:.3g} mm but the robot is {robot_mm:.0f} mm long: "
+                     f"meshes in metres? (give them 'scale: 1000')"))
+    elif extent > SCALE_TOO_LARGE * robot_mm:
+        report.problems.append(SceneProblem(
+            "scale", f"obstacles: they span {extent:.3g} mm but the robot is {robot_mm:.0f} mm long: "
+                     f"meshes in micrometres? (give them 'scale: 0.001')"))
+
+
+def _check_target_inside(scene: Scene, report: SceneCheck) -> None:
+    """A target region whose centre is inside a closed obstacle, deeper than the region's largest
+    semi-axis, cannot be reached by a tip outside every obstacle."""
+    import trimesh
+
+    target = scene.target
+    depth_needed = float(np.max(target.semi_axes))
+    for obstacle in scene.obstacles:
+        mesh = obstacle.to_trimesh()
+        if not mesh.is_watertight:
+            continue  # an open surface has no inside
+        pq = trimesh.proximity.ProximityQuery(mesh)
+        depth = float(pq.signed_distance(target.center[None])[0])  # > 0 inside
+        if depth > depth_needed:
+            report.problems.append(SceneProblem(
+                "target", f"{scene.where('target')}: the target region lies inside the obstacle "
+                          f"{obstacle.name!r} ({depth:.1f} mm deep)"))
+
+
+def _check_reach(scene: Scene, samples: int, seed: int, report: SceneCheck) -> None:
+    """Sample the domain; if no tip lands in the target, run inverse kinematics (exact model, no
+    obstacles) from the closest samples toward the target's centre before calling it unreachable."""
+    from ctrplan.planning.ik import backend_tip_jacobian, solve_ik
+    from ctrplan.planning.space import BoxSpace
+
+    robot = scene.robot
+    exact = CosseratBackend(robot)
+    q = robot.sample_joints(samples, np.random.default_rng(seed))
+    bb = exact.forward(q, points=2, check=False)
+    q, tips = q[bb.converged], scene.to_scene(bb.tip_mm[bb.converged])
+    gap = scene.target.distance(tips)
+    inside = int(np.count_nonzero(gap <= 0.0))
+    report.facts["reach"] = f"{inside} of {samples} sampled configurations put the tip in the target"
+    if inside or not len(q):
+        return
+    space = BoxSpace.for_scene(scene)
+    seeds = q[np.argsort(gap)[:REACH_IK_SEEDS]]
+    goal = scene.to_robot(scene.target.center[None])[0]
+    ik = solve_ik(backend_tip_jacobian(exact, space), space, seeds, goal, max_iterations=60)
+    closest = scene.target.distance(scene.to_scene(ik.tip[np.isfinite(ik.error_mm)]))
+    best = float(min(closest.min(initial=np.inf), gap.min()))
+    if best <= 0.0:
+        report.facts["reach"] += "; inverse kinematics reaches it"
+        return
+    report.problems.append(SceneProblem(
+        "reach", f"{scene.where('target')}: no configuration of the robot puts its tip in the target from "
+                 f"this base pose ({samples} sampled, inverse kinematics from the {len(seeds)} closest: "
+                 f"closest {best:.1f} mm)"))
+
+
+def _check_start(scene: Scene, report: SceneCheck, exact: Backend, world) -> None:
+    from ctrplan.design.evaluate import design_start
+    from ctrplan.planning.validity import ConfigurationChecker
+
+    robot = scene.robot
+    where = scene.where("start")
+    lo, hi = scene.joint_box
+    box = robot.domain.to_box(scene.start)
+    try:
+        robot.check_joints(scene.start, where="start")
+        problem = None
+        if np.any((box < lo - 1e-9) | (box > hi + 1e-9)):
+            problem = f"{where}: outside the scene's joint_limits"
+    except InputError as exc:
+        problem = f"{where}: {str(exc).removeprefix('start: ').removeprefix('row 0: ')}"
+    inside = robot.domain.from_box(np.clip(box, lo, hi))
+    checker = ConfigurationChecker(replace(scene, start=inside), exact, world=world)
+    if problem is None:
+        problem = start_problem(scene, checker)
+    if problem is None:
+        report.facts["start"] = "valid"
+        return
+    fixed = design_start(replace(scene, start=inside), checker)
+    if fixed is None:
+        report.problems.append(SceneProblem("start", f"{problem}; no valid start found near it"))
+        return
+    report.fixed_start = fixed
+    report.problems.append(SceneProblem(
+        "start", f"{problem}; nearest valid start: {np.round(fixed, 4).tolist()}"))
+
+
+def start_problem(scene: Scene, checker) -> str | None:
+    """Why the scene's start cannot begin a plan under ``checker``'s exact model: not converged,
+    unstable, or in collision (naming the obstacles, with the scene's margin); None if it can."""
+    bb = checker.backend.forward(scene.start, points=checker.points, check=False)
+    where = scene.where("start")
+    if not bb.converged[0]:
+        return f"{where}: the exact model does not converge at the start configuration"
+    if not bb.stable[0]:
+        return f"{where}: the start configuration is elastically unstable (the robot snaps there)"
+    contacts = checker.collision.contacts(bb.positions_mm[0], bb.radius_mm[0])
+    if contacts:
+        names = ", ".join(sorted({n for _, n in contacts}))
+        return (f"{where}: the start configuration is in collision with {names} "
+                f"(margin {scene.settings.margin_mm:g} mm)")
+    return None
