@@ -43,6 +43,11 @@ class DenseStates:
     def __len__(self) -> int:
         return self.q.shape[0]
 
+    @property
+    def solved_per_s(self) -> float:
+        """Configurations the exact solver went through per second while it built this pool."""
+        return (len(self) + len(self.unsolved)) / max(self.seconds, 1e-9)
+
     def unsolved_report(self, limit: int = 10) -> dict:
         """How many configurations were left out, and the first ``limit`` of them (mm, rad)."""
         return {"count": int(len(self.unsolved)), "of": int(len(self) + len(self.unsolved)),

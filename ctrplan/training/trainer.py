@@ -223,13 +223,15 @@ class TrainingData:
     def build(cls, robot: Robot, recipe: Recipe, seed: int, device: torch.device,
               observations: Observations | None = None,
               progress: Callable[[int, int], None] | None = None,
-              deadline: float | None = None) -> TrainingData:
+              deadline: float | None = None, budget: TimeBudget | None = None) -> TrainingData:
         """Solve the exact pool (its size: `pool_size`; ``progress(done, total)`` while it is solved;
-        cut short at ``deadline``, see `solve_dense`) and draw the fixed sets; ``observations`` (see
-        `train`) replace the pool's tips."""
+        cut short at ``deadline``, see `solve_dense`, and then recorded in ``budget``) and draw the
+        fixed sets; ``observations`` (see `train`) replace the pool's tips."""
         n_exact = pool_size(recipe)
         pool = solve_dense(robot, robot.sample_joints(n_exact, np.random.default_rng(seed)),
                            recipe.dense_points, progress, deadline)
+        if budget is not None and len(pool) + len(pool.unsolved) < n_exact:
+            budget.cut(f"exact data: {len(pool) + len(pool.unsolved):,} of {n_exact:,} configurations solved")
         if not len(pool):
             raise InputError(f"robot {robot.name!r}: the exact solver solved none of {n_exact} random "
                              f"configurations of its domain; check the domain with `ctrplan stability`")
@@ -505,18 +507,18 @@ class Trainer:
                 "fresh_orientation_max_deg": rnd.orientation_deg["max"]}
 
     def train(self, out: Path, *, checkpoint_every_s: float = CHECKPOINT_EVERY_S,
-              progress: Callable[[int, int, dict], None] | None = None) -> Trainer:
-        """Run to the recipe's step budget or the time limit (at least one step), checkpointing
-        beside ``out`` and mining hard examples as the recipe says. ``progress(step, total, stats)``
-        is called every 10 steps and at the last one; ``stats`` has the loss terms, ``time_s`` (the
-        training time so far) and, after mining rounds, the network's tail on the round's fresh
-        configurations."""
+              progress: Callable[[int, int, dict], None] | None = None, min_steps: int = 0) -> Trainer:
+        """Run to the recipe's step budget or the time limit (at least ``min_steps`` steps),
+        checkpointing beside ``out`` and mining hard examples as the recipe says.
+        ``progress(step, total, stats)`` is called every 10 steps and at the last one; ``stats`` has
+        the loss terms, ``time_s`` (the training time so far) and, after mining rounds, the network's
+        tail on the round's fresh configurations."""
         steps = self.recipe.steps
         one_step = self._adam_step if self.recipe.optimizer == "adam" else self._lbfgs_step
         self._t0 = last_ckpt = time.perf_counter()
         fresh: dict = {}
         first = self.step
-        while self.step < steps and (self.step == first or not self._out_of_time()):
+        while self.step < steps and (self.step < first + min_steps or not self._out_of_time()):
             total = one_step()
             self.step += 1
             fresh = self._mine() or fresh
@@ -540,6 +542,14 @@ class Trainer:
         self.wall_time_s = self._elapsed_s() + self.data_time_s
         self._checkpoint(out, self.wall_time_s - self.data_time_s)
         return self
+
+    def _mining_record(self) -> dict:
+        """The card's record of hard-example mining: rounds, pool, time and their history."""
+        hard = self.data.hard
+        return {"rounds": len(hard.rounds), "hard_pool": len(hard), "seconds": round(hard.seconds, 1),
+                "unsolved_candidates": sum(r.unsolved for r in hard.rounds),
+                "history": [r.to_json() for r in hard.rounds[::max(1, len(hard.rounds) // 20)]],
+                "last": hard.rounds[-1].to_json() if hard.rounds else None}
 
     def finish(self, out: Path, *, evaluate: Callable[[PinnNet], dict] | None = None,
                calibrate: Callable[[PinnNet], dict] | None = None,
@@ -571,18 +581,10 @@ class Trainer:
             "metrics": metrics,
             "history_tail": self.history[-5:],
         }
-        hard = self.data.hard
-        if hard is not None:
-            card["mining"] = {"rounds": len(hard.rounds), "hard_pool": len(hard),
-                              "seconds": round(hard.seconds, 1),
-                              "unsolved_candidates": sum(r.unsolved for r in hard.rounds),
-                              "history": [r.to_json() for r in hard.rounds[::max(1, len(hard.rounds) // 20)]],
-                              "last": hard.rounds[-1].to_json() if hard.rounds else None}
+        card |= {"mining": self._mining_record()} if self.data.hard is not None else {}
         card |= {ERROR_BOUND_KEY: calibrate(net)} if calibrate is not None else {}
-        if "tip_error_pct_length" in metrics:
-            card |= accuracy_verdict(metrics)
-        if self.budget is not None:
-            card["time_limit"] = self.budget.to_json()
+        card |= accuracy_verdict(metrics) if "tip_error_pct_length" in metrics else {}
+        card |= {"time_limit": self.budget.to_json()} if self.budget is not None else {}
         save_model(net, self.robot, out, card)
         return TrainResult(net=net, steps=step, wall_time_s=wall, history=self.history, card=card)
 
@@ -613,30 +615,25 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
     ``recipe.steps`` or after ``time_limit_s`` (default: the recipe's ``minutes``), data generation
     included. ``observations`` (measured tips, paper stage b) replace the Cosserat
     tip observations; ``extra_card`` holds extra model-card fields. The card's ``stages`` lists
-    the training stages that made the model: ``extra_card["stages"]`` (those of the ``init_from``
-    model) followed by this one. A ``budget`` (`TimeBudget`, which then replaces ``time_limit_s``)
-    bounds the whole run, the exact pool included (`ctrplan.training.budget`); the card records its
-    ``time_limit`` and, with ``evaluate``, whether the model meets `ACCURACY_TARGET`.
+    the training stages: ``extra_card["stages"]`` (of the ``init_from`` model), then this one. A
+    ``budget`` (`TimeBudget`; replaces ``time_limit_s``) bounds the whole run, exact pool included
+    (`ctrplan.training.budget`); the card records it and whether the model meets its accuracy target.
     """
     dev = torch.device(device)
     torch.manual_seed(seed)
     t_start = time.perf_counter()
-    own = budget is None
-    if own:
-        budget = TimeBudget(time_limit_s if time_limit_s is not None
-                            else (recipe.minutes * 60 if recipe.minutes else None))
+    own = budget is None  # then no deadline on the exact data: only the training loop is limited
+    budget = budget or TimeBudget(time_limit_s if time_limit_s is not None
+                                  else (recipe.minutes * 60 if recipe.minutes else None))
     data = TrainingData.build(robot, recipe, seed, dev, observations, data_progress,
-                              deadline=None if own else budget.data_deadline())
-    solved = len(data.pool) + len(data.pool.unsolved)
-    if solved < pool_size(recipe):
-        budget.cut(f"exact data: {solved:,} of {pool_size(recipe):,} configurations solved")
+                              deadline=None if own else budget.data_deadline(), budget=budget)
     net = (new_net(robot, recipe, data) if init_from is None else init_from).to(dev).train()
     net.requires_grad_(True)
     data_time_s = time.perf_counter() - t_start
     trainer = Trainer(robot, data, net, data_time_s=data_time_s, budget=None if own else budget)
     trainer.compile(recipe, seed=seed)  # the first optimiser loads torch's compiler: seconds
-    trainer.limit(budget.training_s(solved / max(data.pool.seconds, 1e-9)))
+    trainer.limit(budget.training_s(data.pool.solved_per_s))
     if resume:
         trainer.resume(out)
-    trainer.train(out, checkpoint_every_s=checkpoint_every_s, progress=progress)
+    trainer.train(out, checkpoint_every_s=checkpoint_every_s, progress=progress, min_steps=0 if own else 1)
     return trainer.finish(out, evaluate=evaluate, calibrate=calibrate, extra_card=extra_card)
