@@ -54,7 +54,7 @@ def backbone_bytes(n_tubes: int, points: int) -> int:
 
 
 def _size(n_bytes: float) -> str:
-    return f"{n_bytes / 2**30:.1f} GiB" if n_bytes >= 2**30 else f"{n_bytes / 2**20:.0f} MiB"
+    return f"{n_bytes / 2**30:,.1f} GiB" if n_bytes >= 2**30 else f"{n_bytes / 2**20:,.0f} MiB"
 
 
 def check_fits(option: str, count: int, bytes_each: float, what: str) -> None:

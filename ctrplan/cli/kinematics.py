@@ -47,7 +47,8 @@ ModelOpt = Annotated[str | None, typer.Option(
          "model trained for the robot in use (pinn_nominal for the nominal robot).")]
 OutputOpt = Annotated[Path | None, typer.Option(
     "-o", "--output", metavar="OUT.csv", show_default=False,
-    help="Output CSV, written only when every row is done; default: stdout.")]
+    help="Output CSV, written only when every row is done (through a symbolic link to its target; "
+         "a device or named pipe is written in place); default: stdout.")]
 OutsideOpt = Annotated[bool, typer.Option(
     "--allow-outside-domain",
     help="Only warn for configurations outside the snap-free domain (impossible ones stay errors).")]

@@ -56,8 +56,8 @@ CARD_EVAL_CONFIGURATIONS = 2000
 @app.command()
 def train(
     name: Annotated[str | None, typer.Option(
-        "--name", help="Model name: writes models/NAME.safetensors and models/NAME.json "
-                       "(default: ROBOT_RECIPE).")] = None,
+        "--name", help="Model name (letters, digits, _ and -): writes models/NAME.safetensors and "
+                       "models/NAME.json (default: ROBOT_RECIPE).")] = None,
     robot: RobotOpt = None,
     recipe: Annotated[str | None, typer.Option(
         "--recipe", help=f"Recipe: {' | '.join(RECIPES)} (default: {DEFAULT_RECIPE}, "
@@ -65,8 +65,9 @@ def train(
     steps: Annotated[int | None, typer.Option(
         "--steps", min=1, help="Optimiser steps (recipe default).")] = None,
     time_limit: Annotated[float | None, typer.Option(
-        "--time-limit", help="Stop after this many minutes, data generation included (default: the "
-                             "recipe's budget); the learning-rate schedule fits it.")] = None,
+        "--time-limit", help="Minutes for the whole command: exact data, training, evaluation and "
+                             "calibration (default: the recipe's budget); what it cuts is reported; "
+                             "the learning-rate schedule fits it.")] = None,
     seed: Annotated[int, typer.Option("--seed", min=0)] = 0,
     device: Annotated[str, typer.Option("--device", help="cpu | cuda | cuda:N")] = "cpu",
     threads: Annotated[int | None, typer.Option("--threads", min=1, help="CPU threads for torch.")] = None,
@@ -102,10 +103,11 @@ def train(
     The default recipe solves an exact pool, then trains with hard-example mining for its time
     budget; the bar shows the loss and, after each mining round, the network's tube-1 tip error on
     that round's fresh configurations. Checkpoints go to NAME.ckpt.* beside the model every two
-    minutes; `--resume` picks them up. The card records the robot (and its fingerprint), recipe,
-    sample counts, the configurations the exact solver could not solve, wall time, hardware,
-    accuracy on 2,000 unseen configurations and the calibrated backbone error bound the planner
-    adds to the capsule radii when it plans with this model (5,000 more configurations).
+    minutes; `--resume` picks them up (Ctrl-C prints the command). The card records the robot (and
+    its fingerprint), recipe, sample counts, the configurations the exact solver could not solve,
+    wall time, hardware, accuracy on 2,000 unseen configurations, whether it meets the accuracy
+    target (meets_target), what the time limit cut, and the calibrated backbone error bound the
+    planner adds to the capsule radii when it plans with this model (5,000 more configurations).
 
     With `--measured DATA.csv --shots N` it continues training a model (default: the shipped one) on
     N measured training rows plus the physics residuals, and prints the held-out tip error of the

@@ -583,8 +583,8 @@ class Trainer:
         }
         card |= {"mining": self._mining_record()} if self.data.hard is not None else {}
         card |= {ERROR_BOUND_KEY: calibrate(net)} if calibrate is not None else {}
-        card |= accuracy_verdict(metrics) if "tip_error_pct_length" in metrics else {}
-        card |= {"time_limit": self.budget.to_json()} if self.budget is not None else {}
+        if self.budget is not None:  # a run of `ctrplan train` (a fine-tuned model has its own table)
+            card |= {"time_limit": self.budget.to_json(), **accuracy_verdict(metrics)}
         save_model(net, self.robot, out, card)
         return TrainResult(net=net, steps=step, wall_time_s=wall, history=self.history, card=card)
 
@@ -616,8 +616,8 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
     included. ``observations`` (measured tips, paper stage b) replace the Cosserat
     tip observations; ``extra_card`` holds extra model-card fields. The card's ``stages`` lists
     the training stages: ``extra_card["stages"]`` (of the ``init_from`` model), then this one. A
-    ``budget`` (`TimeBudget`; replaces ``time_limit_s``) bounds the whole run, exact pool included
-    (`ctrplan.training.budget`); the card records it and whether the model meets its accuracy target.
+    ``budget`` (`TimeBudget`; replaces ``time_limit_s``) bounds the whole run, exact pool included;
+    the card then records it and, from ``evaluate``, the `accuracy_verdict`.
     """
     dev = torch.device(device)
     torch.manual_seed(seed)
