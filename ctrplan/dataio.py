@@ -2,16 +2,20 @@
 
 Every reading problem raises `InputError` naming the file, the row (its line number in the file,
 header = line 1) and the column, so the CLI can report it in one line. Writers never leave a
-half-written file: they write a temporary file beside the target and rename it over the target.
+half-written file: they write a temporary file beside the target and rename it over the target
+(through a symbolic link: over the link's target, keeping the link). Character devices and named
+pipes are written to in place; sockets, block devices and directories are refused (`output_target`).
 """
 
 from __future__ import annotations
 
 import csv
+import errno
 import math
 import os
 import re
 import secrets
+import stat
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -218,30 +222,87 @@ def check_output_dir(path: str | Path, option: str = "--out") -> Path:
     return path
 
 
+#: errno values of a failed write (a full disk or device, a closed pipe, ...): a one-line error.
+WRITE_ERRORS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EPIPE, errno.EIO, errno.EROFS})
+
+
+def output_target(path: str | Path) -> tuple[Path, bool]:
+    """Where writing ``path`` goes, and whether it is streamed: ``(file, False)`` for a regular file
+    or a new name -- ``file`` is the path with every symbolic link resolved, so that writing through a
+    link replaces the link's target and keeps the link -- or ``(path, True)`` for a character device
+    (``/dev/null``, a terminal) or a named pipe, which are written to in place, never replaced.
+
+    Raises `InputError` naming ``path`` for a directory, a socket, a block device, a symbolic-link
+    loop or a path that cannot be looked at.
+    """
+    path = Path(path)
+    try:
+        mode = os.stat(path).st_mode  # follows symbolic links
+    except FileNotFoundError:  # a new file, or a link to a file not there yet
+        return Path(os.path.realpath(path)), False
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write ({exc.strerror})") from None
+    if stat.S_ISREG(mode):
+        return Path(os.path.realpath(path)), False
+    if stat.S_ISCHR(mode) or stat.S_ISFIFO(mode):
+        return path, True
+    kind = {stat.S_IFDIR: "a directory", stat.S_IFSOCK: "a socket", stat.S_IFBLK: "a block device"}
+    raise InputError(f"{path}: is {kind.get(stat.S_IFMT(mode), 'not a regular file')}, expected a file name "
+                     f"(ctrplan writes files, character devices such as /dev/null and named pipes)")
+
+
 @contextmanager
 def atomic_write(path: str | Path, mode: str = "w") -> Iterator[IO]:
     """Open a temporary file beside ``path``; rename it onto ``path`` only if the block succeeds.
 
-    Raises `InputError` if the target is a directory or its directory does not exist or cannot be
-    written. The file gets the usual permissions (0666 less the umask).
+    Through a symbolic link the link's target is replaced and the link kept; a character device or
+    a named pipe is written to directly, without a temporary file (`output_target`). Raises
+    `InputError` if the target cannot be a file, its directory does not exist or cannot be written,
+    or the writing fails for want of space or a reader (`WRITE_ERRORS`). The file gets the usual
+    permissions (0666 less the umask).
     """
-    path = Path(path)
-    if path.is_dir():
-        raise InputError(f"{path}: is a directory, expected a file name")
-    if not path.parent.is_dir():
-        raise InputError(f"{path}: output directory {str(path.parent)!r} does not exist")
-    tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
+    target, stream = output_target(path)
+    kwargs = {} if "b" in mode else {"encoding": "utf-8", "newline": ""}
+    if stream:
+        # in place: O_TRUNC does nothing to a device or a pipe
+        with _write_errors(path), open(target, mode, **kwargs) as fh:
+            yield fh
+        return
+    if not target.parent.is_dir():
+        raise InputError(f"{path}: output directory {str(target.parent)!r} does not exist")
+    tmp = target.parent / f".{target.name}.{secrets.token_hex(4)}.tmp"
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     except OSError as exc:
         raise InputError(f"{path}: cannot write ({exc.strerror})") from None
     try:
-        with os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8", "newline": ""})) as fh:
+        with _write_errors(path), os.fdopen(fd, mode, **kwargs) as fh:
             yield fh
-        os.replace(tmp, path)
+        os.replace(tmp, target)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+@contextmanager
+def _write_errors(path: str | Path) -> Iterator[None]:
+    """`WRITE_ERRORS` raised in the block (or when its file is closed) as an `InputError` naming
+    ``path``."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.errno not in WRITE_ERRORS:
+            raise
+        raise InputError(f"{path}: cannot write ({exc.strerror})") from None
+
+
+def save_figure(fig: Any, path: str | Path, **kwargs: Any) -> Path:
+    """``fig.savefig`` (matplotlib) to ``path`` through `atomic_write`, in the format of its suffix
+    (PNG without one); returns ``path``."""
+    path = Path(path)
+    with atomic_write(path, "wb") as fh:
+        fig.savefig(fh, format=path.suffix[1:] or "png", **kwargs)
+    return path
 
 
 def format_csv(header: Sequence[str] | None, rows: np.ndarray, formats: Sequence[str]) -> str:

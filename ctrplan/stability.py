@@ -28,6 +28,7 @@ import numpy as np
 
 from ctrplan.dataio import atomic_write
 from ctrplan.kinematics.cosserat import CosseratBackend, SolverSettings
+from ctrplan.memory import F8, backbone_bytes
 from ctrplan.robot import Robot
 
 #: A step of the sweep moving the tip more than this many times its typical motion is a jump.
@@ -104,6 +105,12 @@ def sweep_rotation(backend: CosseratBackend, q0: np.ndarray, tube: int, steps: i
     multivalued = cold.converged & converged & (apart > MULTIVALUED_MM)
     unstable = ~converged | ~(stab > 0.0)
     return Sweep(tube + 1, q, stab, tips, unstable, jump, multivalued)
+
+
+def sweep_bytes(n_tubes: int, steps: int) -> int:
+    """Memory (bytes) a `Sweep` of ``steps`` configurations holds, with its start and the cold
+    backbones solved alongside it (`sweep_rotation`)."""
+    return steps * (F8 * (2 * n_tubes + 4) + 3 + 2 * backbone_bytes(n_tubes, 2)) + F8 * 2 * n_tubes
 
 
 def check_domain(robot: Robot, n: int = 64, steps: int = 73, seed: int = 0,

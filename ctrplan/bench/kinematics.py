@@ -20,12 +20,15 @@ import numpy as np
 
 from ctrplan.bench import timing_stats
 from ctrplan.kinematics import Backend
+from ctrplan.memory import F8, backbone_bytes
 from ctrplan.robot import Robot
 
 #: Distance of the warm-start neighbour, per joint: 0.5 mm (beta), 0.5 deg (alpha).
 NEIGHBOUR_STEP_MM, NEIGHBOUR_STEP_RAD = 0.5, math.radians(0.5)
 #: Untimed calls per case before timing (compilation, caches).
 WARMUP_CALLS = 3
+#: Backbone points of the batched calls of `throughput` in `ctrplan bench kinematics`.
+BATCH_POINTS = 64
 
 
 @dataclass(frozen=True)
@@ -58,6 +61,12 @@ def neighbours(robot: Robot, q: np.ndarray, rng: np.random.Generator) -> np.ndar
     step = np.array([NEIGHBOUR_STEP_MM] * n + [NEIGHBOUR_STEP_RAD] * n)
     moved = q + step * rng.choice((-1.0, 1.0), size=q.shape)
     return domain.from_box(np.clip(domain.to_box(moved), domain.box_lower, domain.box_upper))
+
+
+def bytes_per_configuration(n_tubes: int, n_cases: int) -> int:
+    """Memory (bytes) `run` holds per configuration: its joints, a neighbour, their warm start and
+    backbone at 2 points, and a time, flags, iterations and residual per case."""
+    return F8 * 3 * 2 * n_tubes + 2 * backbone_bytes(n_tubes, 2) + n_cases * (3 * F8 + 1)
 
 
 def _time_calls(backend: Backend, q: np.ndarray, points: int, guesses: np.ndarray | None,

@@ -23,6 +23,7 @@ from ctrplan.cli.kinematics import RobotOpt, as_option, load_backend
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS
+from ctrplan.memory import check_backbones, check_fits
 from ctrplan.robot import Robot
 
 BENCH_HELP = "Benchmarks: timings, JSON summaries and plots."
@@ -114,8 +115,12 @@ def kinematics(
         raise InputError(f"--n: need at least 1 configuration, got {n}")
     model = Robot.load(robot)
     backends = {name: load_backend(name, model, None) for name in dict.fromkeys(names)}
-    check_output_dir(out)  # created when the results are written
     cases = kinematics_bench.cases(backends, point_counts)
+    check_backbones(None, 1, "--points", max(point_counts), model.n_tubes, 2)
+    check_fits("--n", n, kinematics_bench.bytes_per_configuration(model.n_tubes, len(cases)),
+               "configurations")
+    check_backbones("--batch", batch, None, kinematics_bench.BATCH_POINTS, model.n_tubes, 2)
+    check_output_dir(out)  # created when the results are written
     with progress_bar() as bar, single_core() as core:
         task = bar.add_task("bench kinematics", total=n * len(cases))
         last = 0.0
@@ -129,12 +134,14 @@ def kinematics(
                 bar.refresh()
 
         results, times = kinematics_bench.run(backends, n, point_counts, seed=seed, tick=tick)
-    batched = [] if batch < 1 else kinematics_bench.throughput(backends, points=64, batch=batch)
+    batched = [] if batch < 1 else kinematics_bench.throughput(
+        backends, points=kinematics_bench.BATCH_POINTS, batch=batch)
     out = output_dir(out)
     doc = {"machine": {**machine_info(), "pinned_core": core},
            "settings": {"n": n, "points": point_counts, "seed": seed, "robot": model.name,
                         "check_joints": False, "warm_neighbour": "0.5 mm / 0.5 deg per joint",
-                        "batched": f"one call on {batch} configurations, 64 points, all cores"},
+                        "batched": f"one call on {batch} configurations, "
+                                   f"{kinematics_bench.BATCH_POINTS} points, all cores"},
            "results": results, "batched": batched}
     timing_boxplot({(case.label, case.points): t for case, t in times.items()},
                    out / "kinematics_times.png",

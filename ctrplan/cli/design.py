@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import math
+import shlex
+import sys
 import time
 from pathlib import Path
 from typing import Annotated
@@ -90,12 +92,15 @@ def design(
     budget = trials or task.trials
     err = Console(stderr=True, highlight=False)
     t0 = time.perf_counter()  # this run: its trials, not the outputs
-    with _DesignProgress(err, task, budget) as progress:
-        try:
+    try:
+        with _DesignProgress(err, task, budget) as progress:
             run_study(task, st, trials=budget, seed=seed, workers=workers, ray_address=ray,
                       time_limit_s=None if time_limit is None else 60.0 * time_limit, report=progress.update)
-        except InputError as exc:
-            raise as_option(exc, OPTIONS) from None
+    except InputError as exc:
+        raise as_option(exc, OPTIONS) from None
+    except KeyboardInterrupt:
+        err.print(continue_hint(url, study or task.name, folder, out is None), soft_wrap=True)
+        raise
     executor = f"ray {ray}" if ray else f"{workers} local worker(s), one core each"
     doc = write_outputs(task, st, folder, storage=url, seed=seed, time_s=time.perf_counter() - t0,
                         executor=executor)
@@ -103,6 +108,14 @@ def design(
         typer.echo(json.dumps(doc, indent=2))
     else:
         _summary(Console(highlight=False), task, doc)
+
+
+def continue_hint(url: str, study: str, folder: Path, default_out: bool) -> str:
+    """After Ctrl-C: where the finished trials are and the command that continues the study (this
+    one, with its output folder named: the study and its storage are found from it)."""
+    args = sys.argv[1:] + (["--out", str(folder)] if default_out else [])
+    return (f"interrupted: the finished trials are kept in study {study!r} of {url}; continue the study "
+            f"(only the missing trials run) with: ctrplan {shlex.join(args)}")
 
 
 class _DesignProgress:

@@ -22,10 +22,14 @@ from ctrplan.dataio import atomic_write, format_csv, read_joints, tip_names
 from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS, Backbone, Backend, make_backend
 from ctrplan.kinematics.base import DEFAULT_POINTS
+from ctrplan.memory import backbone_bytes, check_fits
 from ctrplan.robot import Robot
 
 #: Output rows (configurations x backbone points) solved and written per chunk.
 CHUNK_ROWS = 10_000
+#: Memory (bytes) of one output row while its chunk is formatted: its numbers as Python floats and
+#: its line of text.
+CSV_ROW_BYTES = 300
 
 Configs = Annotated[Path, typer.Argument(
     metavar="CONFIGS.csv", show_default=False,
@@ -43,7 +47,8 @@ ModelOpt = Annotated[str | None, typer.Option(
          "model trained for the robot in use (pinn_nominal for the nominal robot).")]
 OutputOpt = Annotated[Path | None, typer.Option(
     "-o", "--output", metavar="OUT.csv", show_default=False,
-    help="Output CSV, written only when every row is done; default: stdout.")]
+    help="Output CSV, written only when every row is done (through a symbolic link to its target; "
+         "a device or named pipe is written in place); default: stdout.")]
 OutsideOpt = Annotated[bool, typer.Option(
     "--allow-outside-domain",
     help="Only warn for configurations outside the snap-free domain (impossible ones stay errors).")]
@@ -97,8 +102,11 @@ def _run(configs: Path, backend: str, robot: str | None, model: str | None, allo
     """Check every row of CONFIGS, then solve and write them chunk by chunk (``rows(lines, backbone)``
     gives a chunk's output rows and formats, ``header(robot)`` the columns); note non-converged rows
     on stderr. With ``stability`` the backbones carry elastic stability where the backend computes it."""
+    robot_model = Robot.load(robot)
+    # a chunk holds max(CHUNK_ROWS, points) points: two backbones' worth each, and its CSV text
+    check_fits("--points", points, 2 * backbone_bytes(robot_model.n_tubes, 1) + CSV_ROW_BYTES,
+               "backbone points per configuration")
     with atomic_write(output) if output else nullcontext(sys.stdout) as fh:
-        robot_model = Robot.load(robot)
         kinematics = load_backend(backend, robot_model, model)
         if stability:
             kinematics = kinematics.checking_stability()

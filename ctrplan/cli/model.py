@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import json
 import math
+import re
+import shlex
+import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -16,15 +21,36 @@ from ctrplan.cli.kinematics import ModelOpt, RobotOpt, as_option
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
-from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnBackend
+from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnBackend, PinnNet
+from ctrplan.memory import backbone_bytes, check_backbones, check_fits
 from ctrplan.robot import Robot
-from ctrplan.training.evaluate import calibrate, compare
-from ctrplan.training.trainer import DEFAULT_RECIPE, RECIPES, get_recipe, remove_checkpoint
+from ctrplan.training.budget import MIN_EVAL_CONFIGURATIONS, TimeBudget
+from ctrplan.training.evaluate import CALIBRATION_CONFIGURATIONS, calibrate, compare
+from ctrplan.training.trainer import (
+    CHECKPOINT_EVERY_S,
+    DEFAULT_RECIPE,
+    RECIPES,
+    Recipe,
+    TrainResult,
+    check_checkpoint,
+    checkpoint_meta,
+    get_recipe,
+    remove_checkpoint,
+)
 from ctrplan.training.trainer import train as run_training
 
 if TYPE_CHECKING:
     from ctrplan.training.fewshot import FewShot
 
+#: Backbone-sized arrays `eval-model` holds per configuration (the exact and predicted backbones and
+#: the error statistics; measured 4.5 with tracemalloc at 100 and 400 points).
+EVAL_COPIES = 6.0
+#: A model name: the file stem of models/NAME.safetensors, never a path.
+MODEL_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,99}")
+#: Memory of the exact pool per solution, in backbones: float64 states plus their float32 copy.
+POOL_COPIES = 2.0
+#: A run longer than this times its --time-limit says why (the parts no limit cuts).
+OVERRUN = 1.05
 #: Unseen configurations the model card's accuracy is measured on at the end of `ctrplan train`.
 CARD_EVAL_CONFIGURATIONS = 2000
 
@@ -32,8 +58,8 @@ CARD_EVAL_CONFIGURATIONS = 2000
 @app.command()
 def train(
     name: Annotated[str | None, typer.Option(
-        "--name", help="Model name: writes models/NAME.safetensors and models/NAME.json "
-                       "(default: ROBOT_RECIPE).")] = None,
+        "--name", help="Model name (letters, digits, _ and -): writes models/NAME.safetensors and "
+                       "models/NAME.json (default: ROBOT_RECIPE).")] = None,
     robot: RobotOpt = None,
     recipe: Annotated[str | None, typer.Option(
         "--recipe", help=f"Recipe: {' | '.join(RECIPES)} (default: {DEFAULT_RECIPE}, "
@@ -41,8 +67,9 @@ def train(
     steps: Annotated[int | None, typer.Option(
         "--steps", min=1, help="Optimiser steps (recipe default).")] = None,
     time_limit: Annotated[float | None, typer.Option(
-        "--time-limit", help="Stop after this many minutes, data generation included (default: the "
-                             "recipe's budget); the learning-rate schedule fits it.")] = None,
+        "--time-limit", help="Minutes for the whole command: exact data, training, evaluation and "
+                             "calibration (default: the recipe's budget); what it cuts is reported; "
+                             "the learning-rate schedule fits it.")] = None,
     seed: Annotated[int, typer.Option("--seed", min=0)] = 0,
     device: Annotated[str, typer.Option("--device", help="cpu | cuda | cuda:N")] = "cpu",
     threads: Annotated[int | None, typer.Option("--threads", min=1, help="CPU threads for torch.")] = None,
@@ -78,10 +105,11 @@ def train(
     The default recipe solves an exact pool, then trains with hard-example mining for its time
     budget; the bar shows the loss and, after each mining round, the network's tube-1 tip error on
     that round's fresh configurations. Checkpoints go to NAME.ckpt.* beside the model every two
-    minutes; `--resume` picks them up. The card records the robot (and its fingerprint), recipe,
-    sample counts, the configurations the exact solver could not solve, wall time, hardware,
-    accuracy on 2,000 unseen configurations and the calibrated backbone error bound the planner
-    adds to the capsule radii when it plans with this model (5,000 more configurations).
+    minutes; `--resume` picks them up (Ctrl-C prints the command). The card records the robot (and
+    its fingerprint), recipe, sample counts, the configurations the exact solver could not solve,
+    wall time, hardware, accuracy on 2,000 unseen configurations, whether it meets the accuracy
+    target (meets_target), what the time limit cut, and the calibrated backbone error bound the
+    planner adds to the capsule radii when it plans with this model (5,000 more configurations).
 
     With `--measured DATA.csv --shots N` it continues training a model (default: the shipped one) on
     N measured training rows plus the physics residuals, and prints the held-out tip error of the
@@ -91,8 +119,11 @@ def train(
     calibration so `fk --robot NAME.robot.yaml --model NAME` predicts what the tracker measures; the card
     records the data file (name, SHA-256), the split, the stage kept and that table.
     """
+    t_start = time.monotonic()  # --time-limit bounds the command from here
     import torch
 
+    if name is not None:
+        check_model_name(name, "--name")
     if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
         raise InputError(f"--time-limit: must be a positive number of minutes, got {time_limit:g}")
     if device.startswith("cuda") and not torch.cuda.is_available():
@@ -119,9 +150,46 @@ def train(
         init = init or DEFAULT_MODEL
         fewshot = _measured_split(measured, model_robot, shots, heldout, heldout_last)
     start = PinnBackend.load(init, model_robot) if init else None
-    out = check_output_dir(out_dir, "--out-dir") / (name or f"{model_robot.name}_{rec.name}")  # made on save
+    if name is None:
+        name = check_model_name(f"{model_robot.name}_{rec.name}", "the robot's name (give --name)")
+    check_fits("--set dense_configs", max(rec.dense_configs, rec.observations, 2000),
+               POOL_COPIES * backbone_bytes(model_robot.n_tubes, rec.dense_points), "exact solutions")
+    out = check_output_dir(out_dir, "--out-dir") / name  # made on save
     console = Console(stderr=True)
     limit_s = time_limit * 60 if time_limit is not None else (rec.minutes * 60 if rec.minutes else None)
+    budget = TimeBudget(limit_s, CARD_EVAL_CONFIGURATIONS + CALIBRATION_CONFIGURATIONS, start=t_start)
+    if resume:
+        meta = check_checkpoint(out, model_robot)
+        console.print(f"resuming {name} from step {meta['step']:,} ({meta['elapsed_s'] / 60:.1f} min of "
+                      f"training done; checkpoint {meta['file']})")
+    try:
+        result = _run(model_robot, rec, out, start, fewshot, budget, console,
+                      dict(seed=seed, device=device, resume=resume), init=init, adapt_minutes=adapt_minutes)
+    except KeyboardInterrupt:
+        _how_to_resume(console, out)
+        raise
+    remove_checkpoint(out)  # the run finished: nothing to resume
+    card = result.card
+    _report(console, out, result, budget)
+    if fewshot is not None:
+        from ctrplan.training.finetune import kept_text, table_text
+
+        stages = card["finetuned_on"]["stage_seconds"]
+        console.print("stages: " + ", ".join(f"{k[:-2]} {v:.0f} s" for k, v in stages.items())
+                      + f"; its robot in {out.with_suffix('.robot.yaml')} (with the calibration: `fk`, "
+                        f"`shape`), its mechanics in {out.with_suffix('.mechanics.robot.yaml')} (`plan`); "
+                        f"the adapted model in {out.name}_adapted.safetensors")
+        console.print(table_text(card["metrics"]["measured_heldout"]))
+        console.print(kept_text(card["finetuned_on"]["kept"]))
+    if as_json:
+        typer.echo(out.with_suffix(".json").read_text())  # the card as written, with robot and hash
+
+
+def _run(robot: Robot, rec: Recipe, out: Path, start: PinnBackend | None, fewshot: FewShot | None,
+         budget: TimeBudget, console: Console, common: dict, *, init: str | None,
+         adapt_minutes: float) -> TrainResult:
+    """Train (or fine-tune on ``fewshot``) with a progress bar on a terminal; the card's evaluation
+    and calibration are cut short where the ``budget`` runs out (`ctrplan.training.budget`)."""
     bar = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[done]}"),
                    TimeElapsedColumn(), TextColumn("{task.fields[info]}"), console=console,
                    disable=not console.is_terminal)  # a log gets the summary line below
@@ -139,25 +207,50 @@ def train(
             if "fresh_tip_max_mm" in stats:
                 info += (f" | fresh tip p99.9 {stats['fresh_tip_p99_9_mm']:.2f} max "
                          f"{stats['fresh_tip_max_mm']:.2f} mm")
-            bar.update(task, completed=training_fraction(step, total, stats["time_s"], limit_s),
-                       done=progress_text(step, total, stats["time_s"], limit_s), info=info, visible=True)
+            t, limit = budget.elapsed_s(), budget.limit_s  # the whole command's clock
+            bar.update(task, completed=training_fraction(step, total, t, limit),
+                       done=progress_text(step, total, t, limit), info=info, visible=True)
 
-        common = dict(seed=seed, device=device, resume=resume, progress=progress, time_limit_s=limit_s)
         if fewshot is not None:
             from ctrplan.training.finetune import finetune
 
-            result = finetune(fewshot, start, out, rec, init_model=str(init), log=console.print,
-                              adapt_minutes=adapt_minutes, **common)
-        else:
-            result = run_training(
-                model_robot, rec, out, init_from=start.net if start else None, **common,
-                data_progress=data_progress,
-                extra_card={"stages": training_stages(start.card)} if start else None,
-                evaluate=lambda net: compare(PinnBackend(model_robot, net), model_robot,
-                                             n=CARD_EVAL_CONFIGURATIONS).metrics(),
-                # the planner's safety margin for this model, as scripts/calibrate_pinn.py measures it
-                calibrate=lambda net: calibrate(PinnBackend(model_robot, net), model_robot))
-    remove_checkpoint(out)  # the run finished: nothing to resume
+            return finetune(fewshot, start, out, rec, init_model=str(init), log=console.print,
+                            adapt_minutes=adapt_minutes, progress=progress, time_limit_s=budget.limit_s,
+                            **common)
+        return run_training(robot, rec, out, init_from=start.net if start else None, **common,
+                            progress=progress, data_progress=data_progress, budget=budget,
+                            extra_card={"stages": training_stages(start.card)} if start else None,
+                            **card_evaluation(robot, budget))
+
+
+def card_evaluation(robot: Robot, budget: TimeBudget) -> dict[str, Callable[[PinnNet], dict]]:
+    """``evaluate`` and ``calibrate`` of `ctrplan.training.trainer.train` for the model card: the
+    accuracy on `CARD_EVAL_CONFIGURATIONS` unseen configurations and the planner's safety margin on
+    `CALIBRATION_CONFIGURATIONS` more (as scripts/calibrate_pinn.py measures it), each on fewer when
+    the ``budget`` runs out (it shares what is left between them by size and records the cut)."""
+
+    def evaluate(net: PinnNet) -> dict:
+        share = CARD_EVAL_CONFIGURATIONS / (CARD_EVAL_CONFIGURATIONS + CALIBRATION_CONFIGURATIONS)
+        cmp = compare(PinnBackend(robot, net), robot, n=CARD_EVAL_CONFIGURATIONS,
+                      deadline=budget.phase_deadline(share))
+        if len(cmp.exact) < CARD_EVAL_CONFIGURATIONS:
+            budget.cut(f"evaluation: {len(cmp.exact):,} of {CARD_EVAL_CONFIGURATIONS:,} unseen "
+                       f"configurations")
+        return cmp.metrics()
+
+    def calibrate_(net: PinnNet) -> dict:
+        bound = calibrate(PinnBackend(robot, net), robot, n=CALIBRATION_CONFIGURATIONS,
+                          deadline=budget.phase_deadline(1.0))
+        if bound["compared"] < CALIBRATION_CONFIGURATIONS:
+            budget.cut(f"calibration: {bound['compared']:,} of {CALIBRATION_CONFIGURATIONS:,} configurations")
+        return bound
+
+    return {"evaluate": evaluate, "calibrate": calibrate_}
+
+
+def _report(console: Console, out: Path, result: TrainResult, budget: TimeBudget) -> None:
+    """The summary on stderr: files, accuracy, planning margin, unsolved configurations, whether the
+    model meets its accuracy target and what the time limit cut."""
     card = result.card
     m = card["metrics"]
     tip = m["tip_error_pct_length"]
@@ -181,18 +274,56 @@ def train(
                       f"(left out of training and of every statistic; listed in the card). Check the "
                       f"domain with `ctrplan stability --robot ...`: unsolvable configurations usually lie "
                       f"where the robot snaps.")
-    if fewshot is not None:
-        from ctrplan.training.finetune import kept_text, table_text
+    if budget.cuts:
+        console.print(f"the time limit ({budget.limit_s / 60:g} min, the whole command) cut short: "
+                      + "; ".join(budget.cuts) + f"; the command took {budget.elapsed_s():.0f} s")
+    if budget.limit_s is not None and budget.elapsed_s() > OVERRUN * budget.limit_s:
+        console.print(f"note: the command took {budget.elapsed_s():.0f} s, over its limit of "
+                      f"{budget.limit_s:.0f} s: loading torch's optimiser, the first chunk of exact data, "
+                      f"the first training step and the smallest evaluation and calibration "
+                      f"({MIN_EVAL_CONFIGURATIONS} configurations each) are never cut")
+    if card.get("meets_target") is False:
+        console.print(f"warning: {target_text(card)}: this model MISSES its accuracy target; train it longer "
+                      f"(--time-limit, --steps). Planning with it warns (meets_target: false in "
+                      f"{out.with_suffix('.json')}).")
 
-        stages = card["finetuned_on"]["stage_seconds"]
-        console.print("stages: " + ", ".join(f"{k[:-2]} {v:.0f} s" for k, v in stages.items())
-                      + f"; its robot in {out.with_suffix('.robot.yaml')} (with the calibration: `fk`, "
-                        f"`shape`), its mechanics in {out.with_suffix('.mechanics.robot.yaml')} (`plan`); "
-                        f"the adapted model in {out.name}_adapted.safetensors")
-        console.print(table_text(card["metrics"]["measured_heldout"]))
-        console.print(kept_text(card["finetuned_on"]["kept"]))
-    if as_json:
-        typer.echo(out.with_suffix(".json").read_text())  # the card as written, with robot and hash
+
+def target_text(card: dict) -> str:
+    """``tube-1 tip error mean 32.3 % (target <= 0.1 %), max 65.7 % (target <= 1 %) of arc length on
+    2000 unseen configurations`` from a card's `accuracy_target`."""
+    t = card["accuracy_target"]
+    got = t["measured"]
+    return (f"tube-1 tip error mean {got['tube1_tip_mean_pct_length']:.3g} % (target <= "
+            f"{t['tube1_tip_mean_pct_length']:g} %), max {got['tube1_tip_max_pct_length']:.3g} % "
+            f"(target <= {t['tube1_tip_max_pct_length']:g} %) of arc length on {t['configurations']} "
+            f"unseen configurations")
+
+
+def _how_to_resume(console: Console, out: Path) -> None:
+    """After Ctrl-C: the checkpoint to resume from and the command that does, or that there is none."""
+    try:
+        meta = checkpoint_meta(out)
+    except InputError:
+        meta = None
+    if meta is None:
+        console.print(f"interrupted before the first checkpoint of {out.name} (one is written every "
+                      f"{CHECKPOINT_EVERY_S / 60:g} minutes of training): nothing to resume")
+        return
+    args = sys.argv[1:] + ([] if "--resume" in sys.argv else ["--resume"])
+    console.print(f"interrupted: checkpoint {meta['file']} holds step {meta['step']:,} "
+                  f"({meta['elapsed_s'] / 60:.1f} min of training); continue with: "
+                  f"ctrplan {shlex.join(args)}")
+
+
+def check_model_name(name: str, option: str) -> str:
+    """``name`` if it is a model name (`MODEL_NAME`: letters, digits, ``_`` and ``-``, at most 100,
+    starting with a letter or digit); otherwise an `InputError` naming ``option``. A name is never a
+    path (no separators, no ``..``), so a model is never written outside its folder, and has no dot
+    (NAME.safetensors, NAME.json and NAME.ckpt.* are made from it by suffix)."""
+    if not MODEL_NAME.fullmatch(name):
+        raise InputError(f"{option}: {name!r} is not a model name (letters, digits, '_' and '-', at most "
+                         f"100 characters: no path, no dot); the folder is --out-dir")
+    return name
 
 
 def training_fraction(step: int, steps: int, time_s: float, limit_s: float | None) -> float:
@@ -264,8 +395,9 @@ def eval_model(
 
     if n < 1 or points < 2:
         raise InputError("--n must be >= 1 and --points >= 2")
-    check_output_dir(out)  # created when the figures are written
     model_robot = Robot.load(robot)
+    check_backbones("--n", n, "--points", points, model_robot.n_tubes, EVAL_COPIES)
+    check_output_dir(out)  # created when the figures are written
     pinn = PinnBackend.load(model, model_robot)
     cmp = compare(pinn, model_robot, n=n, points=points)
     out = output_dir(out)

@@ -12,8 +12,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import RobotOpt
-from ctrplan.dataio import check_output_dir, output_dir
+from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
+from ctrplan.memory import check_fits
 from ctrplan.robot import Robot
 
 
@@ -34,12 +35,15 @@ def stability(
     (conjugate-point test), where the continuation jumps (the branch folds: the robot snaps), or
     where two equilibria exist. The verdict is in the output (JSON `snap_free`); exit 2 on bad input.
     """
-    from ctrplan.stability import certify
+    from ctrplan.stability import certify, sweep_bytes
     from ctrplan.viz.stability_plot import plot_stability
 
     if n < 1 or steps < 3:
         raise InputError(f"--n must be >= 1 and --steps >= 3 (got {n}, {steps})")
     model = Robot.load(robot)
+    per_step = sweep_bytes(model.n_tubes, 1)
+    check_fits("--steps", steps, per_step, "configurations per sweep")
+    check_fits("--n", n, sweep_bytes(model.n_tubes, steps), f"sweeps of {steps} configurations")
     check_output_dir(out)  # created when the verdict is written
     console = Console(stderr=True)
     with Progress(TextColumn("stability sweeps"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
@@ -52,7 +56,8 @@ def stability(
     doc["plot"] = str(plot_stability(report, folder / "stability.png"))
     if certificate is not None:  # planning then skips the per-state stability test for this robot
         doc["certificate"] = str(certificate)
-    (folder / "stability.json").write_text(json.dumps(doc, indent=2) + "\n")
+    with atomic_write(folder / "stability.json") as fh:
+        fh.write(json.dumps(doc, indent=2) + "\n")
     if as_json:
         typer.echo(json.dumps(doc, indent=2))
     else:

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from ctrplan.dataio import save_figure
 from ctrplan.design.outputs import Design
 from ctrplan.design.study import objective_value
 from ctrplan.design.task import OBJECTIVES, DesignTask
@@ -80,7 +81,7 @@ def pareto_figure(task: DesignTask, designs: list[Design], front: list[Design], 
     fig.suptitle(f"{task.name}: {len(designs)} trials, {len(feasible)} feasible", fontsize=11)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
     return path
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import warnings
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -173,4 +174,17 @@ def load_model(model: str | Path | None, robot: Robot) -> tuple[PinnNet, dict[st
         raise InputError(f"{weights}: weights do not fit the network in the card ({exc})") from None
     if not all(torch.isfinite(v).all() for v in tensors.values()):
         raise InputError(f"{weights}: weights contain NaN or inf")
+    if card.get("meets_target") is False:
+        warnings.warn(below_target(weights, card), stacklevel=2)
     return net, card
+
+
+def below_target(weights: Path, card: dict[str, Any]) -> str:
+    """The warning for a model whose card says it misses its accuracy target (``meets_target``)."""
+    target = card.get("accuracy_target") or {}
+    got = target.get("measured") or {}
+    numbers = ", ".join(f"{k.replace('_pct_length', '')} {got[k]:.3g} % (target <= {target[k]:g} %)"
+                        for k in got if isinstance(got[k], (int, float)) and k in target)
+    return (f"{weights}: this PINN misses its accuracy target ({numbers or 'see its card'} of arc length): "
+            f"its shapes and its planning margin are that far from the exact model's; train it longer or "
+            f"use --backend cosserat")

@@ -9,7 +9,8 @@ from another one (`CALIBRATION_SEED`), used nowhere else.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -18,6 +19,7 @@ from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.robot import Robot
+from ctrplan.training.budget import MIN_EVAL_CONFIGURATIONS
 
 EVAL_SEED = 918_273_645
 #: Seed of the calibration configurations of `error_bound` (used nowhere else).
@@ -26,6 +28,13 @@ CALIBRATION_SEED = 555_012_907
 REGIONS = ((0.0, 0.25), (0.25, 0.5), (0.5, 0.75), (0.75, 1.0))
 #: Coverages (probability that a configuration's error in a region is within its bound) calibrated.
 COVERAGES = (0.5, 0.8, 0.9, 0.95, 0.99)
+#: Configurations of the calibration of a model's error bound (`calibrate`).
+CALIBRATION_CONFIGURATIONS = 5000
+#: Configurations compared per chunk when a deadline may cut a comparison short.
+COMPARE_CHUNK = MIN_EVAL_CONFIGURATIONS
+#: The accuracy a trained model is meant to reach (README, PINN section: issue 18's target): tube-1
+#: tip error over unseen configurations, mean and max, in % of tube 1's arc length.
+ACCURACY_TARGET = {"tube1_tip_mean_pct_length": 0.1, "tube1_tip_max_pct_length": 1.0}
 
 
 def _tail(x: np.ndarray) -> dict:
@@ -119,11 +128,36 @@ def _finite(obj):
 
 
 def compare(model: Backend, robot: Robot, n: int = 100, points: int = 100,
-            seed: int = EVAL_SEED) -> Comparison:
-    """Run ``model`` and the exact solver on ``n`` unseen configurations of the robot's domain."""
+            seed: int = EVAL_SEED, deadline: float | None = None,
+            min_n: int = MIN_EVAL_CONFIGURATIONS) -> Comparison:
+    """Run ``model`` and the exact solver on ``n`` unseen configurations of the robot's domain.
+
+    With a ``deadline`` (`time.monotonic` time) they run in chunks of `COMPARE_CHUNK` and stop after
+    the first chunk that ends past it, once ``min_n`` are done: the comparison then covers the first
+    configurations of the ``n`` only (its length says how many)."""
     q = robot.sample_joints(n, rng=seed)
-    exact = CosseratBackend(robot).forward(q, points)
-    return Comparison(predicted=model.forward(q, points), exact=exact)
+    exact = CosseratBackend(robot)
+    if deadline is None:
+        return Comparison(predicted=model.forward(q, points), exact=exact.forward(q, points))
+    parts = []
+    for a in range(0, n, COMPARE_CHUNK):
+        qa = q[a:a + COMPARE_CHUNK]
+        parts.append((model.forward(qa, points), exact.forward(qa, points)))
+        if a + len(qa) >= min_n and time.monotonic() >= deadline:
+            break
+    return Comparison(predicted=concatenate([p for p, _ in parts]), exact=concatenate([e for _, e in parts]))
+
+
+def concatenate(parts: list[Backbone]) -> Backbone:
+    """Backbones of the same robot and points, one after the other."""
+    if len(parts) == 1:
+        return parts[0]
+    values = {}
+    for f in fields(Backbone):
+        first = getattr(parts[0], f.name)
+        values[f.name] = (np.concatenate([getattr(p, f.name) for p in parts])
+                          if isinstance(first, np.ndarray) else first)
+    return Backbone(**values)
 
 
 def error_bound(cmp: Comparison, coverages: tuple[float, ...] = COVERAGES, seed: int | None = None) -> dict:
@@ -141,7 +175,8 @@ def error_bound(cmp: Comparison, coverages: tuple[float, ...] = COVERAGES, seed:
         regions.append({"s_fraction": [lo, hi], "max_mm": float(scores.max()),
                         "bound_mm": [conformal_quantile(scores, c) for c in coverages]})
     return {"method": "split-conformal quantile of the largest backbone position error per region",
-            "truth": "cosserat", "configurations": int(ok.sum()), "points": int(d.shape[1]), "seed": seed,
+            "truth": "cosserat", "compared": len(ok), "configurations": int(ok.sum()),
+            "points": int(d.shape[1]), "seed": seed,
             "coverages": list(coverages), "regions": regions}
 
 
@@ -165,7 +200,20 @@ def region_margins_mm(bound: dict, coverage: float, s_fraction: np.ndarray) -> n
     return out
 
 
-def calibrate(model: Backend, robot: Robot, n: int = 5000, points: int = 64,
-              seed: int = CALIBRATION_SEED) -> dict:
-    """`error_bound` of ``model`` against the exact solver on ``n`` configurations of ``seed``."""
-    return error_bound(compare(model, robot, n=n, points=points, seed=seed), COVERAGES, seed)
+def calibrate(model: Backend, robot: Robot, n: int = CALIBRATION_CONFIGURATIONS, points: int = 64,
+              seed: int = CALIBRATION_SEED, deadline: float | None = None) -> dict:
+    """`error_bound` of ``model`` against the exact solver on ``n`` configurations of ``seed`` (fewer
+    when a ``deadline`` cuts the comparison short, see `compare`)."""
+    return error_bound(compare(model, robot, n=n, points=points, seed=seed, deadline=deadline),
+                       COVERAGES, seed)
+
+
+def accuracy_verdict(metrics: dict) -> dict:
+    """Whether ``metrics`` (`Comparison.metrics`) meet `ACCURACY_TARGET`: ``{"meets_target": bool,
+    "accuracy_target": {the target, "measured": the values compared, "configurations"}}``."""
+    tip = metrics["tip_error_pct_length"]
+    measured = {"tube1_tip_mean_pct_length": tip["mean"], "tube1_tip_max_pct_length": tip["max"]}
+    meets = all(v is not None and v <= ACCURACY_TARGET[k] for k, v in measured.items())
+    return {"meets_target": bool(meets and not metrics.get("nonfinite_predictions")),
+            "accuracy_target": {**ACCURACY_TARGET, "measured": measured,
+                                "configurations": metrics["configurations"]}}

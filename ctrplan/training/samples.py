@@ -22,6 +22,8 @@ from ctrplan.robot import Robot
 
 #: Configurations solved per call while a pool is built (progress is reported between chunks).
 SOLVE_CHUNK = 4096
+#: The same under a deadline (a finer check of the time).
+DEADLINE_CHUNK = 512
 
 
 @dataclass(frozen=True)
@@ -41,6 +43,11 @@ class DenseStates:
     def __len__(self) -> int:
         return self.q.shape[0]
 
+    @property
+    def solved_per_s(self) -> float:
+        """Configurations the exact solver went through per second while it built this pool."""
+        return (len(self) + len(self.unsolved)) / max(self.seconds, 1e-9)
+
     def unsolved_report(self, limit: int = 10) -> dict:
         """How many configurations were left out, and the first ``limit`` of them (mm, rad)."""
         return {"count": int(len(self.unsolved)), "of": int(len(self) + len(self.unsolved)),
@@ -48,17 +55,23 @@ class DenseStates:
 
 
 def solve_dense(robot: Robot, q: np.ndarray, points: int,
-                progress: Callable[[int, int], None] | None = None) -> DenseStates:
+                progress: Callable[[int, int], None] | None = None,
+                deadline: float | None = None) -> DenseStates:
     """Exact states at ``points`` uniform arc fractions for configurations q (B, 2N), solved in
     chunks (``progress(done, total)`` after each). Rows the solver could not converge on are left out
-    and listed in ``unsolved``."""
+    and listed in ``unsolved``. With a ``deadline`` (`time.monotonic` time) solving stops after the
+    first chunk that ends past it: the pool then covers the first rows of q only."""
     t0 = time.perf_counter()
     backend = CosseratBackend(robot)
+    chunk = SOLVE_CHUNK if deadline is None else DEADLINE_CHUNK
     parts = []
-    for a in range(0, len(q), SOLVE_CHUNK):
-        parts.append(backend.forward(q[a:a + SOLVE_CHUNK], points=points, check=False))
+    for a in range(0, len(q), chunk):
+        parts.append(backend.forward(q[a:a + chunk], points=points, check=False))
         if progress is not None:
-            progress(min(a + SOLVE_CHUNK, len(q)), len(q))
+            progress(min(a + chunk, len(q)), len(q))
+        if deadline is not None and time.monotonic() >= deadline:
+            q = q[:a + chunk]
+            break
     ok = np.concatenate([bb.converged for bb in parts]) if parts else np.zeros(0, dtype=bool)
 
     def joined(name: str) -> np.ndarray:

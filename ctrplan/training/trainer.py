@@ -30,13 +30,16 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file, save
 
 from ctrplan.bench import cpu_model
+from ctrplan.dataio import atomic_write
 from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import save_model
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnNet
 from ctrplan.robot import Robot
+from ctrplan.training.budget import TimeBudget
+from ctrplan.training.evaluate import accuracy_verdict
 from ctrplan.training.losses import (
     boundary_residual,
     observation_residual,
@@ -48,6 +51,8 @@ from ctrplan.training.physics import TubeTensors
 from ctrplan.training.samples import DenseStates, solve_dense, state_scales
 
 GROUP_WEIGHTS = (1.0, 1.0, 1.0, 1.0, 1.0)
+#: Seconds of training between two checkpoints.
+CHECKPOINT_EVERY_S = 120.0
 
 
 @dataclass(frozen=True)
@@ -217,13 +222,16 @@ class TrainingData:
     @classmethod
     def build(cls, robot: Robot, recipe: Recipe, seed: int, device: torch.device,
               observations: Observations | None = None,
-              progress: Callable[[int, int], None] | None = None) -> TrainingData:
-        """Solve the exact pool (its size: the largest of dense configurations, observations and
-        2000; ``progress(done, total)`` while it is solved) and draw the fixed sets; ``observations``
-        (see `train`) replace the pool's tips."""
-        n_exact = max(recipe.dense_configs, recipe.observations, 2000)
+              progress: Callable[[int, int], None] | None = None,
+              deadline: float | None = None, budget: TimeBudget | None = None) -> TrainingData:
+        """Solve the exact pool (its size: `pool_size`; ``progress(done, total)`` while it is solved;
+        cut short at ``deadline``, see `solve_dense`, and then recorded in ``budget``) and draw the
+        fixed sets; ``observations`` (see `train`) replace the pool's tips."""
+        n_exact = pool_size(recipe)
         pool = solve_dense(robot, robot.sample_joints(n_exact, np.random.default_rng(seed)),
-                           recipe.dense_points, progress)
+                           recipe.dense_points, progress, deadline)
+        if budget is not None and len(pool) + len(pool.unsolved) < n_exact:
+            budget.cut(f"exact data: {len(pool) + len(pool.unsolved):,} of {n_exact:,} configurations solved")
         if not len(pool):
             raise InputError(f"robot {robot.name!r}: the exact solver solved none of {n_exact} random "
                              f"configurations of its domain; check the domain with `ctrplan stability`")
@@ -244,6 +252,12 @@ class TrainingData:
                    sigma_grid=to_dev(pool.sigma), obs_q=to_dev(obs.q), obs_tips=to_dev(obs.tips_mm),
                    obs_sensor_offset=offset,
                    fixed_colloc=fixed_colloc, fixed_bc=fixed_bc, hard=hard)
+
+
+def pool_size(recipe: Recipe) -> int:
+    """Configurations the exact pool of ``recipe`` solves: the largest of its dense configurations,
+    its observations and 2000."""
+    return max(recipe.dense_configs, recipe.observations, 2000)
 
 
 class Losses:
@@ -349,8 +363,10 @@ def _save_checkpoint(out: Path, net: PinnNet, opt: torch.optim.Optimizer, meta: 
                 tensors[f"adam.{i}.exp_avg_sq"] = st["exp_avg_sq"].detach().cpu().contiguous()
                 meta["adam_step"] = float(st["step"])
     weights.parent.mkdir(parents=True, exist_ok=True)
-    save_file(tensors, str(weights))
-    info.write_text(json.dumps(meta, indent=2))
+    with atomic_write(weights, "wb") as fh:  # a Ctrl-C mid-write leaves the previous checkpoint
+        fh.write(save(tensors))
+    with atomic_write(info) as fh:
+        fh.write(json.dumps(meta, indent=2))
 
 
 def remove_checkpoint(out: Path) -> None:
@@ -359,12 +375,45 @@ def remove_checkpoint(out: Path) -> None:
         path.unlink(missing_ok=True)
 
 
+def checkpoint_meta(out: Path) -> dict | None:
+    """The record of the checkpoint beside ``out`` (its step, training time, robot, recipe, seed),
+    with ``file`` (its weights); None when there is none. `InputError` if it cannot be read."""
+    weights, info = _checkpoint_paths(out)
+    if not weights.exists() or not info.exists():
+        return None
+    try:
+        meta = json.loads(info.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{info}: unreadable checkpoint record ({exc})") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("step"), int):
+        raise InputError(f"{info}: not a ctrplan training checkpoint")
+    return {**meta, "file": str(weights)}
+
+
+def check_checkpoint(out: Path, robot: Robot) -> dict:
+    """`checkpoint_meta` of ``out``; an `InputError` when there is none or it was made for another
+    robot than ``robot`` (by fingerprint)."""
+    meta = checkpoint_meta(out)
+    if meta is None:
+        raise InputError(f"{_checkpoint_paths(out)[0]}: no checkpoint to resume from")
+    made_for = meta.get("robot_fingerprint")  # None: a checkpoint of an older ctrplan
+    if made_for is not None and made_for != robot.fingerprint:
+        raise InputError(f"{meta['file']}: checkpoint of robot {meta.get('robot', '?')!r} (fingerprint "
+                         f"{str(made_for)[:12]}), not of robot {robot.name!r} (fingerprint "
+                         f"{robot.fingerprint[:12]}); resume with the robot it was made for (--robot) "
+                         f"or start afresh without --resume")
+    return meta
+
+
 def _load_checkpoint(out: Path, net: PinnNet, opt: torch.optim.Optimizer, device) -> dict:
     weights, info = _checkpoint_paths(out)
     if not weights.exists() or not info.exists():
         raise InputError(f"{weights}: no checkpoint to resume from")
     tensors = load_file(str(weights), device=str(device))
-    net.load_state_dict({k[4:]: v for k, v in tensors.items() if k.startswith("net.")})
+    try:
+        net.load_state_dict({k[4:]: v for k, v in tensors.items() if k.startswith("net.")})
+    except RuntimeError as exc:
+        raise InputError(f"{weights}: checkpoint weights do not fit this network ({exc})") from None
     meta = json.loads(info.read_text())
     if isinstance(opt, torch.optim.Adam):
         for i, p in enumerate(net.parameters()):
@@ -379,28 +428,41 @@ class Trainer:
     """Trains a `PinnNet` (DeepXDE style): ``Trainer(robot, data, net).compile(recipe).train(out)``,
     then ``finish(out)`` writes the model and its card. `train` below is the one-call form."""
 
-    def __init__(self, robot: Robot, data: TrainingData, net: PinnNet, *, data_time_s: float = 0.0):
+    def __init__(self, robot: Robot, data: TrainingData, net: PinnNet, *, data_time_s: float = 0.0,
+                 budget: TimeBudget | None = None):
         self.robot, self.data, self.net, self.data_time_s = robot, data, net, data_time_s
         self.device = data.dense_q.device
+        self.budget = budget
 
     def compile(self, recipe: Recipe, *, seed: int = 0, time_limit_s: float | None = None) -> Trainer:
         """Set the recipe's losses, optimiser and learning-rate schedule; start at step 0."""
-        self.recipe, self.seed, self.time_limit_s = recipe, seed, time_limit_s
+        self.recipe, self.seed = recipe, seed
         self.losses = Losses(recipe, self.data, TubeTensors.from_robot(self.robot, device=self.device))
         self.optimizer = make_optimizer(recipe, self.net.parameters())
-        self.schedule = CosineSchedule.of(recipe, time_limit_s)
         self.step, self.elapsed_before_s, self.history = 0, 0.0, []
         self._stats: dict = {}
+        return self.limit(time_limit_s)
+
+    def limit(self, time_limit_s: float | None) -> Trainer:
+        """Set the training time limit (s, None: the step budget only) and fit the schedule to it."""
+        self.time_limit_s = time_limit_s
+        self.schedule = CosineSchedule.of(self.recipe, time_limit_s)
         return self
 
     def resume(self, out: Path) -> Trainer:
-        """Continue from the checkpoint beside ``out`` (same recipe and seed only)."""
+        """Continue from the checkpoint beside ``out`` (same robot, recipe and seed only). Training
+        ends where the checkpointed run would have ended, or earlier if this run's time limit is
+        shorter than what that run had left."""
+        check_checkpoint(out, self.robot)
         meta = _load_checkpoint(out, self.net, self.optimizer, self.device)
         if meta.get("recipe") != asdict(self.recipe) or meta.get("seed") != self.seed:
             raise InputError(f"{out}: checkpoint was made with another recipe or seed; "
                              "resume with the same --recipe/--seed or start afresh")
         self.step, self.elapsed_before_s = meta["step"], meta["elapsed_s"]
         self.history = meta.get("history", [])
+        if self.time_limit_s is not None:
+            limit = self.elapsed_before_s + self.time_limit_s
+            self.limit(min(limit, meta.get("time_limit_s") or limit))
         return self
 
     def _elapsed_s(self) -> float:
@@ -431,7 +493,9 @@ class Trainer:
     def _checkpoint(self, out: Path, elapsed_s: float) -> None:
         _save_checkpoint(out, self.net, self.optimizer,
                          {"step": self.step, "elapsed_s": elapsed_s, "recipe": asdict(self.recipe),
-                          "seed": self.seed, "history": self.history})
+                          "seed": self.seed, "robot": self.robot.name,
+                          "robot_fingerprint": self.robot.fingerprint, "time_limit_s": self.time_limit_s,
+                          "history": self.history})
 
     def _mine(self) -> dict:
         """A mining round (`HardExamples.mine`) when one is due; its fresh-configuration tail."""
@@ -442,17 +506,19 @@ class Trainer:
         return {"fresh_tip_p99_9_mm": rnd.tip_mm["p99_9"], "fresh_tip_max_mm": rnd.tip_mm["max"],
                 "fresh_orientation_max_deg": rnd.orientation_deg["max"]}
 
-    def train(self, out: Path, *, checkpoint_every_s: float = 120.0,
-              progress: Callable[[int, int, dict], None] | None = None) -> Trainer:
-        """Run to the recipe's step budget or the time limit, checkpointing beside ``out`` and mining
-        hard examples as the recipe says. ``progress(step, total, stats)`` is called every 10 steps
-        and at the last one; ``stats`` has the loss terms, ``time_s`` (the training time so far) and,
-        after mining rounds, the network's tail on the round's fresh configurations."""
+    def train(self, out: Path, *, checkpoint_every_s: float = CHECKPOINT_EVERY_S,
+              progress: Callable[[int, int, dict], None] | None = None, min_steps: int = 0) -> Trainer:
+        """Run to the recipe's step budget or the time limit (at least ``min_steps`` steps),
+        checkpointing beside ``out`` and mining hard examples as the recipe says.
+        ``progress(step, total, stats)`` is called every 10 steps and at the last one; ``stats`` has
+        the loss terms, ``time_s`` (the training time so far) and, after mining rounds, the network's
+        tail on the round's fresh configurations."""
         steps = self.recipe.steps
         one_step = self._adam_step if self.recipe.optimizer == "adam" else self._lbfgs_step
         self._t0 = last_ckpt = time.perf_counter()
         fresh: dict = {}
-        while self.step < steps and not self._out_of_time():
+        first = self.step
+        while self.step < steps and (self.step < first + min_steps or not self._out_of_time()):
             total = one_step()
             self.step += 1
             fresh = self._mine() or fresh
@@ -476,6 +542,14 @@ class Trainer:
         self.wall_time_s = self._elapsed_s() + self.data_time_s
         self._checkpoint(out, self.wall_time_s - self.data_time_s)
         return self
+
+    def _mining_record(self) -> dict:
+        """The card's record of hard-example mining: rounds, pool, time and their history."""
+        hard = self.data.hard
+        return {"rounds": len(hard.rounds), "hard_pool": len(hard), "seconds": round(hard.seconds, 1),
+                "unsolved_candidates": sum(r.unsolved for r in hard.rounds),
+                "history": [r.to_json() for r in hard.rounds[::max(1, len(hard.rounds) // 20)]],
+                "last": hard.rounds[-1].to_json() if hard.rounds else None}
 
     def finish(self, out: Path, *, evaluate: Callable[[PinnNet], dict] | None = None,
                calibrate: Callable[[PinnNet], dict] | None = None,
@@ -507,14 +581,10 @@ class Trainer:
             "metrics": metrics,
             "history_tail": self.history[-5:],
         }
-        hard = self.data.hard
-        if hard is not None:
-            card["mining"] = {"rounds": len(hard.rounds), "hard_pool": len(hard),
-                              "seconds": round(hard.seconds, 1),
-                              "unsolved_candidates": sum(r.unsolved for r in hard.rounds),
-                              "history": [r.to_json() for r in hard.rounds[::max(1, len(hard.rounds) // 20)]],
-                              "last": hard.rounds[-1].to_json() if hard.rounds else None}
+        card |= {"mining": self._mining_record()} if self.data.hard is not None else {}
         card |= {ERROR_BOUND_KEY: calibrate(net)} if calibrate is not None else {}
+        if self.budget is not None:  # a run of `ctrplan train` (a fine-tuned model has its own table)
+            card |= {"time_limit": self.budget.to_json(), **accuracy_verdict(metrics)}
         save_model(net, self.robot, out, card)
         return TrainResult(net=net, steps=step, wall_time_s=wall, history=self.history, card=card)
 
@@ -529,13 +599,13 @@ def new_net(robot: Robot, recipe: Recipe, data: TrainingData) -> PinnNet:
 
 def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str = "cpu",
           resume: bool = False, init_from: PinnNet | None = None, time_limit_s: float | None = None,
-          checkpoint_every_s: float = 120.0,
+          checkpoint_every_s: float = CHECKPOINT_EVERY_S,
           progress: Callable[[int, int, dict], None] | None = None,
           data_progress: Callable[[int, int], None] | None = None,
           evaluate: Callable[[PinnNet], dict] | None = None,
           calibrate: Callable[[PinnNet], dict] | None = None,
           observations: Observations | None = None,
-          extra_card: dict | None = None) -> TrainResult:
+          extra_card: dict | None = None, budget: TimeBudget | None = None) -> TrainResult:
     """Train a PINN for ``robot`` with ``recipe``; write ``out.safetensors`` + ``out.json``.
 
     ``init_from`` continues from an existing network (its input encoding and output scales are kept).
@@ -545,21 +615,25 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
     ``recipe.steps`` or after ``time_limit_s`` (default: the recipe's ``minutes``), data generation
     included. ``observations`` (measured tips, paper stage b) replace the Cosserat
     tip observations; ``extra_card`` holds extra model-card fields. The card's ``stages`` lists
-    the training stages that made the model: ``extra_card["stages"]`` (those of the ``init_from``
-    model) followed by this one.
+    the training stages: ``extra_card["stages"]`` (of the ``init_from`` model), then this one. A
+    ``budget`` (`TimeBudget`; replaces ``time_limit_s``) bounds the whole run, exact pool included;
+    the card then records it and, from ``evaluate``, the `accuracy_verdict`.
     """
     dev = torch.device(device)
     torch.manual_seed(seed)
     t_start = time.perf_counter()
-    data = TrainingData.build(robot, recipe, seed, dev, observations, data_progress)
+    own = budget is None  # then no deadline on the exact data: only the training loop is limited
+    budget = budget or TimeBudget(time_limit_s if time_limit_s is not None
+                                  else (recipe.minutes * 60 if recipe.minutes else None))
+    data = TrainingData.build(robot, recipe, seed, dev, observations, data_progress,
+                              deadline=None if own else budget.data_deadline(), budget=budget)
     net = (new_net(robot, recipe, data) if init_from is None else init_from).to(dev).train()
     net.requires_grad_(True)
     data_time_s = time.perf_counter() - t_start
-    limit_s = time_limit_s if time_limit_s is not None else (recipe.minutes * 60 if recipe.minutes else None)
-    trainer = Trainer(robot, data, net, data_time_s=data_time_s)
-    loop_s = None if limit_s is None else max(limit_s - data_time_s, 0.0)
-    trainer.compile(recipe, seed=seed, time_limit_s=loop_s)
+    trainer = Trainer(robot, data, net, data_time_s=data_time_s, budget=None if own else budget)
+    trainer.compile(recipe, seed=seed)  # the first optimiser loads torch's compiler: seconds
+    trainer.limit(budget.training_s(data.pool.solved_per_s))
     if resume:
         trainer.resume(out)
-    trainer.train(out, checkpoint_every_s=checkpoint_every_s, progress=progress)
+    trainer.train(out, checkpoint_every_s=checkpoint_every_s, progress=progress, min_steps=0 if own else 1)
     return trainer.finish(out, evaluate=evaluate, calibrate=calibrate, extra_card=extra_card)

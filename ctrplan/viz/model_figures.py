@@ -11,6 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ctrplan.dataio import save_figure  # noqa: E402
 from ctrplan.kinematics.backbone import state_names  # noqa: E402
 from ctrplan.training.evaluate import Comparison  # noqa: E402
 
@@ -29,7 +30,7 @@ def shapes_figure(cmp: Comparison, path: Path, count: int = 12) -> Path:
     ax.set_zlabel("z [mm]")
     ax.set_title("Cosserat (solid) vs PINN (dashed), unseen configurations")
     fig.tight_layout()
-    fig.savefig(path, dpi=130)
+    save_figure(fig, path, dpi=130)
     plt.close(fig)
     return path
 
@@ -50,7 +51,7 @@ def error_band_figure(cmp: Comparison, path: Path) -> Path:
     ax.legend()
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=130)
+    save_figure(fig, path, dpi=130)
     plt.close(fig)
     return path
 
@@ -82,6 +83,6 @@ def states_figure(cmp: Comparison, path: Path) -> Path:
     fig.suptitle("States: Cosserat (solid) vs PINN (dashed), q = "
                  + np.array2string(q, precision=2, separator=", "), fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=130)
+    save_figure(fig, path, dpi=130)
     plt.close(fig)
     return path

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ctrplan.dataio import save_figure
 from ctrplan.scene import Scene
 from ctrplan.viz.framing import corridor_bounds, corridor_direction, section
 from ctrplan.viz.style import TARGET_COLOR, axis_labels, obstacle_colors, view_name
@@ -46,7 +47,7 @@ def plot_plan(scene: Scene, backbones_scene: np.ndarray, path: str | Path, *, ti
     path = Path(path)
     fig = plan_figure(scene, backbones_scene, title=title, tip_path=tip_path, max_backbones=max_backbones)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    save_figure(fig, path)
     plt.close(fig)
     return path
 

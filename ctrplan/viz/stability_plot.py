@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ctrplan.dataio import save_figure
 from ctrplan.stability import StabilityReport
 
 
@@ -64,6 +65,6 @@ def plot_stability(report: StabilityReport, path: Path) -> Path:
     pct = 100 * report.unstable_fraction
     verdict = "snap-free" if report.snap_free else f"NOT snap-free ({pct:.1f} % flagged)"
     ax2.set_title(f"{report.robot}: {verdict}\n({report.checked} configurations checked)")
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path

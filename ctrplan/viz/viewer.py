@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ctrplan.dataio import atomic_write
 from ctrplan.scene import Scene
 from ctrplan.viz.framing import corridor_bounds, corridor_direction, finite_points
 from ctrplan.viz.style import (
@@ -95,7 +96,8 @@ def write_viewer(path: str | Path, data: dict, title: str = "ctrplan") -> Path:
     payload = json.dumps(data, separators=(",", ":")).replace("</", "<\\/")
     html = _TEMPLATE.replace("__TITLE__", _escape(title)).replace("__DATA__", payload)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(html, encoding="utf-8")
+    with atomic_write(path) as fh:
+        fh.write(html)
     return path
 
 
