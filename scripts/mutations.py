@@ -7,14 +7,21 @@ that the tests meant to catch each one fail.
 
 Each mutation replaces one exact piece of source text (it must occur exactly once: a mutation whose
 text the code no longer has is reported as stale) and runs its tests with pytest; the file is
-restored afterwards, whatever happens. Exit code 1 when a mutation survived or is stale.
+restored afterwards, whatever happens. Each run gets a fresh numba cache folder (NUMBA_CACHE_DIR), so
+no kernel compiled from a mutated file is reused after the file is restored, and none compiled from
+the real file hides a mutation. Exit code 1 when a mutation survived or is stale.
+
+The habit the mutations check: every safety or science function gets a test that a sign, index,
+bound or unit error would fail (tests/test_guard_*.py hold those written for issue 25).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +42,12 @@ FRAMES = "tests/test_planning_frames.py::test_"
 STABILITY = "tests/test_stability_use.py::test_"
 BAD = "tests/test_bad_input.py::test_"
 PHYSICS = "tests/test_calibration_physics.py::test_"
+GEOMETRY = "tests/test_guard_geometry.py::test_"
+SWEEP = "tests/test_guard_stability.py::test_"
+DESIGN = "tests/test_guard_design.py::test_"
+RULES = "tests/test_guard_calibration.py::test_"
+FILES = "tests/test_guard_files.py::test_"
+THRESHOLD = "tests/test_any_robot.py::test_domain_check_reproduces_the_two_tube_threshold"
 
 MUTATIONS = (
     Mutation("exact validation at the identity pose", "ctrplan/planning/validate.py",
@@ -127,6 +140,77 @@ MUTATIONS = (
              "if not (console.interrupted() or isinstance(exc, (KeyboardInterrupt, typer.Abort))):",
              "if not isinstance(exc, (KeyboardInterrupt, typer.Abort)):",
              ("tests/test_ctrl_c.py::test_ctrl_c_inside_a_numba_kernel",)),
+    # ---- issue 25 §5: bugs nobody listed (tests/test_guard_*.py and the strengthened tests) ----------
+    Mutation("ellipsoid target rotation applied transposed", "ctrplan/scene.py",
+             "return (np.asarray(p, dtype=float) - self.center) @ self.rotation\n",
+             "return (np.asarray(p, dtype=float) - self.center) @ self.rotation.T\n",
+             (GEOMETRY + "an_oblique_ellipsoid_contains_its_long_axis_and_not_its_mirror_image",)),
+    Mutation("ellipsoid target samples rotated transposed", "ctrplan/scene.py",
+             "return (u * r * self.semi_axes) @ self.rotation.T + self.center",
+             "return (u * r * self.semi_axes) @ self.rotation + self.center",
+             (GEOMETRY + "an_oblique_ellipsoid_contains_its_long_axis_and_not_its_mirror_image",)),
+    Mutation("approach angle sign-agnostic", "ctrplan/scene.py",
+             "c = (t @ self.direction) / np.maximum(",
+             "c = np.abs(t @ self.direction) / np.maximum(",
+             (GEOMETRY + "a_tip_arriving_from_the_wrong_side_is_not_in_the_target",)),
+    Mutation("exact validation's approach angle sign-agnostic", "ctrplan/planning/validate.py",
+             "and angle <= scene.target.angle_tolerance_rad + 1e-12)",
+             "and min(angle, np.pi - angle) <= scene.target.angle_tolerance_rad + 1e-12)",
+             (GEOMETRY + "a_tip_arriving_from_the_wrong_side_is_not_in_the_target",)),
+    Mutation("tube N's base-in-front-of-the-plate check on tube 1", "ctrplan/robot.py",
+             '(qe[:, n - 1] > 1e-9, f"tube {n} base in front of the plate',
+             '(qe[:, 0] > 1e-9, f"tube {n} base in front of the plate',
+             (GEOMETRY + "the_outermost_tubes_base_in_front_of_the_plate_is_impossible",)),
+    Mutation("domain tube-order check on the upper bound", "ctrplan/robot.py",
+             "if 0 < c < n and b[0] < 0:", "if 0 < c < n and b[1] < 0:",
+             (GEOMETRY + "a_domain_that_reverses_the_tube_order_is_refused",)),
+    Mutation("stability jump threshold from the largest move", "ctrplan/stability.py",
+             "typical = np.nanmedian(moves)", "typical = np.nanmax(moves)",
+             (SWEEP + "a_snap_between_two_sweep_steps_is_a_jump",)),
+    Mutation("non-converged sweep state not counted unstable", "ctrplan/stability.py",
+             "unstable = ~converged | ~(stab > 0.0)", "unstable = stab <= 0.0",
+             (SWEEP + "a_state_whose_equilibrium_was_not_found_counts_unstable",)),
+    Mutation("stability sweep turns a translation", "ctrplan/stability.py",
+             "    q[:, n + tube] = np.linspace(lo, hi, steps)", "    q[:, tube] = np.linspace(lo, hi, steps)",
+             (THRESHOLD,)),
+    Mutation("design clearance over the safest target", "ctrplan/design/evaluate.py",
+             'record["min_clearance_mm"] = min(t["min_clearance_mm"] for t in reached)',
+             'record["min_clearance_mm"] = max(t["min_clearance_mm"] for t in reached)',
+             (DESIGN + "a_designs_clearance_is_its_worst_targets",)),
+    Mutation("design trial starts from the scene's start even where it collides",
+             "ctrplan/design/evaluate.py",
+             "return cands[chunk[int(np.argmax(valid))]]", "return cands[order[0]]",
+             (DESIGN + "a_design_does_not_start_where_the_scenes_start_collides",)),
+    Mutation("infeasible designs kept in the ranking", "ctrplan/design/outputs.py",
+             'feasible = [d for d in designs if d.record["feasible"]]', "feasible = list(designs)",
+             ("tests/test_design.py::test_over_strained_designs_are_never_best",)),
+    Mutation("diagnose's BIC margin with its sign flipped", "ctrplan/calibration/selection.py",
+             "ok = held_ok and d_bic < -opt.bic_margin", "ok = held_ok and d_bic < opt.bic_margin",
+             (RULES + "a_cause_must_lower_the_bic_by_more_than_the_margin",)),
+    Mutation("a better fit within the BIC margin never beats", "ctrplan/calibration/selection.py",
+             "if a.fit.bic > b.fit.bic + opt.bic_margin:", "if a.fit.bic > b.fit.bic - opt.bic_margin:",
+             (RULES + "a_better_fit_within_the_margin_still_beats_a_worse_one",)),
+    Mutation("a cause significant on one split named as stable", "ctrplan/calibration/selection.py",
+             "if c.significant_splits() >= need]", "if c.significant]",
+             (RULES + "a_cause_significant_on_one_split_is_not_stable",)),
+    Mutation("diagnose's gain ratio inverted", "ctrplan/calibration/diagnosis.py",
+             "100.0 * (1.0 - ext / nom)", "100.0 * (1.0 - nom / ext)",
+             (RULES + "the_reported_gain_is_the_held_out_error_saved",)),
+    Mutation("output folder check forgets new parents", "ctrplan/dataio.py",
+             "missing = [p for p in (path, *path.parents) if not p.exists()]",
+             "missing = [p for p in (path,) if not p.exists()]",
+             (FILES + "the_output_check_leaves_no_folder_of_a_deep_new_path",
+              FILES + "a_command_failing_after_the_output_check_leaves_no_folder")),
+    Mutation("atomic write leaves its temporary file on Ctrl-C", "ctrplan/dataio.py",
+             "    except BaseException:\n        tmp.unlink(missing_ok=True)",
+             "    except Exception:\n        tmp.unlink(missing_ok=True)",
+             (FILES + "ctrl_c_inside_an_atomic_write_leaves_the_old_file_and_no_temporary",)),
+    Mutation("tail metric p99.9 taken at p99", "ctrplan/training/evaluate.py",
+             '"p99_9": float(np.percentile(x, 99.9))', '"p99_9": float(np.percentile(x, 99))',
+             ("tests/test_eval.py::test_metrics_report_the_tail",)),
+    Mutation("orientation error is half the rotation angle", "ctrplan/training/evaluate.py",
+             "angle = np.degrees(2 * np.arccos(", "angle = np.degrees(np.arccos(",
+             ("tests/test_eval.py::test_metrics_report_the_tail",)),
 )
 
 
@@ -138,12 +222,15 @@ def run(mutation: Mutation) -> tuple[str, float]:
     if original.count(mutation.old) != 1:
         return "STALE", 0.0
     t0 = time.perf_counter()
-    try:
-        path.write_text(original.replace(mutation.old, mutation.new))
-        result = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
-                                 *mutation.tests], cwd=REPO, capture_output=True, text=True, check=False)
-    finally:
-        path.write_text(original)
+    with tempfile.TemporaryDirectory(prefix="ctrplan-mutation-numba-") as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        try:
+            path.write_text(original.replace(mutation.old, mutation.new))
+            result = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
+                                     *mutation.tests], cwd=REPO, capture_output=True, text=True, check=False,
+                                    env=env)
+        finally:
+            path.write_text(original)
     verdict = {0: "SURVIVED", 1: "caught"}.get(result.returncode, "ERROR")
     return verdict, time.perf_counter() - t0
 

@@ -1,4 +1,10 @@
-"""Shared fixtures: the nominal robot, a Cosserat backend and the independent reference cases."""
+"""Shared fixtures: the nominal robot, a Cosserat backend and the independent reference cases.
+
+The suite's habit: every safety or science function gets a test that a sign, index, bound or unit
+error would fail, with its expectation from physics, a closed form or an independent computation
+(`tests/independent/`), never from the output of the code under test; `scripts/mutations.py` applies
+such one-line bugs and checks that a test fails (`tests/test_guard_*.py` hold those of issue 25).
+"""
 
 from __future__ import annotations
 

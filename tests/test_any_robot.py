@@ -106,12 +106,24 @@ def test_critical_length_is_the_closed_form():
 
 @pytest.mark.parametrize("factor, snap_free", [(0.9, True), (1.1, False)])
 def test_domain_check_reproduces_the_two_tube_threshold(factor, snap_free):
+    """Every sweep turns a tube through its whole rotation interval (the translations are fixed), so
+    what it flags above the threshold is a configuration of the domain with the tubes near opposed
+    (|alpha2 - alpha1| > pi / 2), where the closed form puts the snap -- a sweep that moved another
+    joint would flag configurations outside the domain or none."""
     r = overlapping_pair(factor * critical_length_mm(overlapping_pair(50.0)))
     report = check_domain(r, n=6, steps=37, seed=1)
     assert report.snap_free is snap_free
     assert (report.example_q is None) is snap_free
+    for s in report.sweeps:
+        column = 2 + s.tube - 1
+        assert s.q[0, column] == -math.pi and s.q[-1, column] == math.pi
+        others = np.delete(s.q, column, axis=1)
+        np.testing.assert_array_equal(others, np.repeat(others[:1], len(s.q), axis=0))
     if not snap_free:
         assert 0 < report.unstable_fraction < 1
+        q = np.asarray(report.example_q)
+        r.check_joints(q)  # a configuration of the domain
+        assert abs(np.angle(np.exp(1j * (q[3] - q[2])))) > math.pi / 2
 
 
 def four_tube_robot() -> Robot:

@@ -199,6 +199,10 @@ def test_over_strained_designs_are_never_best(tmp_path, capsys):
     best = doc["best"]
     assert best["reached"] == ["arc"] and kappa_of(best) <= 25.0 + 1e-9
     assert best["objectives"]["max_strain"] <= 0.0075
+    # an over-strained design reaches nothing but is more strained than any feasible one: were it
+    # ranked, maximising strain would put it on the Pareto front
+    feasible = {r["trial"] for r in rows if r["feasible"] == "1"}
+    assert doc["pareto"] and all(str(d["trial"]) in feasible for d in doc["pareto"])
 
 
 def write_pair_task(folder: Path, target: tuple[float, ...] = (0.0, 0.0, 40.0), tolerance: float = 15.0,

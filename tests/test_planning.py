@@ -149,22 +149,39 @@ def test_plan_with_repair_is_never_unsafe(open_scene):
     assert box_gap(p, r, [-25.0, -30.0, 150.0], [20.0, 20.0, 20.0], axis_angle([0, 0, 1], 30.0)) >= 0.2 - 1e-6
 
 
+def assert_safe_open_path(scene, exact, path: np.ndarray) -> None:
+    """A joint path of open.yaml checked apart from the planner: it starts at the scene's start, the
+    independent integrator puts its last tip within the target's 3 mm, and the exact backbones of the
+    path, densified to 0.5 mm, clear the ball and the block (distances computed here)."""
+    assert np.allclose(path[0], scene.start)
+    tip = solve(path[-1][None], Tubes.paper())["tips_mm"][0, 0]
+    assert np.linalg.norm(tip - [37.2, -27.2, 181.6]) <= 3.0
+    bb = exact.forward(BoxSpace.for_robot(scene.robot).densify(path, 0.5), points=30)
+    assert bb.converged.all()
+    p, r = bb.positions_mm, bb.radius_mm
+    assert sphere_gap(p, r, [43.0, -47.0, 150.0], 7.0) >= 0.0
+    assert box_gap(p, r, [-25.0, -30.0, 150.0], [20.0, 20.0, 20.0], axis_angle([0, 0, 1], 30.0)) >= 0.0
+
+
 def test_python_api_with_any_ompl_planner(open_scene, exact):
+    """An OMPL planner made by the user (here og.LBKPIECE1, which ctrplan does not name) on ctrplan's
+    problem: its path is checked apart from ctrplan; every planner ctrplan names is the OMPL class
+    its spec says."""
+    from ompl import base as ob
     from ompl import geometric as og
 
     problem = build_problem(open_scene, exact, rng=np.random.default_rng(0))
-    planner = og.RRT(problem.si)
+    planner = og.LBKPIECE1(problem.si)
     planner.setRange(20.0)
     planner.setProblemDefinition(problem.pdef)
     planner.setup()
-    planner.solve(8.0)
-    path = problem.solution()
-    assert path is not None and np.allclose(path[0], open_scene.start)
-    assert open_scene.target.contains(problem.checker.tip(path[-1]))
-    dense = problem.box.densify(path, open_scene.settings.resolution_mm)
-    assert problem.checker.check(dense).all()
-    for name in PLANNERS:
-        assert make_planner(name, problem.si) is not None
+    planner.solve(ob.plannerOrTerminationCondition(ob.timedPlannerTerminationCondition(30.0),
+                                                   ob.exactSolnPlannerTerminationCondition(problem.pdef)))
+    assert problem.pdef.hasExactSolution()
+    assert_safe_open_path(open_scene, exact, problem.solution())
+    for name, spec in PLANNERS.items():
+        made = make_planner(name, problem.si)
+        assert isinstance(made, getattr(og, spec.ompl_name)) and made.getSpaceInformation() == problem.si
 
 
 # ---- CLI ------------------------------------------------------------------------------------------

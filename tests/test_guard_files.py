@@ -1,0 +1,44 @@
+"""Nothing half-made is left behind: an output folder check that makes and removes every missing
+parent, and an atomic write interrupted by Ctrl-C.
+
+The habit these tests keep (issue 25 §5): every safety or science function gets a test that a sign,
+index, bound or unit error would fail -- here the one-level-deep case that hides a check forgetting
+the parents, and the interrupt (not an ordinary exception) that hides a handler too narrow
+(`scripts/mutations.py` applies both).
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from ctrplan.cli import main
+from ctrplan.dataio import atomic_write, check_output_dir
+
+
+def test_the_output_check_leaves_no_folder_of_a_deep_new_path(tmp_path):
+    """Three new levels: the check makes them all (proving they can be made) and removes them all."""
+    out = tmp_path / "new" / "deeper" / "out"
+    assert check_output_dir(out) == out
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_command_failing_after_the_output_check_leaves_no_folder(tmp_path, capsys, monkeypatch):
+    """`plan` checks --out before it reads the scene; the scene is missing: exit 2, one line, and none
+    of the three new folders of --out is left."""
+    monkeypatch.chdir(tmp_path)
+    rc = main(["plan", "missing.yaml", "--out", "new/deeper/out"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "missing.yaml" in err and len(err.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_ctrl_c_inside_an_atomic_write_leaves_the_old_file_and_no_temporary(tmp_path):
+    """KeyboardInterrupt is not an Exception: the temporary file must go on it too, and the old file
+    stays as it was."""
+    target = tmp_path / "out.csv"
+    target.write_text("old\n")
+    with pytest.raises(KeyboardInterrupt), atomic_write(target) as fh:
+        fh.write("half")
+        raise KeyboardInterrupt
+    assert [p.name for p in tmp_path.iterdir()] == ["out.csv"]
+    assert target.read_text() == "old\n"
