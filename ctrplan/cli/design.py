@@ -203,7 +203,8 @@ def _summary(console, task, doc: dict) -> None:
         console.print(f"[yellow]{doc['cut_short']}[/]")
     if doc["guarded_trials"]:
         console.print(f"[yellow]a wall-clock guard cut a search short in {doc['guarded_trials']} design(s) "
-                      f"(designs.csv: cut_short): those verdicts depend on this machine's load[/]")
+                      f"(cut_short of the base design's targets in design.json, of the trials in "
+                      f"designs.csv): those verdicts depend on this machine's load[/]")
     if best is not None:
         params = (f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
                   for k, v in best["parameters"].items())

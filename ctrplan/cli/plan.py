@@ -68,7 +68,7 @@ def plan_command(
         "--time-limit", metavar="S", show_default=False,
         help="Planning time in seconds (default: the scene's, 10): sets the work budget --max-states "
              "takes by default (what S seconds buy on the reference machine) and the wall-clock guard "
-             "(5 x S) that stops a search on a slow or overloaded machine and says so.")] = None,
+             "(30 x S) that stops a search on a slow or overloaded machine and says so.")] = None,
     max_states: Annotated[int | None, typer.Option(
         "--max-states", metavar="N", show_default=False,
         help="Work budget: configurations the planning backend evaluates for goal sampling and search "

@@ -245,8 +245,9 @@ def _warnings(doc: dict, is_base: bool) -> list[str]:
         out.append(f'<p class="warn">{html.escape(doc["cut_short"])}.</p>')
     if doc["guarded_trials"]:
         out.append(f'<p class="warn">A wall-clock guard cut a search short in {doc["guarded_trials"]} '
-                   f'design(s) (<code>designs.csv</code>: <code>cut_short</code>): those verdicts depend on '
-                   f'the load of the machine that ran them.</p>')
+                   f'design(s) (<code>cut_short</code> of the base design\'s targets and in '
+                   f'<code>designs.csv</code>): those verdicts depend on the load of the machine that ran '
+                   f'them.</p>')
     return out
 
 
