@@ -8,6 +8,7 @@ design returns the base design, marked as such.
 from __future__ import annotations
 
 import json
+import re
 import time
 from pathlib import Path
 
@@ -159,3 +160,28 @@ def test_a_study_that_beats_nothing_returns_the_base_design(tmp_path, capsys, mo
     assert "no trial beats the base design" in " ".join(terminal.split())
     assert "No trial beats the base design" in (out / "report.html").read_text()
     assert (out / "paths" / "arc" / "path.json").is_file()
+
+
+@pytest.mark.parametrize("value, error", [(500, None), (0, ">= 1"), (2.5, "expected an integer"),
+                                          (True, "expected an integer")])
+def test_task_and_scene_work_budgets(tmp_path, value, error):
+    """``budget.plan_states`` of a task and ``planner.max_states`` of a scene: integers >= 1 (states),
+    else one error naming the key and line."""
+    from ctrplan.design.task import load_task
+    from ctrplan.errors import InputError
+
+    task_file = write_one_tube_task(tmp_path)
+    text = task_file.read_text().replace("plan_time_s: 3.0}", f"plan_time_s: 3.0, plan_states: {value}}}")
+    task_file.write_text(text)
+    if error is None:
+        assert load_task(task_file).plan_states == 500
+    else:
+        with pytest.raises(InputError, match=rf"task.yaml:\d+: budget\.plan_states: .*{re.escape(error)}"):
+            load_task(task_file)
+    scene_file = tmp_path / "scene.yaml"
+    scene_file.write_text(scene_file.read_text().replace("points: 20}", f"points: 20, max_states: {value}}}"))
+    if error is None:
+        assert load_scene(scene_file).settings.max_states == 500
+    else:
+        with pytest.raises(InputError, match=rf"scene.yaml:\d+: planner\.max_states: .*{re.escape(error)}"):
+            load_scene(scene_file)

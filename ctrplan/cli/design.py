@@ -67,7 +67,7 @@ def design(
     from ctrplan.bench.fanout import check_workers
     from ctrplan.dataio import output_dir
     from ctrplan.design.outputs import write_outputs
-    from ctrplan.design.study import default_storage, finished_trials, open_study, run_study
+    from ctrplan.design.study import default_storage, open_study
     from ctrplan.design.task import load_task
 
     if trials is not None and trials < 1:
@@ -92,20 +92,7 @@ def design(
     budget = trials or task.trials
     err = Console(stderr=True, highlight=False)
     t0 = time.perf_counter()  # this run: its trials, not the outputs
-    limit_s = None if time_limit is None else 60.0 * time_limit
-    already = len(finished_trials(st))
-    with _DesignProgress(err, task, budget, already, limit_s) as progress:
-        try:
-            stopped = run_study(task, st, trials=budget, seed=seed, workers=workers, ray_address=ray,
-                                time_limit_s=limit_s, report=progress.update)
-        except InputError as exc:
-            raise as_option(exc, OPTIONS) from None
-    cut_short = None
-    if stopped:
-        done = len(finished_trials(st))
-        cut_short = (f"the time limit of {time_limit:g} min stopped the study after {done} of {budget} "
-                     f"trials ({done - already} in this run); the same command continues it")
-        err.print(f"[bold yellow]{cut_short}[/]")
+    cut_short = _run(err, task, st, budget, seed=seed, workers=workers, ray=ray, time_limit=time_limit)
     executor = f"ray {ray}" if ray else f"{workers} local worker(s), one core each"
     doc = write_outputs(task, st, folder, storage=url, seed=seed, time_s=time.perf_counter() - t0,
                         executor=executor, cut_short=cut_short)
@@ -113,6 +100,29 @@ def design(
         typer.echo(json.dumps(doc, indent=2))
     else:
         _summary(Console(highlight=False), task, doc)
+
+
+def _run(err, task, study, budget: int, *, seed: int, workers: int, ray: str | None,
+         time_limit: float | None) -> str | None:
+    """Run the study to ``budget`` trials under the progress bar; what the time limit (minutes)
+    stopped short, said on ``err`` too, or None."""
+    from ctrplan.design.study import finished_trials, run_study
+
+    limit_s = None if time_limit is None else 60.0 * time_limit
+    already = len(finished_trials(study))
+    with _DesignProgress(err, task, budget, already, limit_s) as progress:
+        try:
+            stopped = run_study(task, study, trials=budget, seed=seed, workers=workers, ray_address=ray,
+                                time_limit_s=limit_s, report=progress.update)
+        except InputError as exc:
+            raise as_option(exc, OPTIONS) from None
+    if not stopped:
+        return None
+    done = len(finished_trials(study))
+    cut_short = (f"the time limit of {time_limit:g} min stopped the study after {done} of {budget} trials "
+                 f"({done - already} in this run); the same command continues it")
+    err.print(f"[bold yellow]{cut_short}[/]")
+    return cut_short
 
 
 class _DesignProgress:

@@ -1,9 +1,10 @@
 """Planning pipeline: scene + backend -> OMPL problem -> path -> exact validation (-> repair).
 
 Wiring follows OMPL's ``demos/OptimalPlanning.py``: a `BoxSpace` state space, a `ValidityChecker`,
-a `BatchMotionValidator`, a `TipGoal` (IK-sampled goal region), a planner by name, a time-limited
-solve, path simplification; then `validate_path` with the exact Cosserat model. All OMPL objects live
-inside function scope (DESIGN §4: module-level OMPL objects leak at exit).
+a `BatchMotionValidator`, a `TipGoal` (IK-sampled goal region), a planner by name, a solve budgeted
+in work (`ctrplan.planning.budget`), path simplification; then `validate_path` with the exact
+Cosserat model. All OMPL objects live inside function scope (DESIGN §4: module-level OMPL objects
+leak at exit).
 """
 
 from __future__ import annotations
@@ -284,7 +285,8 @@ def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, p
     (see `GoalSampler`).
 
     Budget (`ctrplan.planning.budget`): ``max_states`` states evaluated (goal sampling included;
-    default: what ``time_limit_s`` buys with this backend on the reference machine), under a
+    default: the scene's ``max_states``, else what ``time_limit_s`` buys with this backend on the
+    reference machine), under a
     wall-clock guard of `GUARD_FACTOR` x ``time_limit_s`` (default: the scene's). The outcome's
     ``budget`` says how much was used and whether the guard cut the search short.
 
@@ -299,7 +301,8 @@ def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, p
                             goal_q=goal_q, goal_hints=goal_hints)
     checker = problem.checker
     sampler = problem.sampler
-    budget = SearchBudget.start(max_states or states_for(backend.name, limit_s), GUARD_FACTOR * limit_s,
+    budget = SearchBudget.start(max_states or s.max_states or states_for(backend.name, limit_s),
+                                GUARD_FACTOR * limit_s,
                                 lambda: checker.counters.kinematics_calls)
     with single_threaded_blas(), gc_paused(), _hooked(checker, _progress_hook(problem, budget, progress)):
         region_goal = isinstance(problem.goal, TipGoal)
