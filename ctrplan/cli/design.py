@@ -209,8 +209,6 @@ def _summary(console, task, doc: dict) -> None:
     if is_base:
         console.print(f"[bold]no trial beats the base design[/] in the task's objectives "
                       f"({', '.join(doc['objectives'])}): best_robot.yaml is the base design")
-    if doc["cut_short"]:
-        console.print(f"[yellow]{doc['cut_short']}[/]")
     if doc["guarded_trials"]:
         console.print(f"[yellow]a wall-clock guard cut a search short in {doc['guarded_trials']} design(s) "
                       f"(cut_short of the base design's targets in design.json, of the trials in "
