@@ -51,7 +51,7 @@ def pareto_figure(task: DesignTask, designs: list[Design], front: list[Design], 
     if feasible:
         trials = np.array([d.trial for d in feasible])
         ax.step(trials, np.maximum.accumulate(reached(feasible)), where="post", color="tab:red",
-                label="best so far")
+                label="best trial so far")
     if nominal is not None:
         ax.axhline(len(nominal.record["reached"]), color="k", ls="--", lw=1, label="base design")
     ax.set_xlabel("trial")
@@ -65,11 +65,11 @@ def pareto_figure(task: DesignTask, designs: list[Design], front: list[Design], 
         jitter = rng.uniform(-0.12, 0.12, len(feasible))
         ax.plot(x(feasible), reached(feasible) + jitter, "o", color="0.55", ms=4, label="feasible design")
         ax.plot(x(front), reached(front), "o", mfc="none", mec="tab:red", ms=9, mew=1.5, label="Pareto front")
+        if nominal is not None and nominal.record["feasible"]:
+            ax.plot(x([nominal]), reached([nominal]), "D", color="k", ms=7, label="base design")
         if best is not None:
             ax.plot(x([best]), reached([best]), "*", color="gold", mec="k", ms=16,
                     label="best: the base design" if best.trial is None else "best")
-        if nominal is not None and nominal.record["feasible"]:
-            ax.plot(x([nominal]), reached([nominal]), "D", color="k", ms=7, label="base design")
         ax.set_xlabel(f"{objective.name} ({'max' if objective.maximize else 'min'}imised)")
         ax.set_ylabel(f"targets reached (of {n_targets})")
         ax.set_title(OBJECTIVES[objective.name], fontsize=9)
