@@ -289,7 +289,12 @@ class PlannerSettings:
 
     Attributes:
         planner: one of `PLANNERS`.
-        time_limit_s: wall-clock budget for goal sampling plus search.
+        time_limit_s: the search's time budget (s): it sets the default work budget (what this many
+            seconds buy on the reference machine, `ctrplan.planning.budget`) and the wall-clock guard
+            (`GUARD_FACTOR` times it) that stops a search on a slow or overloaded machine.
+        max_states: the search's work budget: configurations the kinematics backend evaluates for
+            goal sampling plus search (None: from ``time_limit_s``). It decides the verdict, so a
+            seeded search gives the same result under any load.
         seed: OMPL and numpy seed (None: random).
         margin_mm: added to every capsule radius in planning and validation.
         surrogate_margin_mm: extra margin everywhere while planning with an approximate backend
@@ -309,6 +314,7 @@ class PlannerSettings:
 
     planner: str = "rrtconnect"
     time_limit_s: float = 10.0
+    max_states: int | None = None
     seed: int | None = None
     margin_mm: float = 0.2
     surrogate_margin_mm: float | None = None
@@ -634,13 +640,13 @@ def _settings(doc: YamlDoc, raw: Any) -> PlannerSettings:
             if not isinstance(value, bool):
                 raise doc.error(k, f"expected true or false, got {value!r}")
             kw[name] = value
-        elif name in ("seed", "points", "goal_samples"):
-            if value is None and name == "seed":
+        elif name in ("seed", "points", "goal_samples", "max_states"):
+            if value is None and name in ("seed", "max_states"):
                 kw[name] = None
                 continue
             if isinstance(value, bool) or not isinstance(value, int):
                 raise doc.error(k, f"expected an integer, got {value!r}")
-            lo = {"seed": 0, "points": 3, "goal_samples": 1}[name]
+            lo = {"seed": 0, "points": 3, "goal_samples": 1, "max_states": 1}[name]
             if value < lo:
                 raise doc.error(k, f"must be >= {lo}, got {value!r}")
             kw[name] = int(value)

@@ -3,8 +3,10 @@
 One run is `ctrplan.planning.plan` (search, exact re-validation, repair) on one (scene, backend,
 planner, seed); `run_one` turns it into a flat record (times in s, lengths in mm) and `summarize`
 aggregates the records per (scene, backend, planner). Every backend x planner pair gets the same seeds,
-so their runs are paired. Runs are independent and deterministic for a seed (OMPL is re-seeded per run):
-`ctrplan.bench.fanout` spreads them over processes or a Ray cluster with the same content.
+so their runs are paired. Runs are independent and deterministic for a seed (OMPL is re-seeded per run,
+and every search is budgeted in work, `ctrplan.planning.budget`): `ctrplan.bench.fanout` spreads them
+over processes or a Ray cluster with the same content, whatever the load -- except a run whose
+wall-clock guard fired (``cut_short``: counted in the summary).
 """
 
 from __future__ import annotations
@@ -21,28 +23,30 @@ import numpy as np
 DEFAULT_PLANNERS = ("rrtconnect", "rrt", "rrtstar")
 #: Record fields that depend only on the seed, not on timing: equal for equal seeds on any executor.
 CONTENT_FIELDS = ("scene", "backend", "planner", "seed", "solved", "status", "found", "repaired",
-                  "path_states", "path_length_mm", "tip_travel_mm")
+                  "path_states", "path_length_mm", "tip_travel_mm", "max_states", "states")
 
 
 @dataclass(frozen=True)
 class RunSpec:
-    """One planning run: scene file, backend and planner names, seed, time budget (s)."""
+    """One planning run: scene file, backend and planner names, seed, time budget (s) and work budget
+    (states; None: what the time budget buys with the backend on the reference machine)."""
 
     scene: str
     backend: str
     planner: str
     seed: int
     time_limit_s: float
+    max_states: int | None = None
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
 
 
 def make_specs(scenes: list[tuple[str, float]], backends: list[str], planners: list[str], runs: int,
-               first_seed: int = 0) -> list[RunSpec]:
+               first_seed: int = 0, max_states: int | None = None) -> list[RunSpec]:
     """All runs: for each (scene file, time budget s), backend, planner, the seeds
     ``first_seed .. first_seed + runs - 1``; ordered so that early results cover every pair."""
-    return [RunSpec(scene, backend, planner, first_seed + k, limit)
+    return [RunSpec(scene, backend, planner, first_seed + k, limit, max_states)
             for k, (scene, limit), backend, planner in product(range(runs), scenes, backends, planners)]
 
 
@@ -74,8 +78,8 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
 
     scene, backend, exact = _context(spec.scene, spec.backend)
     ou.setLogLevel(ou.LOG_ERROR)
-    result = plan(scene, backend, planner=spec.planner, time_limit_s=spec.time_limit_s, seed=spec.seed,
-                  exact=exact)
+    result = plan(scene, backend, planner=spec.planner, time_limit_s=spec.time_limit_s,
+                  max_states=spec.max_states, seed=spec.seed, exact=exact)
     counters = result.details.get("counters", {})
     total = float(result.planning_time_s)
     kin, col = float(counters.get("kinematics_s", 0.0)), float(counters.get("collision_s", 0.0))
@@ -93,6 +97,9 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     return {
         **spec.to_json(),
         "scene_name": scene.name,
+        "max_states": int(result.max_states),
+        "states": int(result.details.get("budget", {}).get("states", 0)),
+        "cut_short": bool(result.cut_short),
         "solved": bool(result.solved),
         "status": result.status,
         "found": report is not None,
@@ -147,6 +154,8 @@ def summarize(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
         out.append({
             "scene": scene, "backend": backend, "planner": planner, "runs": len(rs),
             "time_limit_s": rs[0]["time_limit_s"],
+            "max_states": rs[0].get("max_states"),
+            "cut_short": sum(bool(r.get("cut_short")) for r in rs),
             "solved": len(solved), "success_rate": round(len(solved) / len(rs), 4),
             "found": sum(r["found"] for r in rs),
             "repaired": sum(r["repaired"] for r in rs),

@@ -170,7 +170,12 @@ def plan(
     ] = ",".join(planning_bench.DEFAULT_PLANNERS),
     runs: Annotated[int, typer.Option("--runs", help="Seeded runs per scene x backend x planner.")] = 20,
     time_limit: Annotated[float | None, typer.Option(
-        "--time-limit", help="Time budget per run in seconds (default: each scene's setting).")] = None,
+        "--time-limit", help="Time budget per run in seconds (default: each scene's setting): the "
+                             "default work budget and the wall-clock guard, as for `ctrplan plan`.")] = None,
+    max_states: Annotated[int | None, typer.Option(
+        "--max-states", metavar="N", show_default=False,
+        help="Work budget per run: states the backend evaluates (default: each scene's max_states, else "
+             "what the time budget buys with the backend on the reference machine).")] = None,
     seed: Annotated[int, typer.Option("--seed", min=0, help="First seed; runs use seed, seed+1, ...")] = 0,
     out: Annotated[Path, typer.Option(
         "--out", help="Directory for results.json, the OMPL logs, benchmark.db and plots.")
@@ -207,12 +212,14 @@ def plan(
         raise InputError(f"--runs: need at least 1 run, got {runs}")
     if time_limit is not None and not time_limit > 0:
         raise InputError(f"--time-limit: must be > 0 s, got {time_limit}")
+    if max_states is not None and max_states < 1:
+        raise InputError(f"--max-states: must be an integer >= 1 (states), got {max_states}")
     try:
         check_workers(workers, ray)
     except InputError as exc:
         raise as_option(exc, flags) from None
     limits = planning_bench.prepare(scenes, backends, time_limit)
-    specs = planning_bench.make_specs(limits, backends, planners, runs, seed)
+    specs = planning_bench.make_specs(limits, backends, planners, runs, seed, max_states)
     check_output_dir(out)  # created when the results are written
     t0 = time.perf_counter()
     with progress_bar() as bar:
@@ -230,7 +237,7 @@ def plan(
     out = output_dir(out)
     machine = machine_info()
     settings = {"backends": backends, "planners": planners, "runs": runs, "first_seed": seed,
-                "time_limit_s": {Path(f).name: limit for f, limit in limits},
+                "time_limit_s": {Path(f).name: limit for f, limit in limits}, "max_states": max_states,
                 "executor": f"ray {ray}" if ray else f"{workers} local worker(s), one core each",
                 "wall_time_s": round(time.perf_counter() - t0, 1), "out": str(out)}
     logs = write_logs(records, out, machine, settings)

@@ -31,7 +31,9 @@ def design(
              "runs only the missing ones.")] = None,
     time_limit: Annotated[float | None, typer.Option(
         "--time-limit", metavar="MIN", show_default=False,
-        help="Start no trial after this many minutes (trials in flight finish).")] = None,
+        help="Wall-clock guard in minutes: start no trial after it (trials in flight finish); the "
+             "outputs say when it stopped the study short of its trials. Each trial's own planning "
+             "is budgeted in work (the task's plan_states), not time.")] = None,
     workers: Annotated[int, typer.Option(
         "--workers", metavar="W", help="Trials at a time: local worker processes, one per core "
                                        "(1: in this process), or Ray tasks with --ray.")] = 1,
@@ -67,7 +69,7 @@ def design(
     from ctrplan.bench.fanout import check_workers
     from ctrplan.dataio import output_dir
     from ctrplan.design.outputs import write_outputs
-    from ctrplan.design.study import default_storage, open_study, run_study
+    from ctrplan.design.study import default_storage, open_study
     from ctrplan.design.task import load_task
 
     if trials is not None and trials < 1:
@@ -93,17 +95,13 @@ def design(
     err = Console(stderr=True, highlight=False)
     t0 = time.perf_counter()  # this run: its trials, not the outputs
     try:
-        with _DesignProgress(err, task, budget) as progress:
-            run_study(task, st, trials=budget, seed=seed, workers=workers, ray_address=ray,
-                      time_limit_s=None if time_limit is None else 60.0 * time_limit, report=progress.update)
-    except InputError as exc:
-        raise as_option(exc, OPTIONS) from None
+        cut_short = _run(err, task, st, budget, seed=seed, workers=workers, ray=ray, time_limit=time_limit)
     except KeyboardInterrupt:
         err.print(continue_hint(url, study or task.name, folder, out is None), soft_wrap=True)
         raise
     executor = f"ray {ray}" if ray else f"{workers} local worker(s), one core each"
     doc = write_outputs(task, st, folder, storage=url, seed=seed, time_s=time.perf_counter() - t0,
-                        executor=executor)
+                        executor=executor, cut_short=cut_short)
     if as_json:
         typer.echo(json.dumps(doc, indent=2))
     else:
@@ -118,20 +116,52 @@ def continue_hint(url: str, study: str, folder: Path, default_out: bool) -> str:
             f"(only the missing trials run) with: ctrplan {shlex.join(args)}")
 
 
+def _run(err, task, study, budget: int, *, seed: int, workers: int, ray: str | None,
+         time_limit: float | None) -> str | None:
+    """Run the study to ``budget`` trials under the progress bar; what the time limit (minutes)
+    stopped short, said on ``err`` too, or None."""
+    from ctrplan.design.study import finished_trials, run_study
+
+    limit_s = None if time_limit is None else 60.0 * time_limit
+    already = len(finished_trials(study))
+    with _DesignProgress(err, task, budget, already, limit_s) as progress:
+        try:
+            stopped = run_study(task, study, trials=budget, seed=seed, workers=workers, ray_address=ray,
+                                time_limit_s=limit_s, report=progress.update)
+        except InputError as exc:
+            raise as_option(exc, OPTIONS) from None
+    if not stopped:
+        return None
+    done = len(finished_trials(study))
+    cut_short = (f"the time limit of {time_limit:g} min stopped the study after {done} of {budget} trials "
+                 f"({done - already} in this run); the same command continues it")
+    err.print(f"[bold yellow]{cut_short}[/]")
+    return cut_short
+
+
 class _DesignProgress:
     """A rich progress bar of finished trials on stderr (on a terminal), and one line per event that
-    matters (the base design's reach, each new best) on stderr in any case."""
+    matters (the base design's reach, each trial that beats every design before it, the base design
+    included) on stderr in any case.
 
-    def __init__(self, console, task, total: int):
+    The bar counts the trials that will run: the budget, or with a time limit (``limit_s``) an
+    estimate from the time per trial so far, marked as such (the limit starts no trial after it)."""
+
+    def __init__(self, console, task, total: int, already: int, limit_s: float | None):
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         self.console = console
         self.task = task
+        self.total = total
+        self.already = already  # finished trials of a continued study
+        self.limit_s = limit_s
+        self.t0 = time.monotonic()
+        self.jobs = 0
         self.best = -1
         self.bar = Progress(TextColumn(f"design {task.name}"), BarColumn(), MofNCompleteColumn(),
-                            TimeElapsedColumn(), TextColumn("{task.fields[best]}"), console=console,
+                            TimeElapsedColumn(), TextColumn("{task.fields[note]}"), console=console,
                             disable=not console.is_terminal)
-        self.id = self.bar.add_task("trials", total=total, best="")
+        self.id = self.bar.add_task("trials", total=total, completed=already, note=self._note(""))
 
     def __enter__(self):
         self.bar.__enter__()
@@ -140,19 +170,36 @@ class _DesignProgress:
     def __exit__(self, *exc):
         self.bar.__exit__(*exc)
 
+    def _note(self, best: str) -> str:
+        guard = "" if self.limit_s is None else f" (about: the {self.limit_s / 60:g} min limit ends it)"
+        return best + guard
+
+    def _expected(self, finished: int) -> int:
+        """Trials that will have finished when the run ends: the budget, or fewer when the time
+        limit will stop it first at the time per evaluation so far."""
+        if self.limit_s is None or self.jobs == 0:
+            return self.total
+        elapsed = time.monotonic() - self.t0
+        per_job = elapsed / self.jobs
+        more = max(0, int((self.limit_s - elapsed) / per_job) + 1)  # started before the limit: finish
+        return min(self.total, finished + more)
+
     def update(self, trial: int | None, record: dict, finished: int) -> None:
         n = len(self.task.targets)
         reached = record["reached"]
         names = ", ".join(reached) or "none"
+        self.jobs += 1
         if trial is None:
             why = "" if record["feasible"] else f" (infeasible: {record['infeasible']['message']})"
             self.console.print(f"base design: reaches {len(reached)} of {n} targets ({names}){why}")
+            if record["feasible"]:
+                self.best = len(reached)
         elif record["feasible"] and len(reached) > self.best:
             self.best = len(reached)
             self.console.print(f"trial {trial}: {len(reached)} of {n} targets ({names}) "
                                f"in {record['time_s']:.0f} s")
-        self.bar.update(self.id, completed=finished,
-                        best="" if self.best < 0 else f"best {self.best}/{n} targets")
+        self.bar.update(self.id, completed=finished, total=self._expected(finished),
+                        note=self._note("" if self.best < 0 else f"best {self.best}/{n} targets"))
 
 
 def _summary(console, task, doc: dict) -> None:
@@ -163,7 +210,9 @@ def _summary(console, task, doc: dict) -> None:
                     f"{doc['time_s']:.0f} s", title_justify="left")
     t.add_column("target")
     t.add_column("base design")
-    t.add_column("best design" if best is None else f"best (trial {best['trial']})")
+    is_base = best is not None and best["is_base_design"]
+    t.add_column("best design" if best is None else
+                 "best = base design" if is_base else f"best (trial {best['trial']})")
     for target in doc["targets"]:
         nom = "-" if nominal is None else ("yes" if target in nominal["reached"] else "no")
         b = "-" if best is None else ("yes" if target in best["reached"] else "no")
@@ -171,10 +220,17 @@ def _summary(console, task, doc: dict) -> None:
     t.add_row("total", "-" if nominal is None else str(len(nominal["reached"])),
               "-" if best is None else str(len(best["reached"])))
     console.print(t)
+    if is_base:
+        console.print(f"[bold]no trial beats the base design[/] in the task's objectives "
+                      f"({', '.join(doc['objectives'])}): best_robot.yaml is the base design")
+    if doc["guarded_trials"]:
+        console.print(f"[yellow]a wall-clock guard cut a search short in {doc['guarded_trials']} design(s) "
+                      f"(cut_short of the base design's targets in design.json, of the trials in "
+                      f"designs.csv): those verdicts depend on this machine's load[/]")
     if best is not None:
         params = (f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
                   for k, v in best["parameters"].items())
-        console.print("best parameters: " + ", ".join(params))
+        console.print("best parameters: " + (", ".join(params) or "those of the base design"))
         values = (f"{k} = {v:.4g}" for k, v in best["objectives"].items())
         console.print("best objectives: " + ", ".join(values))
     else:

@@ -72,7 +72,14 @@ def plan_command(
         help=f"OMPL planner: {' | '.join(PLANNERS)} (default: the scene's, rrtconnect).")] = None,
     time_limit: Annotated[float | None, typer.Option(
         "--time-limit", metavar="S", show_default=False,
-        help="Planning time limit in seconds (default: the scene's, 10).")] = None,
+        help="Planning time in seconds (default: the scene's, 10): sets the work budget --max-states "
+             "takes by default (what S seconds buy on the reference machine) and the wall-clock guard "
+             "(30 x S) that stops a search on a slow or overloaded machine and says so.")] = None,
+    max_states: Annotated[int | None, typer.Option(
+        "--max-states", metavar="N", show_default=False,
+        help="Work budget: configurations the planning backend evaluates for goal sampling and search "
+             "(default: the scene's max_states, else from --time-limit). It decides the result: with "
+             "--seed the same path on any machine load.")] = None,
     seed: Annotated[int | None, typer.Option(
         "--seed", metavar="N", show_default=False, min=0,
         help="Random seed (OMPL and goal sampling).")] = None,
@@ -91,6 +98,8 @@ def plan_command(
 
     if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
         raise InputError(f"--time-limit: must be a positive number of seconds, got {time_limit}")
+    if max_states is not None and max_states < 1:
+        raise InputError(f"--max-states: must be an integer >= 1 (states), got {max_states}")
     if out is not None:
         check_output_dir(out)  # created when the outputs are written
 
@@ -107,7 +116,7 @@ def plan_command(
     with _Progress(err) as progress, ompl_messages_to_logging():
         progress.update("compile")  # loading a backend compiles (or loads) its kernels
         be = load_backend(backend, sc.robot, model)
-        result = plan(sc, be, planner=planner, time_limit_s=time_limit, seed=seed,
+        result = plan(sc, be, planner=planner, time_limit_s=time_limit, max_states=max_states, seed=seed,
                       progress=progress.update)
     if console_state.interrupted():  # Ctrl-C inside an OMPL callback ends the search, not the command
         raise KeyboardInterrupt
@@ -146,10 +155,10 @@ class _Progress:
                 "goal": "sampling goal configurations (IK)", "search": "searching",
                 "simplify": "simplifying the path", "validate": "validating with the exact model",
                 "repair": "repairing with the exact model"}.get(stage, stage)
-        if "elapsed" in info and "limit" in info:
-            text += f"  {info['elapsed']:.1f}/{info['limit']:g} s"
-        if "kinematics_calls" in info:
-            text += f"  {info['kinematics_calls']} kinematics calls"
+        if "elapsed" in info:
+            text += f"  {info['elapsed']:.1f} s"
+        if "states" in info and "max_states" in info:
+            text += f"  {info['states']:,}/{info['max_states']:,} states"
         if "goals" in info:
             text += f"  {info['goals']} goals"
         self.status.update(text)
@@ -164,8 +173,12 @@ def _summary(console, sc, result, out: Path | None) -> None:
     t.add_column(style="dim")
     t.add_column()
     t.add_row("planner / backend", f"{result.planner} / {result.backend}")
-    t.add_row("planning time", f"{result.planning_time_s:.2f} s (limit {result.time_limit_s:g} s)")
-    t.add_row("kinematics calls", str(result.kinematics_calls))
+    budget = result.details.get("budget", {})
+    t.add_row("planning time", f"{result.planning_time_s:.2f} s (time budget {result.time_limit_s:g} s, "
+                               f"guard {budget.get('guard_s', 0):g} s"
+                               + (": [bold yellow]fired[/])" if result.cut_short else ")"))
+    t.add_row("work", f"{budget.get('states', 0):,} of {result.max_states:,} states of the search; "
+                      f"{result.kinematics_calls:,} kinematics calls in all")
     t.add_row("waypoints", str(len(result.path)))
     if v is not None:
         tip = np.asarray(v.tip_mm)
@@ -241,7 +254,9 @@ def _viewer_info(sc, result) -> dict[str, str]:
     """The result as labelled lines for plan.html."""
     info = {"result": "solved" if result.solved else result.message,
             "planner / backend": f"{result.planner} / {result.backend}",
-            "planning time": f"{result.planning_time_s:.2f} s (limit {result.time_limit_s:g} s)"}
+            "planning time": f"{result.planning_time_s:.2f} s (time budget {result.time_limit_s:g} s)",
+            "work": f"{result.details.get('budget', {}).get('states', 0):,} of {result.max_states:,} states"
+                    + (" (cut short by the wall-clock guard)" if result.cut_short else "")}
     v = result.validated
     if v is not None:
         miss = float(sc.target.distance(np.asarray(v.tip_mm))) if len(v.tip_mm) == 3 else float("nan")

@@ -17,8 +17,10 @@ kinematics with the exact model (none within `SCREEN_BATCHES` batches: not reach
 and then `ctrplan.planning.plan`
 with the exact Cosserat backend finds a path from the start that its exact validation confirms
 (collision-free, stable, tip in the target, approach direction respected). Planning seeds come from
-the study seed, the design's fingerprint and the target's name: the same design gives the same record
-on any executor (as long as every search ends before its time limit; only the times differ).
+the study seed, the design's fingerprint and the target's name, and every search is budgeted in work
+(``plan_states`` of the task: states the exact model evaluates; `ctrplan.planning.budget`): the same
+design gives the same record on any executor and under any load, only the times differ -- unless a
+search's wall-clock guard fired, which the record names (``cut_short``).
 
 The record is a JSON-ready dict (see `evaluate`).
 """
@@ -91,9 +93,12 @@ def evaluate(task: DesignTask, parameters: Parameters, seed: int = 0) -> dict:
     ``fingerprint``, ``stability`` ``{snap_free, source (certificate | sweep), checked, example_q,
     example_reason}`` (with ``snap_free`` constraints), ``start`` (joints, mm and rad);
     ``targets``: per target ``{name, reached, stage (screen | plan), message, goals, seed,
-    planning_time_s, kinematics_calls, min_clearance_mm, path}`` (path: joints (K, 2N) of the
-    validated path, reached targets only); ``reached`` (names); ``min_clearance_mm`` (smallest over
-    the reached targets' paths, None if none); ``time_s`` and ``timings`` (s).
+    planning_time_s, kinematics_calls, states, cut_short, min_clearance_mm, path}`` (path: joints
+    (K, 2N) of the validated path, reached targets only; ``states``: the work its plan used;
+    ``cut_short``: a wall-clock guard stopped its plan); ``reached`` (names); ``cut_short`` (names of
+    the targets whose verdict a guard decided: empty unless the machine was far slower than the
+    reference); ``min_clearance_mm`` (smallest over the reached targets' paths, None if none);
+    ``time_s`` and ``timings`` (s).
     """
     t0 = time.perf_counter()
     data = robot_dict(task, parameters)
@@ -101,7 +106,7 @@ def evaluate(task: DesignTask, parameters: Parameters, seed: int = 0) -> dict:
         "parameters": dict(parameters), "feasible": False, "infeasible": None,
         "max_strain": max_strain(data), "total_length_mm": total_length_mm(data), "robot": data,
         "fingerprint": None, "stability": None, "start": None, "targets": [], "reached": [],
-        "min_clearance_mm": None, "time_s": 0.0, "timings": {},
+        "cut_short": [], "min_clearance_mm": None, "time_s": 0.0, "timings": {},
     }
     design = _feasible(task, record)
     if design is not None:
@@ -225,8 +230,8 @@ def _reach(task: DesignTask, scene: Scene, checker, record: dict, seed: int) -> 
     for target in task.targets:
         out: dict[str, Any] = {"name": target.name, "reached": False, "stage": "screen", "message": "",
                                "goals": 0, "seed": target_seed(seed, robot.fingerprint, target.name),
-                               "planning_time_s": None, "kinematics_calls": None, "min_clearance_mm": None,
-                               "path": None}
+                               "planning_time_s": None, "kinematics_calls": None, "states": None,
+                               "cut_short": False, "min_clearance_mm": None, "path": None}
         record["targets"].append(out)
         t = time.perf_counter()
         sampler = GoalSampler(checker, target.region, np.random.default_rng(out["seed"]),
@@ -243,15 +248,17 @@ def _reach(task: DesignTask, scene: Scene, checker, record: dict, seed: int) -> 
             continue
         t = time.perf_counter()
         result = plan(_target_scene(scene, target), exact, exact=exact, time_limit_s=task.plan_time_s,
-                      seed=out["seed"], goal_hints=np.stack(sampler.goals))
+                      max_states=task.plan_states, seed=out["seed"], goal_hints=np.stack(sampler.goals))
         plan_s += time.perf_counter() - t
         out.update(stage="plan", message=result.message, reached=bool(result.solved),
-                   planning_time_s=result.planning_time_s, kinematics_calls=result.kinematics_calls)
+                   planning_time_s=result.planning_time_s, kinematics_calls=result.kinematics_calls,
+                   states=result.details["budget"]["states"], cut_short=result.cut_short)
         if result.solved:
             out["min_clearance_mm"] = float(result.validated.min_clearance_mm)
             out["path"] = np.asarray(result.path).tolist()
     reached = [t for t in record["targets"] if t["reached"]]
     record["reached"] = [t["name"] for t in reached]
+    record["cut_short"] = [t["name"] for t in record["targets"] if t["cut_short"]]
     if reached:
         record["min_clearance_mm"] = min(t["min_clearance_mm"] for t in reached)
     record["timings"].update(screen_s=screen_s, plan_s=plan_s)

@@ -11,8 +11,10 @@ interrupted study can rewrite them at any time):
 - ``pareto.png``, ``report.html`` (`ctrplan.design.report`) and ``design.json`` (the JSON summary).
 
 The best design is the feasible one first in the task's objectives taken in order (most targets
-reached, then the second objective, ...); the Pareto front holds the feasible designs no other
-feasible design dominates.
+reached, then the second objective, ...) -- never below the base design: when no trial beats the base
+design (evaluated the same way as every trial), the base design is the best, marked as such
+(``best.is_base_design`` in ``design.json``, a comment in ``best_robot.yaml``, the report and the
+terminal say so). The Pareto front holds the feasible trials no other feasible trial dominates.
 """
 
 from __future__ import annotations
@@ -64,6 +66,19 @@ def ranked(designs: list[Design], task: DesignTask) -> list[Design]:
     return sorted(feasible, key=lambda d: (ranking_key(d.record, task.objectives), d.trial))
 
 
+def best_design(order: list[Design], nominal: Design | None, task: DesignTask) -> Design | None:
+    """The best design: the first of the ranked trials ``order`` if it beats the base design
+    ``nominal`` in the task's objective order, else the base design (when feasible; a tie keeps the
+    base design: nothing was gained)."""
+    top = order[0] if order else None
+    if nominal is None or not nominal.record["feasible"]:
+        return top
+    if top is not None and ranking_key(top.record, task.objectives) < ranking_key(nominal.record,
+                                                                                   task.objectives):
+        return top
+    return nominal
+
+
 def pareto_front(designs: list[Design], task: DesignTask) -> list[Design]:
     """The feasible designs no other feasible design dominates, best first."""
     feasible = ranked(designs, task)
@@ -73,8 +88,8 @@ def pareto_front(designs: list[Design], task: DesignTask) -> list[Design]:
 
 def targets_of(record: dict) -> dict[str, dict]:
     """Per target: reached, the path's clearance (mm) and planning time (s), and what happened."""
-    keys = ("reached", "stage", "min_clearance_mm", "planning_time_s", "message")
-    return {t["name"]: {k: t[k] for k in keys} for t in record["targets"]}
+    keys = ("reached", "stage", "min_clearance_mm", "planning_time_s", "states", "cut_short", "message")
+    return {t["name"]: {k: t.get(k) for k in keys} for t in record["targets"]}
 
 
 def objectives_of(record: dict, task: DesignTask) -> dict[str, float | int]:
@@ -84,14 +99,14 @@ def objectives_of(record: dict, task: DesignTask) -> dict[str, float | int]:
 
 
 def write_outputs(task: DesignTask, study: optuna.Study, out: Path, *, storage: str, seed: int,
-                  time_s: float, executor: str) -> dict:
-    """Write every output into ``out`` (see the module docstring); return the JSON summary."""
+                  time_s: float, executor: str, cut_short: str | None = None) -> dict:
+    """Write every output into ``out`` (see the module docstring); return the JSON summary.
+    ``cut_short``: what the run's wall-clock limit stopped (None: it did not fire)."""
     from ctrplan.design.report import pareto_figure, write_report
 
     designs = designs_of(study)
     nominal = nominal_of(study)
-    order = ranked(designs, task)
-    best = order[0] if order else None
+    best = best_design(ranked(designs, task), nominal, task)
     front = pareto_front(designs, task)
     if (out / "paths").exists():  # a previous best's folders would mislead
         shutil.rmtree(out / "paths")
@@ -107,7 +122,8 @@ def write_outputs(task: DesignTask, study: optuna.Study, out: Path, *, storage: 
         "trials": len(designs), "feasible": sum(d.record["feasible"] for d in designs),
         "targets": [t.name for t in task.targets], "objectives": [o.label for o in task.objectives],
         "best": None if best is None else {
-            "trial": best.trial, "robot_file": str(out / "best_robot.yaml"),
+            "trial": best.trial, "is_base_design": best.trial is None,
+            "robot_file": str(out / "best_robot.yaml"),
             "reached": best.record["reached"], "objectives": objectives_of(best.record, task),
             "parameters": best.record["parameters"], "robot": best.record["robot"],
             "targets": targets_of(best.record), "paths": {name: str(p) for name, p in targets.items()}},
@@ -117,7 +133,10 @@ def write_outputs(task: DesignTask, study: optuna.Study, out: Path, *, storage: 
         "nominal": None if nominal is None else {
             "reached": nominal.record["reached"], "feasible": nominal.record["feasible"],
             "objectives": objectives_of(nominal.record, task), "robot": nominal.record["robot"],
-            "targets": targets_of(nominal.record)},
+            "targets": targets_of(nominal.record), "cut_short": nominal.record.get("cut_short", [])},
+        "cut_short": cut_short,
+        "guarded_trials": sum(bool(d.record.get("cut_short"))
+                              for d in designs + ([nominal] if nominal else [])),
         "time_s": round(time_s, 2),
         "study_wall_s": None if span is None else round(span, 2),
         "trial_time_s": None if not times else {
@@ -149,7 +168,9 @@ def write_best(task: DesignTask, best: Design, out: Path, study: str) -> dict[st
                                    f"snap-free verdict (fingerprint {robot.fingerprint})")
         certificate = (f"snap-free over the whole joint domain (ctrplan stability; fingerprint "
                        f"{robot.fingerprint})")
-    header = (f"# The best design of `ctrplan design {task.path.name}` (study {study}, trial {best.trial}):\n"
+    which = (f"the base design: no trial of study {study} beats it in the task's objectives"
+             if best.trial is None else f"study {study}, trial {best.trial}")
+    header = (f"# The best design of `ctrplan design {task.path.name}` ({which}):\n"
               f"# reaches {len(record['reached'])} of {len(task.targets)} targets "
               f"({', '.join(record['reached']) or 'none'}).\n# Certified: {certificate}.\n")
     with atomic_write(out / "best_robot.yaml") as fh:
@@ -200,6 +221,7 @@ def write_target_path(task: DesignTask, exact, scene_file: Path, result: dict, f
     --out`` writes for it; returns its ``path.json``."""
     from ctrplan.cli.plan import plan_document, write_plan_outputs
     from ctrplan.planning import PlanResult, validate_path
+    from ctrplan.planning.budget import states_for
     from ctrplan.scene import load_scene
 
     scene = load_scene(scene_file)
@@ -212,19 +234,22 @@ def write_target_path(task: DesignTask, exact, scene_file: Path, result: dict, f
                       result["kinematics_calls"], path_q, scene.target.center, scene.target.tolerance_mm,
                       scene.base_pose, tip_mm=np.asarray(vp.report.tip_mm), validated=vp.report,
                       message="solved", status="Exact solution", seed=result["seed"],
-                      time_limit_s=task.plan_time_s, scene=scene.name, dense=vp)
+                      time_limit_s=task.plan_time_s, scene=scene.name, dense=vp,
+                      max_states=task.plan_states or states_for(exact.name, task.plan_time_s))
     write_plan_outputs(folder, scene, plan, plan_document(plan, scene, scene_file, None))
     return folder / "path.json"
 
 
 def csv_rows(task: DesignTask, designs: list[Design]) -> tuple[list[str], list[list[Any]]]:
     """Header and rows of ``designs.csv``: trial, feasibility, objectives, parameters, the reached
-    targets (names, then one 0/1 column per target), times (s) and the robot's fingerprint."""
+    targets (names, then one 0/1 column per target), times (s), the robot's fingerprint, why it is
+    infeasible, and the targets whose search a wall-clock guard cut short (empty unless the machine
+    was far slower than the reference: only then does a row depend on the machine)."""
     params = sorted({k for d in designs for k in d.record["parameters"]})
     names = [t.name for t in task.targets]
     header = (["trial", "feasible", "infeasible", "targets_reached", "max_strain", "total_length_mm",
                "min_clearance_mm", *params, "reached", *[f"reached_{n}" for n in names], "time_s",
-               "stability_s", "plan_s", "fingerprint", "message"])
+               "stability_s", "plan_s", "fingerprint", "message", "cut_short"])
     rows = []
     for d in designs:
         r = d.record
@@ -235,7 +260,7 @@ def csv_rows(task: DesignTask, designs: list[Design]) -> tuple[list[str], list[l
                      *[int(n in r["reached"]) for n in names], round(r["time_s"], 3),
                      round(r["timings"].get("stability_s", 0.0), 3),
                      round(r["timings"].get("plan_s", 0.0), 3),
-                     r["fingerprint"] or "", why.get("message", "")])
+                     r["fingerprint"] or "", why.get("message", ""), ";".join(r.get("cut_short", []))])
     return header, rows
 
 

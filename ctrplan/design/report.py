@@ -52,7 +52,7 @@ def pareto_figure(task: DesignTask, designs: list[Design], front: list[Design], 
     if feasible:
         trials = np.array([d.trial for d in feasible])
         ax.step(trials, np.maximum.accumulate(reached(feasible)), where="post", color="tab:red",
-                label="best so far")
+                label="best trial so far")
     if nominal is not None:
         ax.axhline(len(nominal.record["reached"]), color="k", ls="--", lw=1, label="base design")
     ax.set_xlabel("trial")
@@ -66,10 +66,11 @@ def pareto_figure(task: DesignTask, designs: list[Design], front: list[Design], 
         jitter = rng.uniform(-0.12, 0.12, len(feasible))
         ax.plot(x(feasible), reached(feasible) + jitter, "o", color="0.55", ms=4, label="feasible design")
         ax.plot(x(front), reached(front), "o", mfc="none", mec="tab:red", ms=9, mew=1.5, label="Pareto front")
-        if best is not None:
-            ax.plot(x([best]), reached([best]), "*", color="gold", mec="k", ms=16, label="best")
         if nominal is not None and nominal.record["feasible"]:
             ax.plot(x([nominal]), reached([nominal]), "D", color="k", ms=7, label="base design")
+        if best is not None:
+            ax.plot(x([best]), reached([best]), "*", color="gold", mec="k", ms=16,
+                    label="best: the base design" if best.trial is None else "best")
         ax.set_xlabel(f"{objective.name} ({'max' if objective.maximize else 'min'}imised)")
         ax.set_ylabel(f"targets reached (of {n_targets})")
         ax.set_title(OBJECTIVES[objective.name], fontsize=9)
@@ -206,10 +207,14 @@ def write_report(task: DesignTask, doc: dict, designs: list[Design], best: Desig
     n_best = "–" if best is None else len(best.record["reached"])
     rows.append(["<b>total</b>", "", f"<b>{n_nom} of {len(task.targets)}</b>", f"<b>{n_best} of "
                  f"{len(task.targets)}</b>"])
-    best_name = "best design" if best is None else f"best design (trial {best.trial})"
+    is_base = best is not None and best.trial is None
+    best_name = ("best design" if best is None else "best design = the base design" if is_base
+                 else f"best design (trial {best.trial})")
     parts += ["<h2>Reach</h2>", _table(["target", "why it matters", "base design", best_name], rows)]
+    parts += _warnings(doc, is_base)
     if best is not None:
-        parts += ["<h2>Best design</h2>", _parameter_table(task, best, nominal),
+        parts += ["<h2>Best design" + (": the base design" if is_base else "") + "</h2>",
+                  _parameter_table(task, best, nominal),
                   "<p>Robot file: <code>best_robot.yaml</code>; each target's scene: "
                   "<code>paths/&lt;target&gt;/scene.yaml</code>.</p>"]
     parts += ["<h2>Anatomy and paths</h2>", _img(overview_figure(task, best), "overview")]
@@ -227,6 +232,24 @@ def write_report(task: DesignTask, doc: dict, designs: list[Design], best: Desig
     with atomic_write(out / "report.html") as fh:
         fh.write(page)
     return out / "report.html"
+
+
+def _warnings(doc: dict, is_base: bool) -> list[str]:
+    """Paragraphs for what limits the result: no trial beat the base design, the time limit stopped
+    the study, a wall-clock guard decided some verdicts."""
+    out = []
+    if is_base:
+        out.append(f'<p class="warn"><b>No trial beats the base design</b> in the task\'s objectives '
+                   f'({html.escape(", ".join(doc["objectives"]))}): the best design, and '
+                   f'<code>best_robot.yaml</code>, is the base design.</p>')
+    if doc["cut_short"]:
+        out.append(f'<p class="warn">{html.escape(doc["cut_short"])}.</p>')
+    if doc["guarded_trials"]:
+        out.append(f'<p class="warn">A wall-clock guard cut a search short in {doc["guarded_trials"]} '
+                   f'design(s) (<code>cut_short</code> of the base design\'s targets and in '
+                   f'<code>designs.csv</code>): those verdicts depend on the load of the machine that ran '
+                   f'them.</p>')
+    return out
 
 
 def _parameter_table(task: DesignTask, best: Design, nominal: Design | None) -> str:
@@ -266,5 +289,6 @@ table{border-collapse:collapse;margin:8px 0;font-size:12px}
 th,td{border:1px solid #ddd;padding:3px 7px;vertical-align:top;text-align:left}
 th{background:#f3f3f3}img{max-width:100%;border:1px solid #eee}
 .yes{color:#1a7f37;font-weight:600}.no{color:#b42318;font-weight:600}small{color:#555}
+.warn{background:#fff4e5;border-left:4px solid #f79009;padding:6px 10px}
 code{background:#f5f5f5;padding:0 3px}.wide{overflow-x:auto}
 """

@@ -125,28 +125,34 @@ def finished_trials(study: optuna.Study) -> list[optuna.trial.FrozenTrial]:
 
 def run_study(task: DesignTask, study: optuna.Study, *, trials: int, seed: int = 0, workers: int = 1,
               ray_address: str | None = None, time_limit_s: float | None = None,
-              report: Report = _quiet) -> None:
-    """Run trials until the study has ``trials`` finished ones (or, with ``time_limit_s``, until that
-    long has passed: trials in flight then finish), ``workers`` at a time on the executor of
-    `ctrplan.bench.fanout.open_pool`. The base design is evaluated first if the study has no record
-    of it. Trials in flight when an exception (Ctrl-C) stops the run are marked failed."""
+              report: Report = _quiet) -> bool:
+    """Run trials until the study has ``trials`` finished ones (or, with ``time_limit_s``, an outer
+    wall-clock guard, until that long has passed: trials in flight then finish), ``workers`` at a
+    time on the executor of `ctrplan.bench.fanout.open_pool`. The base design is evaluated first if
+    the study has no record of it. Trials in flight when an exception (Ctrl-C) stops the run are
+    marked failed. Returns whether the time limit stopped the run before ``trials`` were
+    finished."""
     space = distributions(task)
     task_file = str(task.path.resolve())
     deadline = None if time_limit_s is None else time.monotonic() + time_limit_s
     finished = len(finished_trials(study))
     nominal_needed = NOMINAL not in study.user_attrs
     running: dict[int, optuna.Trial | None] = {}  # job number -> trial (None: the base design)
+    stopped = False
     with open_pool(workers, ray_address) as pool:
 
         def fill() -> None:
-            nonlocal nominal_needed
+            nonlocal nominal_needed, stopped
             while len(running) < workers:
                 if nominal_needed:
                     running[pool.submit(evaluate_job, DesignJob(task_file, {}, seed))] = None
                     nominal_needed = False
                     continue
                 asked = sum(t is not None for t in running.values())
-                if finished + asked >= trials or (deadline is not None and time.monotonic() >= deadline):
+                if finished + asked >= trials:
+                    return
+                if deadline is not None and time.monotonic() >= deadline:
+                    stopped = True
                     return
                 trial = study.ask(space)
                 running[pool.submit(evaluate_job, DesignJob(task_file, trial.params, seed))] = trial
@@ -168,6 +174,7 @@ def run_study(task: DesignTask, study: optuna.Study, *, trials: int, seed: int =
                 if trial is not None:
                     study.tell(trial, state=TrialState.FAIL)
             raise
+    return stopped
 
 
 def _tell(study: optuna.Study, trial: optuna.Trial, task: DesignTask, record: dict) -> None:

@@ -18,7 +18,9 @@ A task is YAML in mm and 1/m; paths are relative to the task file::
     constraints: {max_strain: 0.08, snap_free: true}
     objectives: [targets_reached, -max_strain]   # maximise the first, then the rest (Pareto);
                                                  #   "-" minimises
-    budget: {trials: 60, plan_time_s: 5.0}
+    budget: {trials: 60, plan_time_s: 5.0}   # optional plan_states: the work budget of each target's
+                                             #   search (states; default: what plan_time_s buys with
+                                             #   the exact model on the reference machine)
 
 Every error names the file, the key and the line (`ctrplan.yamlio`).
 """
@@ -107,7 +109,10 @@ class Objective:
 @dataclass(frozen=True)
 class DesignTask:
     """A validated design task (see the module docstring). ``scene`` carries the base robot and the
-    scene's start; ``max_strain`` is a fraction; ``plan_time_s`` the planning budget per target."""
+    scene's start; ``max_strain`` is a fraction; ``plan_time_s`` the planning time per target (its
+    wall-clock guard is `GUARD_FACTOR` times it) and ``plan_states`` its work budget (None: what
+    ``plan_time_s`` buys with the exact model on the reference machine; see
+    `ctrplan.planning.budget`)."""
 
     path: Path
     scene: Scene
@@ -120,6 +125,7 @@ class DesignTask:
     trials: int
     plan_time_s: float
     digest: str
+    plan_states: int | None = None
 
     @property
     def name(self) -> str:
@@ -167,7 +173,7 @@ def load_task(path: str | Path) -> DesignTask:
     snap_free = constraints.get("snap_free", True)
     if not isinstance(snap_free, bool):
         raise doc.error(("constraints", "snap_free"), f"expected true or false, got {snap_free!r}")
-    budget = _mapping(doc, ("budget",), d.get("budget") or {}, {"trials", "plan_time_s"})
+    budget = _mapping(doc, ("budget",), d.get("budget") or {}, {"trials", "plan_time_s", "plan_states"})
     trials = budget.get("trials", 60)
     if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
         raise doc.error(("budget", "trials"), f"expected an integer >= 1, got {trials!r}")
@@ -175,10 +181,15 @@ def load_task(path: str | Path) -> DesignTask:
                         budget.get("plan_time_s", scene.settings.time_limit_s))
     if plan_time <= 0:
         raise doc.error(("budget", "plan_time_s"), f"must be > 0, got {plan_time:g}")
+    plan_states = budget.get("plan_states")
+    if plan_states is not None and (isinstance(plan_states, bool) or not isinstance(plan_states, int)
+                                    or plan_states < 1):
+        raise doc.error(("budget", "plan_states"), f"expected an integer >= 1 (states), got {plan_states!r}")
     task = DesignTask(path=path, scene=scene, targets=targets, vary=vary, catalogue=catalogue,
                       max_strain=max_strain, snap_free=snap_free,
                       objectives=_objectives(doc, d.get("objectives", list(DEFAULT_OBJECTIVES))),
-                      trials=int(trials), plan_time_s=plan_time, digest=_digest(doc, scene))
+                      trials=int(trials), plan_time_s=plan_time, digest=_digest(doc, scene),
+                      plan_states=plan_states)
     if catalogue and not task.diameter_sets:
         raise doc.error(("catalogue",), f"no {scene.robot.n_tubes} sizes of the catalogue nest (each "
                                         f"tube's outer diameter <= the next tube's inner diameter)")
@@ -321,7 +332,10 @@ def _digest(doc: YamlDoc, scene: Scene) -> str:
     """What decides a design's evaluation: the task (its trial budget aside), the scene file and the
     base robot. A study continues only under the same digest."""
     data = {k: v for k, v in doc.data.items() if k != "budget"}
-    data["plan_time_s"] = (doc.data.get("budget") or {}).get("plan_time_s")
+    budget = doc.data.get("budget") or {}
+    data["plan_time_s"] = budget.get("plan_time_s")
+    if "plan_states" in budget:
+        data["plan_states"] = budget["plan_states"]
     text = json.dumps(_str_keys(data), sort_keys=True) + (scene.path.read_text() if scene.path else "")
     return hashlib.sha256((text + scene.robot.fingerprint).encode()).hexdigest()
 

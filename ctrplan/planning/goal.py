@@ -11,7 +11,6 @@ a ``GoalSampleableRegion`` so bidirectional planners (RRTConnect) and goal-biase
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,6 +18,7 @@ from ompl import base as ob
 
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import tangent_of
+from ctrplan.planning.budget import SearchBudget
 from ctrplan.planning.ik import TipJacobian, backend_tip_jacobian, solve_ik
 from ctrplan.planning.validity import ConfigurationChecker
 from ctrplan.scene import Scene, TargetRegion
@@ -205,34 +205,36 @@ class TipGoal(ob.GoalSampleableRegion):
     """OMPL goal region: the tip inside the target region; samples come from a `GoalSampler`.
 
     ``sampleGoal`` hands out the goals found so far in turn and runs a new IK batch once all have
-    been handed out -- at most every ``refill_interval_s`` seconds (always while none is known),
-    never after ``deadline`` (a `time.perf_counter` value) and at most ``max_batches`` times.
-    ``maxSampleCount`` only promises more samples when such a batch may run, so planners that drain
-    all goal samples up front (BIT*) terminate. With nothing to give, ``sampleGoal`` writes an
+    been handed out -- at most once every ``refill_states`` states the checker evaluates (always
+    while none is known), never once ``budget`` (a `SearchBudget`) is exhausted and at most
+    ``max_batches`` times. Counting work, not seconds, keeps a seeded search the same under any
+    load. ``maxSampleCount`` only promises more samples when such a batch may run, so planners that
+    drain all goal samples up front (BIT*) terminate. With nothing to give, ``sampleGoal`` writes an
     out-of-bounds state, which OMPL's goal sampling rejects.
     """
 
-    def __init__(self, si, sampler: GoalSampler, max_batches: int = 200,
-                 refill_interval_s: float = 0.5, deadline: float | None = None):
+    def __init__(self, si, sampler: GoalSampler, max_batches: int = 200, refill_states: int = 2000,
+                 budget: SearchBudget | None = None):
         super().__init__(si)
         self.sampler = sampler
         self.checker = sampler.checker
         self.space = sampler.space
         self.max_batches = int(max_batches)
-        self.refill_interval_s = float(refill_interval_s)
-        self.deadline = deadline
+        self.refill_states = int(refill_states)
+        self.budget = budget
         self.setThreshold(1e-9)
         self.calls = 0
         self.handed_out = 0
-        self._last_refill = -np.inf
+        self._last_refill: int | None = None  # the checker's state count at the last refill
 
     def _may_refill(self) -> bool:
-        now = time.perf_counter()
         if self.sampler.stats.batches >= self.max_batches:
             return False
-        if self.deadline is not None and now >= self.deadline:
+        if self.budget is not None and self.budget.exhausted():
             return False
-        return not self.sampler.goals or now - self._last_refill >= self.refill_interval_s
+        states = self.checker.counters.kinematics_calls
+        return (not self.sampler.goals or self._last_refill is None
+                or states - self._last_refill >= self.refill_states)
 
     def distanceGoal(self, state) -> float:  # noqa: N802 - OMPL API
         q = self.space.state_to_q(state)
@@ -245,7 +247,7 @@ class TipGoal(ob.GoalSampleableRegion):
         self.calls += 1
         goals = self.sampler.goals
         if self.handed_out >= len(goals) and self._may_refill():
-            self._last_refill = time.perf_counter()
+            self._last_refill = self.checker.counters.kinematics_calls
             self.sampler.sample_batch()
             goals = self.sampler.goals
         if not goals:

@@ -1,9 +1,10 @@
 """Planning pipeline: scene + backend -> OMPL problem -> path -> exact validation (-> repair).
 
 Wiring follows OMPL's ``demos/OptimalPlanning.py``: a `BoxSpace` state space, a `ValidityChecker`,
-a `BatchMotionValidator`, a `TipGoal` (IK-sampled goal region), a planner by name, a time-limited
-solve, path simplification; then `validate_path` with the exact Cosserat model. All OMPL objects live
-inside function scope (DESIGN §4: module-level OMPL objects leak at exit).
+a `BatchMotionValidator`, a `TipGoal` (IK-sampled goal region), a planner by name, a solve budgeted
+in work (`ctrplan.planning.budget`), path simplification; then `validate_path` with the exact
+Cosserat model. All OMPL objects live inside function scope (DESIGN §4: module-level OMPL objects
+leak at exit).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Body, arc_fractions
 from ctrplan.kinematics.blas import single_threaded_blas
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY
+from ctrplan.planning.budget import GUARD_FACTOR, SearchBudget, check_max_states, states_for
 from ctrplan.planning.goal import ANGLE_WEIGHT_MM_PER_RAD, GoalSampler, TipGoal, tip_tangents
 from ctrplan.planning.ik import backend_tip_jacobian, solve_ik
 from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate_path
@@ -38,9 +40,8 @@ from ctrplan.training.evaluate import region_bounds_mm, region_margins_mm
 
 #: Names OMPL uses for the planners (for logs and benchmark databases), from the one table `PLANNERS`.
 OMPL_NAMES = {name: spec.ompl_name for name, spec in PLANNERS.items()}
-#: Search time above the limit (s) that is reported as an overrun (OMPL checks its clock between
-#: iterations; an inverse-kinematics batch cannot be interrupted).
-OVERRUN_TOLERANCE_S = 0.05
+#: Share of a search's work budget between two goal-sampling batches once goals are known.
+REFILL_SHARE = 0.05
 #: How close (mm) `exact_goal` brings the exact tip to the surrogate's.
 EXACT_GOAL_TOL_MM = 0.05
 #: Surrogate margin (mm) for a model whose card has no calibrated error bound.
@@ -94,6 +95,7 @@ class SearchOutcome:
     goal_stats: dict
     message: str = ""
     goals: list[np.ndarray] = field(default_factory=list)  # goal configurations the search found
+    budget: dict = field(default_factory=dict)  # `SearchBudget.to_json`: work used, guard, cut short
 
 
 @dataclass
@@ -168,22 +170,7 @@ def _path_q(problem: PlanningProblem, path) -> np.ndarray:
     return np.stack([problem.box.state_to_q(path.getState(i)) for i in range(path.getStateCount())])
 
 
-class _Clock:
-    """The search's wall-clock budget: started at construction, ``limit_s`` long."""
-
-    def __init__(self, limit_s: float):
-        self.limit_s = float(limit_s)
-        self.t0 = time.perf_counter()
-        self.deadline = self.t0 + self.limit_s
-
-    def elapsed(self) -> float:
-        return time.perf_counter() - self.t0
-
-    def remaining(self) -> float:
-        return self.deadline - time.perf_counter()
-
-
-def _progress_hook(problem: PlanningProblem, clock: _Clock, progress: Progress) -> Callable[[], None]:
+def _progress_hook(problem: PlanningProblem, budget: SearchBudget, progress: Progress) -> Callable[[], None]:
     """A checker hook that reports the search's progress at most every 0.1 s."""
     last = [0.0]
     counters = problem.checker.counters
@@ -192,7 +179,7 @@ def _progress_hook(problem: PlanningProblem, clock: _Clock, progress: Progress) 
         now = time.perf_counter()
         if now - last[0] > 0.1:
             last[0] = now
-            progress("search", elapsed=now - clock.t0, limit=clock.limit_s,
+            progress("search", elapsed=budget.elapsed(), states=budget.used(), max_states=budget.max_states,
                      kinematics_calls=counters.kinematics_calls, goals=len(problem.sampler.goals))
 
     return hook
@@ -222,21 +209,22 @@ def _hooked(checker: ConfigurationChecker, hook: Callable[[], None]) -> Iterator
         checker.hook = None
 
 
-def _sample_goals(sampler: GoalSampler, clock: _Clock) -> None:
+def _sample_goals(sampler: GoalSampler, budget: SearchBudget) -> None:
     """Goal configurations first: they tell early whether the target is reachable at all."""
     for _ in range(6):
-        if sampler.goals or clock.remaining() <= 0:
+        if sampler.goals or budget.exhausted():
             break
         sampler.sample_batch()
         if sampler.stats.batches >= 2 and sampler.stats.ik_reached == 0 and not sampler.goals:
             break
 
 
-def _fix_goal_set(problem: PlanningProblem, clock: _Clock) -> None:
+def _fix_goal_set(problem: PlanningProblem, budget: SearchBudget) -> None:
     """For planners that drain every goal sample when they (re)start a batch and restart on new
-    goals (BIT*): a fixed set of goal configurations, sampled now."""
+    goals (BIT*): a fixed set of goal configurations, sampled now with at most half the budget."""
     sampler = problem.sampler
-    while len(sampler.goals) < 8 and clock.remaining() > 0.5 * clock.limit_s and sampler.stats.batches < 12:
+    while (len(sampler.goals) < 8 and budget.share_used() < 0.5 and not budget.exhausted()
+           and sampler.stats.batches < 12):
         sampler.sample_batch()
     problem.goal.max_batches = sampler.stats.batches
 
@@ -273,77 +261,89 @@ def _all_invalid(scene: Scene) -> str:
     return "all in collision" if is_certified(scene.robot) else "all in collision or elastically unstable"
 
 
-def _failure_message(problem: PlanningProblem, limit_s: float, to_configuration: bool) -> str:
+def _failure_message(problem: PlanningProblem, budget: SearchBudget, to_configuration: bool) -> str:
     sampler = problem.sampler
+    within = f"within {budget.describe()}"
     if to_configuration:
-        return f"no path to the given configuration within {limit_s:g} s"
+        return f"no path to the given configuration {within}"
     if not sampler.goals:
         st = sampler.stats
         turned = f", {st.wrong_direction} of them not along the approach direction" \
             if st.wrong_direction else ""
         return (f"no collision-free goal configuration found ({st.ik_reached} IK solutions reached "
-                f"the target{turned}, {_all_invalid(problem.scene)})")
-    return f"no path found within {limit_s:g} s ({len(sampler.goals)} goal configurations)"
+                f"the target{turned}, {_all_invalid(problem.scene)}; {budget.describe()})")
+    return f"no path found {within} ({len(sampler.goals)} goal configurations)"
 
 
 def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, planner: str | None = None,
-           time_limit_s: float | None = None, seed: int | None = None, progress: Progress = _quiet,
-           simplify: bool | None = None, checker: ConfigurationChecker | None = None,
-           goal_q: np.ndarray | None = None,
+           time_limit_s: float | None = None, max_states: int | None = None, seed: int | None = None,
+           progress: Progress = _quiet, simplify: bool | None = None,
+           checker: ConfigurationChecker | None = None, goal_q: np.ndarray | None = None,
            goal_hints: np.ndarray | None = None) -> tuple[SearchOutcome, ConfigurationChecker]:
     """One OMPL search from ``start`` (default: the scene's) to the target region (or to the
-    configuration ``goal_q``) with ``backend``, within ``time_limit_s`` (goal sampling included);
-    ``goal_hints`` (K, 2N): where goal sampling starts (see `GoalSampler`).
+    configuration ``goal_q``) with ``backend``; ``goal_hints`` (K, 2N): where goal sampling starts
+    (see `GoalSampler`).
+
+    Budget (`ctrplan.planning.budget`): ``max_states`` states evaluated (goal sampling included;
+    default: the scene's ``max_states``, else what ``time_limit_s`` buys with this backend on the
+    reference machine), under a
+    wall-clock guard of `GUARD_FACTOR` x ``time_limit_s`` (default: the scene's). The outcome's
+    ``budget`` says how much was used and whether the guard cut the search short.
 
     Steps: build the problem, sample goal configurations, set up the planner, solve, simplify."""
     s = scene.settings
     planner = planner or s.planner
     spec = planner_spec(planner)
     simplify = s.simplify if simplify is None else simplify
-    clock = _Clock(time_limit_s if time_limit_s is not None else s.time_limit_s)
+    limit_s = time_limit_s if time_limit_s is not None else s.time_limit_s
     seed_ompl(seed)
     problem = build_problem(scene, backend, start=start, rng=np.random.default_rng(seed), checker=checker,
                             goal_q=goal_q, goal_hints=goal_hints)
     checker = problem.checker
     sampler = problem.sampler
-    with single_threaded_blas(), gc_paused(), _hooked(checker, _progress_hook(problem, clock, progress)):
+    budget = SearchBudget.start(max_states or s.max_states or states_for(backend.name, limit_s),
+                                GUARD_FACTOR * limit_s,
+                                lambda: checker.counters.kinematics_calls)
+    with single_threaded_blas(), gc_paused(), _hooked(checker, _progress_hook(problem, budget, progress)):
         region_goal = isinstance(problem.goal, TipGoal)
         if region_goal:
-            problem.goal.deadline = clock.deadline
-            progress("goal", elapsed=0.0, limit=clock.limit_s)
-            _sample_goals(sampler, clock)
-        timings = {"goal_sampling_s": clock.elapsed()}
+            problem.goal.budget = budget
+            problem.goal.refill_states = max(1, round(REFILL_SHARE * budget.max_states))
+            progress("goal", elapsed=0.0, states=0, max_states=budget.max_states)
+            _sample_goals(sampler, budget)
+        timings = {"goal_sampling_s": budget.elapsed()}
 
         def outcome(path_q: np.ndarray | None, status: str, exact: bool, message: str) -> SearchOutcome:
-            return SearchOutcome(path_q, status, exact, clock.elapsed(),
-                                 {**vars(sampler.stats), **timings}, message, list(sampler.goals))
+            return SearchOutcome(path_q, status, exact, budget.elapsed(),
+                                 {**vars(sampler.stats), **timings}, message, list(sampler.goals),
+                                 budget.to_json())
 
-        if region_goal and not sampler.goals and sampler.stats.ik_reached == 0:
+        if region_goal and not sampler.goals and sampler.stats.ik_reached == 0 and not budget.exhausted():
             return outcome(None, "INVALID_GOAL", False,
                            f"target unreachable: inverse kinematics got the tip no closer than "
                            f"{sampler.stats.closest_mm:.1f} mm to the target region after "
                            f"{sampler.stats.seeds} seeds"), checker
-        if clock.remaining() <= 0:
+        if budget.exhausted():
             reached = sampler.stats.ik_reached
             why = f": {reached} IK solutions reached the target, {_all_invalid(scene)}" \
                 if reached and not sampler.goals else ""
             return outcome(None, "TIMEOUT", False,
-                           f"time limit of {clock.limit_s:g} s reached while sampling goal "
-                           f"configurations ({len(sampler.goals)} found{why})"), checker
+                           f"budget used up while sampling goal configurations ({len(sampler.goals)} "
+                           f"found{why}; {budget.describe()})"), checker
         if spec.fixed_goal_set and region_goal:
-            _fix_goal_set(problem, clock)
+            _fix_goal_set(problem, budget)
         pl = _setup_planner(planner, problem, s.range_mm)
-        progress("search", elapsed=clock.elapsed(), limit=clock.limit_s,
+        progress("search", elapsed=budget.elapsed(), states=budget.used(), max_states=budget.max_states,
                  kinematics_calls=checker.counters.kinematics_calls, goals=len(sampler.goals))
         t_solve = time.perf_counter()
-        status = pl.solve(max(clock.remaining(), 1e-3))
+        status = pl.solve(budget.termination_condition())
         timings["search_s"] = time.perf_counter() - t_solve
         status_name = status.asString() if hasattr(status, "asString") else str(status)
         if not problem.pdef.hasExactSolution():
             return outcome(None, status_name, False,
-                           _failure_message(problem, clock.limit_s, goal_q is not None)), checker
+                           _failure_message(problem, budget, goal_q is not None)), checker
         if simplify:
-            progress("simplify", elapsed=clock.elapsed())
+            progress("simplify", elapsed=budget.elapsed())
         return outcome(_simplified_path(problem, simplify, timings), status_name, True, ""), checker
 
 
@@ -369,6 +369,8 @@ class PlanResult:
     scene: str = ""
     details: dict = field(default_factory=dict)
     dense: ValidatedPath | None = None
+    max_states: int = 0
+    cut_short: bool = False
 
     def to_json(self) -> dict:
         return {
@@ -387,6 +389,8 @@ class PlanResult:
             "message": self.message,
             "seed": self.seed,
             "time_limit_s": self.time_limit_s,
+            "max_states": int(self.max_states),
+            "cut_short": bool(self.cut_short),
             "scene": self.scene,
             "details": self.details,
         }
@@ -527,6 +531,29 @@ def exact_goal(path_q: np.ndarray, checker: ConfigurationChecker, exact: Backend
     return np.vstack([path_q, ik.q]) if ik.success[0] else path_q
 
 
+def _replanner(scene: Scene, exact: Backend, checker: ConfigurationChecker, seed: int | None,
+               hints: np.ndarray, time_s: float) -> tuple[Callable[..., np.ndarray | None], dict]:
+    """``replan(start_q, goal_q)`` for `repair_path`: exact RRTConnect searches sharing one work
+    budget (what ``time_s`` buys with the exact model; each search gets what is left, at least a
+    tenth) and one wall-clock guard; and the budget's record (``max_states``, ``states``,
+    ``cut_short``), updated by every search."""
+    total = states_for(exact.name, time_s)
+    guard_end = time.perf_counter() + GUARD_FACTOR * time_s
+    record = {"max_states": total, "states": 0, "cut_short": False}
+
+    def replan(start_q: np.ndarray, goal_q: np.ndarray | None) -> np.ndarray | None:
+        left = max(total - record["states"], total // 10)
+        limit = max(guard_end - time.perf_counter(), 0.5 * GUARD_FACTOR) / GUARD_FACTOR
+        out, _ = search(scene, exact, start=start_q, goal_q=goal_q, planner="rrtconnect", time_limit_s=limit,
+                        max_states=left, seed=seed, checker=checker,
+                        goal_hints=hints if goal_q is None else None)
+        record["states"] += out.budget["states"]
+        record["cut_short"] = record["cut_short"] or out.budget["cut_short"]
+        return out.path_q
+
+    return replan, record
+
+
 def _validate_and_repair(scene: Scene, path_q: np.ndarray, be: Backend, exact: Backend,
                          checker: ConfigurationChecker, result: PlanResult, repair: bool,
                          progress: Progress, goals: list[np.ndarray]) -> tuple[ValidatedPath, np.ndarray]:
@@ -544,16 +571,11 @@ def _validate_and_repair(scene: Scene, path_q: np.ndarray, be: Backend, exact: B
     t_rep = time.perf_counter()
     rep_checker = ConfigurationChecker(scene, exact, world=checker.world)
     rep_seed = None if result.seed is None else result.seed + 1
-
     hints = np.stack([path_q[-1], *goals])
-
-    def replan(start_q: np.ndarray, goal_q: np.ndarray | None, limit: float) -> np.ndarray | None:
-        out, _ = search(scene, exact, start=start_q, goal_q=goal_q, planner="rrtconnect",
-                        time_limit_s=limit, seed=rep_seed, checker=rep_checker,
-                        goal_hints=hints if goal_q is None else None)
-        return out.path_q
-
-    fixed = repair_path(vp, replan, max(5.0, result.time_limit_s))
+    replan, budget = _replanner(scene, exact, rep_checker, rep_seed, hints, max(5.0, result.time_limit_s))
+    fixed = repair_path(vp, replan)
+    result.details["repair_budget"] = budget
+    result.cut_short = result.cut_short or budget["cut_short"]
     rep_time = time.perf_counter() - t_rep
     result.details["repair_time_s"] = rep_time
     result.planning_time_s += rep_time
@@ -586,16 +608,17 @@ def _verdict(report: Validation, repair: bool) -> str:
     return "not solved: " + "; ".join(why) + ("" if repair else " (repair disabled)")
 
 
-def _report_overrun(result: PlanResult) -> None:
-    """Say so when the planning took longer than its time limit."""
-    over = result.planning_time_s - result.time_limit_s
-    result.details["time_limit_overrun_s"] = max(0.0, over)
-    if over > OVERRUN_TOLERANCE_S:
-        result.message += f" (took {result.planning_time_s:.2f} s: {over:.2f} s over the time limit)"
+def _report_guard(result: PlanResult) -> None:
+    """Say so when a wall-clock guard cut a search of the plan short: then, and only then, the
+    verdict depends on the machine's speed and load."""
+    if result.cut_short and "wall-clock guard" not in result.message:
+        result.message += (" (a search was cut short by its wall-clock guard: this verdict depends on the "
+                           "machine's speed and load)")
 
 
 def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | None = None,
-         time_limit_s: float | None = None, seed: int | None = None, progress: Progress = _quiet,
+         time_limit_s: float | None = None, max_states: int | None = None, seed: int | None = None,
+         progress: Progress = _quiet,
          exact: Backend | None = None, repair: bool | None = None,
          goal_hints: np.ndarray | None = None) -> PlanResult:
     """Plan a collision-free motion from the scene's start to its target, then validate it exactly.
@@ -615,6 +638,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     planner = planner or s.planner
     planner_spec(planner)
     time_limit_s = _time_limit(scene, time_limit_s)
+    max_states = check_max_states(max_states) or s.max_states
     seed = s.seed if seed is None else seed
     repair = s.repair if repair is None else repair
     progress("compile")  # loading a backend compiles its kernels too
@@ -632,7 +656,8 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
 
     result = PlanResult(False, planner, be.name, 0.0, 0, np.zeros((0, len(scene.start))),
                         scene.target.center, scene.target.tolerance_mm, scene.base_pose, seed=seed,
-                        time_limit_s=time_limit_s, scene=scene.name)
+                        time_limit_s=time_limit_s, scene=scene.name,
+                        max_states=max_states or states_for(planning_be.name, time_limit_s))
     result.details = {"planning_margin_mm": margin, "surrogate_margin": margin_source,
                       "compile_s": compile_s}
     if not checker.is_valid(scene.start):
@@ -644,13 +669,16 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
         result.details["counters"] = vars(checker.counters).copy()
         return result
 
-    outcome, checker = search(scene, planning_be, planner=planner, time_limit_s=time_limit_s, seed=seed,
-                              progress=progress, checker=checker, goal_hints=goal_hints)
+    outcome, checker = search(scene, planning_be, planner=planner, time_limit_s=time_limit_s,
+                              max_states=result.max_states, seed=seed, progress=progress, checker=checker,
+                              goal_hints=goal_hints)
     result.planning_time_s = outcome.time_s
     result.kinematics_calls = checker.counters.kinematics_calls
     result.status, result.message = outcome.status, outcome.message
     result.details["counters"] = vars(checker.counters).copy()
     result.details["goal_sampling"] = outcome.goal_stats
+    result.details["budget"] = outcome.budget
+    result.cut_short = outcome.budget["cut_short"]
     if outcome.path_q is not None:
         t_goal = time.perf_counter()
         path_q = exact_goal(outcome.path_q, checker, exact)
@@ -663,5 +691,5 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
         result.tip_mm = np.asarray(vp.report.tip_mm)
         result.solved = vp.report.ok
         result.message = _verdict(vp.report, repair)
-    _report_overrun(result)
+    _report_guard(result)
     return result

@@ -221,17 +221,16 @@ def refine_steps(space: BoxSpace, exact: Backend, dense: np.ndarray, bb: Backbon
     return dense, bb
 
 
-Replanner = Callable[[np.ndarray, "np.ndarray | None", float], "np.ndarray | None"]
+Replanner = Callable[[np.ndarray, "np.ndarray | None"], "np.ndarray | None"]
 
 
-def repair_path(validated: ValidatedPath, replan: Replanner, time_limit_s: float,
-                pad: int = 2) -> np.ndarray | None:
+def repair_path(validated: ValidatedPath, replan: Replanner, pad: int = 2) -> np.ndarray | None:
     """Re-plan the stretches of a path that fail exact validation.
 
     Every run of failing dense states is replaced by a path between exact-valid states ``pad``
-    states before and after it (``replan(start_q, goal_q, time_limit_s)``); a run that reaches the
-    end -- or an end whose exact tip misses the target -- is re-planned to the target region
-    (``goal_q=None``). Returns the repaired dense path, or None if a stretch cannot be re-planned.
+    states before and after it (``replan(start_q, goal_q)``, which keeps its own budget); a run that
+    reaches the end -- or an end whose exact tip misses the target -- is re-planned to the target
+    region (``goal_q=None``). Returns the repaired dense path, or None if a stretch cannot be re-planned.
     """
     rep = validated.report
     dense = validated.dense_q
@@ -244,7 +243,6 @@ def repair_path(validated: ValidatedPath, replan: Replanner, time_limit_s: float
         else:
             runs.append([i, i])
     badset = set(bad)
-    deadline = time.perf_counter() + time_limit_s
     pieces = []
     cur = 0
     to_region_from = None
@@ -258,7 +256,7 @@ def repair_path(validated: ValidatedPath, replan: Replanner, time_limit_s: float
         post = min(b + 1 + pad, n - 1)
         while post < n - 1 and post in badset:
             post += 1
-        seg = replan(dense[pre], dense[post], max(0.5, deadline - time.perf_counter()))
+        seg = replan(dense[pre], dense[post])
         if seg is None:
             return None
         pieces += [dense[cur:pre + 1], np.atleast_2d(seg)[1:-1]]
@@ -267,7 +265,7 @@ def repair_path(validated: ValidatedPath, replan: Replanner, time_limit_s: float
         to_region_from = n - 1
     if to_region_from is not None:
         pieces.append(dense[cur:to_region_from + 1])
-        seg = replan(dense[to_region_from], None, max(0.5, deadline - time.perf_counter()))
+        seg = replan(dense[to_region_from], None)
         if seg is None:
             return None
         pieces.append(np.atleast_2d(seg)[1:])
