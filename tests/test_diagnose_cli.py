@@ -297,3 +297,21 @@ def test_an_unresolved_or_past_bound_fit_is_never_significant():
             setattr(fit, k, v)
         score = judge(fit, err, ref, 0.0, DiagnoseOptions())
         assert score.beats and not score.significant, change
+
+
+def test_progress_is_a_plain_line_every_few_seconds_when_stderr_is_not_a_terminal(tmp_path, capsys,
+                                                                                   monkeypatch):
+    import ctrplan.cli.diagnose as cli
+
+    monkeypatch.setattr(cli, "PROGRESS_EVERY_S", 0.01)
+    lab = make(60, {"registration": 1.0}, seed=1000 * SEED + 12)
+    path = tmp_path / "lab.csv"
+    lab.write_csv(path)
+    rc = main(["diagnose", str(path), "--json", "--candidates", "registration,curvature", "--pairs", "0"])
+    assert rc == 0
+    captured = capsys.readouterr()
+    json.loads(captured.out)                      # stdout: the JSON document alone
+    lines = [line for line in captured.err.splitlines() if line.startswith("diagnose: ")]
+    assert lines and all(" s, " in line for line in lines), captured.err
+    assert any("fitting curvature" in line for line in lines), captured.err
+    assert "\x1b[" not in captured.err            # no terminal control sequences

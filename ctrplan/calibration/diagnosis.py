@@ -10,12 +10,16 @@ Procedure (`diagnose`):
    tube tips, finite-difference Jacobians, warm-started batched Cosserat solves); parameters the data
    cannot show (`Effect.unseen`, e.g. the offset of a joint that never moves) are not fitted, and
    joint offsets stay within what keeps every row of the file physical;
-4. choose (`selection`): significant, plausible, stable across ``resamples`` other splits, and the
-   simplest of the best -- with the ties the data cannot tell apart;
+4. choose (`selection`): significant (repeated configurations counted once), plausible within its
+   confidence interval, resolved by the rows, not pushed past a bound, stable across ``resamples``
+   other splits, and the simplest of the best -- with the ties the data cannot tell apart, and
+   (`experiment`) the configurations that would separate them;
 5. outliers (rows far off the extended model) are reported; if some are training rows, the choice is
-   repeated without them (and the report says so);
+   repeated without them, warm-started from the first (and the report says so);
 6. verdict: ``explained`` when the extended model's held-out error is within ``noise_tolerance`` x
-   the noise; with no cause named, ``none`` if the nominal model is, else ``unexplained``.
+   the noise; with no cause named, ``none`` if the nominal model is, ``undetermined`` if the rows
+   cannot identify a cause (`Selection.undetermined` says why; no extended robot is written), else
+   ``unexplained``.
 """
 
 from __future__ import annotations

@@ -26,6 +26,9 @@ from ctrplan.robot import Robot
 
 FD_STEP = 1e-3  # finite-difference step in units of each parameter's typical scale
 FIT_TOL = 1e-5  # relative tolerance of least squares on the cost and on the parameter step
+#: The Jacobian is reused while the parameters stay this close (typical deviations) to where it was
+#: computed: the last steps of a fit are short, the model is smooth on that scale.
+JAC_REUSE = 0.1
 #: A direction of the scaled Jacobian with a relative singular value below this is not resolved.
 RESOLVED_SV = 1e-6
 #: A parameter known no better than this many typical lab deviations (``Param.scale``) is not resolved.
@@ -256,6 +259,9 @@ def fit_effect(effect: Effect, base_robot: Robot, ev: Evaluator,
         return evaluate(z)[0]
 
     def jac(z):
+        near = state.get("jac")
+        if near is not None and np.max(np.abs(np.asarray(z) - near[0]), initial=0.0) < JAC_REUSE:
+            return near[1]
         r, pred = evaluate(z)
         guess = np.where(pred.converged[:, None], pred.initial_state, state["guess"])
         fallback = np.where(pred.converged[:, None, None], pred.tips_mm, state["fallback"])
@@ -268,34 +274,45 @@ def fit_effect(effect: Effect, base_robot: Robot, ev: Evaluator,
         J = np.empty((r.size, len(idx)))
         for j, pj in enumerate(preds):
             J[:, j] = (residual_vector(measured, pj, tubes, fallback) - r) / FD_STEP
+        state["jac"] = (np.array(z, dtype=float), J)
         return J
 
     bounds = (((lower - start) / scale)[idx], ((upper - start) / scale)[idx])
     res = least_squares(fun, np.zeros(len(idx)), jac=jac, bounds=bounds, method="trf",
                         x_scale=1.0, ftol=FIT_TOL, xtol=FIT_TOL, gtol=1e-10, max_nfev=max_nfev)
-    x = phys(res.x)
-    r, pred = evaluate(res.x)
-    rss = float(r @ r)
-    n = r.size
-    k = len(idx)
+    r, _ = evaluate(res.x)
+    fit = _result(effect, base_robot, params, phys(res.x), r, res, idx, scale)
+    fit.lower, fit.upper, fit.x0, fit.fixed = lower, upper, x0, fixed
+    fit.seconds = time.perf_counter() - t0
+    fit.pushed = _pushed(fit, res.jac, r, idx, scale)
+    return fit
+
+
+def _result(effect: Effect, base_robot: Robot, params: list[Param], x: np.ndarray, r: np.ndarray, res,
+            idx: np.ndarray, scale: np.ndarray) -> FitResult:
+    """The `FitResult` of a least-squares solution ``res`` (scaled free parameters ``idx``) at ``x``
+    (file units) with residual ``r``: covariance, resolved parameters, plausibility, derived values,
+    BIC. (Bounds, base values, held parameters and timing are the caller's.)"""
+    rss, n, k = float(r @ r), r.size, len(idx)
     cov_free, ident_free = _uncertainty(res.jac, rss, n, k)
     cov = np.zeros((len(params), len(params)))
     cov[np.ix_(idx, idx)] = cov_free * np.outer(scale[idx], scale[idx])
     ident = np.zeros(len(params), dtype=bool)
     ident[idx] = ident_free
+    free = np.zeros(len(params), dtype=bool)
+    free[idx] = True
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     std[~free] = np.nan
     verdicts = effect.plausibility(base_robot, x, cov)
-    fit = FitResult(derived=_derived(effect, base_robot, x, std, free), effect=effect, params=params,
-                    lower=lower, upper=upper, x0=x0, x=x, std=std, robot=effect.with_values(base_robot, x),
-                    rss=rss, n_residuals=n, bic=bic(rss, n, k), nfev=res.nfev, cov=cov,
-                    njev=res.njev or 0, success=bool(res.success), message=str(res.message),
-                    seconds=time.perf_counter() - t0, identifiable=ident, fixed=fixed,
-                    implausible={c: v.reason() for c, v in verdicts.items() if v.implausible},
-                    edge={c: v.reason() for c, v in verdicts.items() if not v.implausible},
-                    sources={c: v.check.plausible.source for c, v in verdicts.items()})
-    fit.pushed = _pushed(fit, res.jac, r, idx, scale)
-    return fit
+    none = np.full(len(params), np.nan)
+    return FitResult(derived=_derived(effect, base_robot, x, std, free), effect=effect, params=params,
+                     lower=none, upper=none, x0=none, x=x, std=std, robot=effect.with_values(base_robot, x),
+                     rss=rss, n_residuals=n, bic=bic(rss, n, k), nfev=res.nfev, cov=cov,
+                     njev=res.njev or 0, success=bool(res.success), message=str(res.message),
+                     identifiable=ident,
+                     implausible={c: v.reason() for c, v in verdicts.items() if v.implausible},
+                     edge={c: v.reason() for c, v in verdicts.items() if not v.implausible},
+                     sources={c: v.check.plausible.source for c, v in verdicts.items()})
 
 
 def _pushed(fit: FitResult, J: np.ndarray, r: np.ndarray, idx: np.ndarray, scale: np.ndarray,

@@ -4,13 +4,16 @@ named.
 
 * **significant** (on a split): beats the nominal model there -- training BIC lower by more than
   ``bic_margin``, held-out mean error lower by at least ``min_gain`` with a one-sided Wilcoxon
-  signed-rank test at ``alpha``, no parameter pushed to a hard bound away from its base value, and
-  every parameter plausible (`effects.Param.plausible`); a fit that needs an implausible value is
-  reported, never named;
+  signed-rank test at ``alpha`` (rows of one configuration count once: `configuration_groups`), no
+  parameter at a hard bound away from its base value or at any bound the data push past
+  (`FitResult.pushed`), every parameter resolved by the rows (`FitResult.unresolved`), and every check
+  plausible within its confidence interval (`effects.Effect.plausibility`); a fit that needs an
+  implausible value is reported, never named;
 * **grown**: from the best significant single (and up to ``grow_from`` - 1 next ones it does not
-  beat), and from the best single that beats the nominal model only with an implausible value, the
-  ``pairs`` partners a score test ranks first are added and fitted; the best one significant against
-  the set it grew from is kept, up to ``max_causes`` causes;
+  beat), and from the best single that beats the nominal model only with an implausible value: of
+  the ``pairs`` partners a score test ranks first, those whose linearised fit could lower the BIC
+  are fitted in that order; the first significant against the set it grew from is kept, up to
+  ``max_causes`` causes;
 * **contenders**: significant, against the nominal model and against the set they grew from, and not
   beaten on the main split by another contender; each is refitted on ``resamples`` other splits
   (warm-started from its main fit) and scored against the nominal model there;
@@ -18,9 +21,9 @@ named.
 * **beats**: one candidate beats another when its held-out errors, paired row by row over all splits,
   are lower by at least ``min_gain`` with a one-sided Wilcoxon test at ``alpha``, and its training BIC
   is not higher by more than ``bic_margin``;
-* **named**: among the stable candidates that no stable candidate beats, the one with the fewest
-  causes, then the lowest pooled held-out error -- never a subset a larger set beats, and a single
-  cause at the noise before a pair; among the sets of that size the data cannot tell apart (training
+* **named**: among the stable candidates that no stable candidate beats, one with the fewest
+  causes -- never a subset a larger set beats, and a single cause at the noise before a pair; among
+  the sets of that size the data cannot tell apart (training
   BIC, or the fit without the parameter penalty, within ``bic_margin`` of the lowest BIC's) the one
   with the fewest parameters, then the lowest pooled held-out error. **Ties**: the others of them.
 """
