@@ -326,8 +326,9 @@ class Diagnosis:
     def _summary_rows(self, j: dict) -> list[str]:
         used = "" if j["rows_used"] == j["rows"] else (
             f", {j['rows_used']} used in contiguous runs ({j['rows_dropped']} dropped by max_rows)")
-        lines = [f"{self.data.source}: {j['rows']} rows{used}, {j['distinct_configurations']} distinct "
-                 f"configurations ({j['train_rows']} train, {j['heldout']['how']}), tubes measured: "
+        m = j["distinct_configurations"]
+        lines = [f"{self.data.source}: {j['rows']} rows{used}, {m} distinct configuration{'s' * (m != 1)} "
+                 f"({j['train_rows']} train, {j['heldout']['how']}), tubes measured: "
                  f"{j['tubes_measured']}"]
         if j["outside_domain_rows"]:
             lines.append(f"  note: {rows_text(j['outside_domain_rows'])} lie outside the snap-free "

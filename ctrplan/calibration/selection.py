@@ -116,8 +116,8 @@ class Candidate:
         scores = [self.main, *self.resamples]
         if any(s.groups is None for s in scores):
             return None
-        return np.concatenate([s.groups + k * (1 + int(s.groups.max(initial=0))) * len(scores)
-                               for k, s in enumerate(scores)])
+        stride = 1 + max(int(s.groups.max(initial=0)) for s in scores)
+        return np.concatenate([s.groups + k * stride for k, s in enumerate(scores)])
 
     @property
     def delta_bic(self) -> float:
