@@ -93,6 +93,10 @@ def test_a_parameter_the_data_push_past_its_bound_is_flagged_one_that_touches_it
     assert list(pushed) == ["transmission1_mm"] and "-84" in pushed["transmission1_mm"]
     fit, J, r = _linear_fit(-34.02, -34.0)
     assert _pushed(fit, J, r, np.array([0]), scale) == {}
+    # held at its base value on the bound (a backlash of 0 the noise would make negative): absent, not pushed
+    fit, J, r = _linear_fit(-84.0, -34.0)
+    fit.x0 = np.array([-34.0])
+    assert _pushed(fit, J, r, np.array([0]), scale) == {}
 
 
 def test_a_derived_quantity_whose_interval_reaches_a_singularity_is_not_a_value():

@@ -321,7 +321,7 @@ def _pushed(fit: FitResult, J: np.ndarray, r: np.ndarray, idx: np.ndarray, scale
     Gauss-Newton step from the fit (scaled Jacobian ``J`` of the free parameters ``idx``, residual
     ``r``) leaves the bound by more than ``z`` standard deviations. (A parameter that merely touches
     a bound its true value sits at -- a joint offset at the edge of what keeps the rows physical --
-    is not pushed.)"""
+    is not pushed, nor one held at its base value on a bound: a backlash of 0 is no backlash.)"""
     bound = set(fit.at_bound())
     if not bound:
         return {}
@@ -329,8 +329,8 @@ def _pushed(fit: FitResult, J: np.ndarray, r: np.ndarray, idx: np.ndarray, scale
     out = {}
     for j, i in enumerate(idx):
         p, v = fit.params[i], fit.x[i]
-        if p.name not in bound:
-            continue
+        if p.name not in bound or abs(v - fit.x0[i]) < 1e-4 * p.scale:
+            continue    # (held at its base value on a bound -- no backlash at all -- the cause is absent)
         side = -1.0 if abs(v - fit.lower[i]) <= abs(v - fit.upper[i]) else 1.0
         sd = fit.std[i]
         if side * step[j] > z * sd or not np.isfinite(sd):
