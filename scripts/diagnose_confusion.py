@@ -70,9 +70,9 @@ PAIRS = {"rows": 400, "sigma_mm": 0.15, "rows_kind": "random", "cases": {
     "curvature+backlash": {"curvature": 1.0, "backlash": 1.0},
 }}
 SETS = {"sweep": SWEEP, "random": RANDOM, "offsets": OFFSETS, "pairs": PAIRS}
-NAMED = ("none", "unexplained", "curvature", "stiffness_ratio", "bending_stiffness", "joint_offset",
-         "gravity", "tip_force", "registration", "sensor_offset", "backlash", "torsional_windup",
-         "transmission")
+NAMED = ("none", "undetermined", "unexplained", "curvature", "stiffness_ratio", "bending_stiffness",
+         "joint_offset", "gravity", "tip_force", "registration", "sensor_offset", "backlash",
+         "torsional_windup", "transmission")
 
 
 def hidden_causes(effects: dict) -> set[str]:

@@ -272,3 +272,46 @@ def test_cli_bad_options_one_line_exit_2(tmp_path, capsys):
     assert not out.exists()
     rc = main(["diagnose", str(bad), "--candidates", "curvature,friction"])
     assert rc == 2 and "--candidates: unknown cause 'friction'" in capsys.readouterr().err
+
+
+def test_among_fits_the_data_cannot_tell_apart_the_fewest_parameters_wins():
+    """The issue's torsion case: stiffness_ratio (1 parameter) and transmission (3 lengths) fit alike --
+    neither beats the other on the held-out rows, training BICs within the margin. The one parameter
+    is named, the three lengths are its tie (before: the lower held-out error, transmission, was named)."""
+    nu = _candidate("stiffness_ratio", -9000, [0.161, 0.161, 0.162])
+    lengths = _candidate("transmission", -9005, [0.159, 0.160, 0.160])
+    sel = _choose(lengths, nu)
+    assert sel.chosen is nu and sel.ties == [lengths]
+    # a fit the BIC tells apart (much worse in training) is neither named nor a tie
+    worse = _candidate("curvature", -8000, [0.158, 0.159, 0.159])
+    sel = _choose(nu, worse)
+    assert sel.chosen is nu and sel.ties == []
+
+
+def test_an_unresolved_or_past_bound_fit_is_never_significant():
+    err, ref = np.full((20, 3), 0.1), np.full((20, 3), 5.0) + np.linspace(0, 1, 20)[:, None]
+    for change in ({"identifiable": np.array([True, False, True])},
+                   {"pushed": {"gravity_y_m_s2": "held at its bound; the data ask for more"}}):
+        fit = _fit("gravity", -1e4)
+        for k, v in change.items():
+            setattr(fit, k, v)
+        score = judge(fit, err, ref, 0.0, DiagnoseOptions())
+        assert score.beats and not score.significant, change
+
+
+def test_progress_is_a_plain_line_every_few_seconds_when_stderr_is_not_a_terminal(tmp_path, capsys,
+                                                                                   monkeypatch):
+    import ctrplan.cli.diagnose as cli
+
+    monkeypatch.setattr(cli, "PROGRESS_EVERY_S", 0.01)
+    lab = make(60, {"registration": 1.0}, seed=1000 * SEED + 12)
+    path = tmp_path / "lab.csv"
+    lab.write_csv(path)
+    rc = main(["diagnose", str(path), "--json", "--candidates", "registration,curvature", "--pairs", "0"])
+    assert rc == 0
+    captured = capsys.readouterr()
+    json.loads(captured.out)                      # stdout: the JSON document alone
+    lines = [line for line in captured.err.splitlines() if line.startswith("diagnose: ")]
+    assert lines and all(" s, " in line for line in lines), captured.err
+    assert any("fitting curvature" in line for line in lines), captured.err
+    assert "\x1b[" not in captured.err            # no terminal control sequences

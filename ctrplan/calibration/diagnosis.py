@@ -10,18 +10,23 @@ Procedure (`diagnose`):
    tube tips, finite-difference Jacobians, warm-started batched Cosserat solves); parameters the data
    cannot show (`Effect.unseen`, e.g. the offset of a joint that never moves) are not fitted, and
    joint offsets stay within what keeps every row of the file physical;
-4. choose (`selection`): significant, plausible, stable across ``resamples`` other splits, and the
-   simplest of the best -- with the ties the data cannot tell apart;
+4. choose (`selection`): significant (repeated configurations counted once), plausible within its
+   confidence interval, resolved by the rows, not pushed past a bound, stable across ``resamples``
+   other splits, and the simplest of the best -- with the ties the data cannot tell apart, and
+   (`experiment`) the configurations that would separate them;
 5. outliers (rows far off the extended model) are reported; if some are training rows, the choice is
-   repeated without them (and the report says so);
+   repeated without them, warm-started from the first (and the report says so);
 6. verdict: ``explained`` when the extended model's held-out error is within ``noise_tolerance`` x
-   the noise; with no cause named, ``none`` if the nominal model is, else ``unexplained``.
+   the noise; with no cause named, ``none`` if the nominal model is, ``undetermined`` if the rows
+   cannot identify a cause (`Selection.undetermined` says why; no extended robot is written), else
+   ``unexplained``.
 """
 
 from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -30,9 +35,10 @@ from scipy import stats
 
 from ctrplan.calibration.data import MeasuredData, rows_text
 from ctrplan.calibration.effects import CAUSES, make_effect
+from ctrplan.calibration.experiment import Experiment, separating_rows
 from ctrplan.calibration.fit import Evaluator, Prediction
 from ctrplan.calibration.noise import estimate_noise
-from ctrplan.calibration.selection import Candidate, Selection, Selector
+from ctrplan.calibration.selection import Candidate, Selection, Selector, configuration_groups
 from ctrplan.calibration.split import Split, contiguous_subsample, split_rows
 from ctrplan.dataio import plain
 from ctrplan.errors import InputError
@@ -61,6 +67,7 @@ class DiagnoseOptions:
     resamples: int = 2             # other splits every significant candidate is refitted on (stability)
     resample_nfev: int = 10        # their fits start from the main fit: a few steps suffice
     stable_fraction: float = 2 / 3  # stable: significant on at least this share of the splits
+    experiment_rows: int = 20      # configurations that separate tied explanations (experiment.csv)
 
     def split(self, n: int) -> Split:
         """The main split of ``n`` rows."""
@@ -87,6 +94,7 @@ class Diagnosis:
     seconds: float = 0.0
     solves: int = 0
     noise: dict = field(default_factory=dict)          # `noise.estimate_noise`
+    experiment: Experiment | None = None               # configurations that separate the ties
 
     # ---- the choice -------------------------------------------------------------------------------
     @property
@@ -112,10 +120,13 @@ class Diagnosis:
     @property
     def cause(self) -> str:
         """The primary named cause; ``none`` only when the nominal model matches to the noise,
-        ``unexplained`` when it does not and no candidate of the library beats it."""
+        ``undetermined`` when it does not and the rows cannot identify a cause
+        (`Selection.undetermined` says why), ``unexplained`` when no candidate of the library beats it."""
         if self.chosen is not None:
             return self.chosen.causes[0]
-        return "none" if self.within_noise("nominal") else "unexplained"
+        if self.within_noise("nominal"):
+            return "none"
+        return "undetermined" if self.selection.undetermined else "unexplained"
 
     @property
     def extended_robot(self) -> Robot:
@@ -263,9 +274,16 @@ class Diagnosis:
             "noise_mm": self.noise_mm,
             "noise": self.noise,
             "stability": self.stability(),
+            "undetermined": sel.undetermined if self.cause == "undetermined" else None,
+            "distinct_configurations": int(np.unique(configuration_groups(d.q, self.direction)).size),
             "ties": [c.name for c in sel.ties],
+            "experiment": None if self.experiment is None else self.experiment.to_json(),
             "unstable": [c.name for c in sel.unstable],
             "implausible": {c.name: c.fit.implausible for c in sel.implausible},
+            "at_edge": {c.name: c.fit.edge for c in sel.candidates if c.fit.edge},
+            "pushed_past_bound": {c.name: c.fit.pushed for c in sel.candidates if c.fit.pushed},
+            "unresolved": {c.name: c.fit.unresolved() for c in sel.candidates if c.fit.unresolved()},
+            "sources": self.sources(),
             "not_fitted": sel.not_fitted,
             "remaining": self.remaining(),
             "parameters": {} if chosen is None else chosen.fit.parameters(),
@@ -279,7 +297,9 @@ class Diagnosis:
                              f"Wilcoxon p < {opt.alpha:g}), plausible parameters inside their bounds; "
                              f"stable: significant on >= {opt.stable_fraction:.0%} of the splits; named: the "
                              f"fewest causes among the stable candidates no other beats on the pooled "
-                             f"held-out rows, then the lowest held-out error",
+                             f"held-out rows; of those the data cannot tell apart (training BIC, or the "
+                             f"fit without its parameter penalty, within {opt.bic_margin:g}) the fewest "
+                             f"parameters, then the lowest held-out error; the others are ties",
                 "nominal_bic": sel.nominal_bic,
                 "noise_tolerance": opt.noise_tolerance,
                 "seed": opt.seed,
@@ -293,14 +313,23 @@ class Diagnosis:
             "solves": self.solves,
         }
 
+    def sources(self) -> dict[str, str]:
+        """The source of every plausible range a report line refers to, by check name (once each)."""
+        return {k: v for c in self.candidates for k, v in sorted(c.fit.sources.items())}
+
     def summary(self) -> str:
         """A human-readable report (the CLI prints it without --json)."""
         j = self.to_json()
-        nom, ext = j["nominal"], j["extended"]
+        return "\n".join(self._summary_rows(j) + self._summary_candidates(j) + self._summary_verdict(j)
+                         + _summary_tail(j))
+
+    def _summary_rows(self, j: dict) -> list[str]:
         used = "" if j["rows_used"] == j["rows"] else (
             f", {j['rows_used']} used in contiguous runs ({j['rows_dropped']} dropped by max_rows)")
-        lines = [f"{self.data.source}: {j['rows']} rows{used} ({j['train_rows']} train, "
-                 f"{j['heldout']['how']}), tubes measured: {j['tubes_measured']}"]
+        m = j["distinct_configurations"]
+        lines = [f"{self.data.source}: {j['rows']} rows{used}, {m} distinct configuration{'s' * (m != 1)} "
+                 f"({j['train_rows']} train, {j['heldout']['how']}), tubes measured: "
+                 f"{j['tubes_measured']}"]
         if j["outside_domain_rows"]:
             lines.append(f"  note: {rows_text(j['outside_domain_rows'])} lie outside the snap-free "
                          f"planning domain (accepted)")
@@ -308,76 +337,105 @@ class Diagnosis:
             lines.append(f"  note: the nominal model does not solve {rows_text(j['unsolved_rows'])} "
                          f"(excluded)")
         lines.append("nominal model, held-out error per tube:")
-        for t in nom["per_tube"]:
+        for t in j["nominal"]["per_tube"]:
             lines.append(f"  tube {t['tube']}: mean {t['mean_mm']:.3f} mm, median {t['median_mm']:.3f}, "
                          f"p95 {t['p95_mm']:.3f}, {t['mean_pct_length']:.2f} % of arc length")
-        for s in self.where.get("findings", []):
-            lines.append(f"  where: {s}")
+        lines += [f"  where: {s}" for s in self.where.get("findings", [])]
+        return lines
+
+    def _summary_candidates(self, j: dict) -> list[str]:
         splits = self.selection.splits
-        lines.append(f"candidates (training BIC, held-out mean tip error, splits of {splits} where "
-                     f"significant; * significant on the main split):")
+        lines = [f"candidates (training BIC, held-out mean tip error, splits of {splits} where "
+                 f"significant; * significant on the main split):"]
         for c in sorted(self.candidates, key=lambda c: c.fit.bic):
             ref = "" if c.reference == "nominal" else f" vs {c.reference}"
             bad = " IMPLAUSIBLE" if c.fit.implausible else ""
+            bad += " UNRESOLVED" if c.fit.unresolved() else ""
+            bad += " PAST-BOUND" if c.fit.pushed else ""
             lines.append(f"  {'*' if c.significant else ' '} {c.name:<34s} dBIC {c.delta_bic:10.1f}  "
                          f"held-out {c.heldout_mean(0):.3f} mm  gain {100 * c.main.gain:5.1f} %{ref}  "
                          f"{c.significant_splits()}/{splits}{bad}")
-        for name, why in j["not_fitted"].items():
-            lines.append(f"  not fitted: {name} ({'; '.join(why)})")
+        lines += [f"  not fitted: {name} ({'; '.join(why)})" for name, why in j["not_fitted"].items()]
         fixed = {k: v for c in self.candidates if len(c.causes) == 1 for k, v in c.fit.fixed.items()}
         if fixed:
             lines.append("  held at their file values (the data cannot show them):")
             lines += [f"    {k}: {v}" for k, v in fixed.items()]
-        for name, why in j["implausible"].items():
-            lines.append(f"  implausible, not named: {name}: "
-                         + "; ".join(f"{k} {v}" for k, v in why.items()))
+        for title, key in (("implausible, not named", "implausible"), ("at its bound, not named",
+                                                                        "pushed_past_bound")):
+            lines += [f"  {title}: {name}: " + "; ".join(f"{k} {v}" for k, v in why.items())
+                      for name, why in j[key].items()]
+        lines += [f"  not resolved by the rows, not named: {name}: {', '.join(ps)}"
+                  for name, ps in j["unresolved"].items()]
         noise_mm = j["noise_mm"]
         noise_txt = "not estimated" if noise_mm is None else f"{noise_mm:.3f} mm mean tip error"
         lines.append(f"measurement noise: {noise_txt} ({j['noise']['method']})")
-        if self.chosen is None and j["cause"] == "none":
-            lines.append("cause: none -- the nominal model matches the held-out rows to the measurement "
-                         "noise")
-        elif self.chosen is None:
-            lines.append(f"cause: unexplained -- the nominal model is off by {nom['mean_mm']:.3f} mm "
-                         f"(noise {noise_txt}) and no plausible cause of the library beats it on the splits")
-        else:
-            lines.append(f"cause: {' + '.join(self.causes)}")
-            if j["ties"]:
-                lines.append(f"  tie: {', '.join(j['ties'])} fit as well (held-out and BIC within their "
-                             "uncertainty); the data do not tell them apart: treat the naming as tentative")
-            if j["unstable"]:
-                lines.append("  not named (significant on too few splits): " + ", ".join(j["unstable"]))
-            for name, p in j["parameters"].items():
-                if p.get("fitted") is False:
-                    lines.append(f"  {name} not fitted: {p['reason']}")
-                    continue
-                std = "n/a (at its bound)" if p.get("at_bound") else (
-                    "n/a" if p["std"] is None else f"{p['std']:.3g}")
-                extra = ""
-                if p["unit"] == "rad":
-                    extra = f"  ({np.degrees(p['value']):.3f} deg +- " + (
-                        "n/a" if p["std"] is None else f"{np.degrees(p['std']):.3f}") + ")"
-                lines.append(f"  {name} = {p['value']:.6g} +- {std} {p['unit']} (was {p['nominal']:.6g})"
-                             f"{extra}")
-            if j["derived"]:
-                lines.append("  i.e. " + ", ".join(f"{k} = {v:.4g}" for k, v in j["derived"].items()))
-            lines.append(f"held-out tip error: {nom['mean_mm']:.3f} -> {ext['mean_mm']:.3f} mm mean, "
-                         f"{nom['p95_mm']:.3f} -> {ext['p95_mm']:.3f} mm p95 "
-                         f"(gain {j['gain_pct']:.1f} %)")
-        if not j["explained"]:
-            left = "?" if j["unexplained_mm"] is None else f"{j['unexplained_mm']:.3f}"
-            lines.append(f"NOT EXPLAINED: the library does not explain the data -- {left} mm RMS of "
-                         f"held-out tip error is beyond the noise")
-            for f in j["remaining"]["findings"]:
-                lines.append(f"  where: {f}")
-        if j["outliers"]:
-            o = j["outliers"]
-            fate = "excluded from the fit" if j["outliers_excluded_from_fit"] else "kept in the fit"
-            lines.append(f"outliers (reported, {fate}): "
-                         + ", ".join(f"row {x['row']} ({x['error_mm']:.2f} mm)" for x in o[:10])
-                         + (f" and {len(o) - 10} more" if len(o) > 10 else ""))
-        lines.append(f"time: {j['seconds']:.1f} s ({j['solves']} Cosserat solves)")
-        return "\n".join(lines)
+        return lines
+
+    def _summary_verdict(self, j: dict) -> list[str]:
+        nom, ext = j["nominal"], j["extended"]
+        if self.chosen is None:
+            off = f"the nominal model is off by {nom['mean_mm']:.3f} mm"
+            return [{"none": "cause: none -- the nominal model matches the held-out rows to the measurement "
+                             "noise",
+                     "undetermined": f"cause: undetermined -- {off}, but the rows cannot identify a cause: "
+                                     f"{j['undetermined']}; nothing named, no extended robot",
+                     "unexplained": f"cause: unexplained -- {off} (noise {_noise_text(j)}) and no plausible "
+                                    f"cause of the library beats it on the splits"}[j["cause"]]]
+        lines = [f"cause: {' + '.join(self.causes)}"]
+        if j["ties"]:
+            lines.append(f"  tie: {', '.join(j['ties'])} fit as well (held-out and BIC within their "
+                         "uncertainty); the data do not tell them apart: the fewest parameters is named, "
+                         "tentatively" + ("; experiment.csv lists configurations that separate them"
+                                          if self.experiment is not None else ""))
+        if j["unstable"]:
+            lines.append("  not named (significant on too few splits): " + ", ".join(j["unstable"]))
+        lines += [_parameter_line(name, p) for name, p in j["parameters"].items()]
+        if j["derived"]:
+            lines.append("  i.e. " + ", ".join(f"{k} = " + ("not determined" if v is None else f"{v:.4g}")
+                                               for k, v in j["derived"].items()))
+        lines.append(f"held-out tip error: {nom['mean_mm']:.3f} -> {ext['mean_mm']:.3f} mm mean, "
+                     f"{nom['p95_mm']:.3f} -> {ext['p95_mm']:.3f} mm p95 (gain {j['gain_pct']:.1f} %)")
+        return lines
+
+
+def _noise_text(j: dict) -> str:
+    return "not estimated" if j["noise_mm"] is None else f"{j['noise_mm']:.3f} mm mean tip error"
+
+
+def _parameter_line(name: str, p: dict) -> str:
+    """One fitted parameter of the report: value +- std (unit), its base value, and what is special."""
+    if p.get("fitted") is False:
+        return f"  {name} not fitted: {p['reason']}"
+    std = "n/a (at its bound)" if p.get("at_bound") else ("n/a" if p["std"] is None else f"{p['std']:.3g}")
+    extra = ""
+    if p["unit"] == "rad":
+        extra = f"  ({np.degrees(p['value']):.3f} deg +- " + (
+            "n/a" if p["std"] is None else f"{np.degrees(p['std']):.3f}") + ")"
+    if p.get("at_edge"):
+        extra += f"  at the edge of its plausible range: {p['at_edge']}"
+    return f"  {name} = {p['value']:.6g} +- {std} {p['unit']} (was {p['nominal']:.6g}){extra}"
+
+
+def _summary_tail(j: dict) -> list[str]:
+    """Not explained, outliers, the sources of the plausible ranges cited above (once each), time."""
+    lines = []
+    if not j["explained"] and j["cause"] not in ("undetermined",):
+        left = "?" if j["unexplained_mm"] is None else f"{j['unexplained_mm']:.3f}"
+        lines.append(f"NOT EXPLAINED: the library does not explain the data -- {left} mm RMS of "
+                     f"held-out tip error is beyond the noise")
+        lines += [f"  where: {f}" for f in j["remaining"]["findings"]]
+    if j["outliers"]:
+        o = j["outliers"]
+        fate = "excluded from the fit" if j["outliers_excluded_from_fit"] else "kept in the fit"
+        lines.append(f"outliers (reported, {fate}): "
+                     + ", ".join(f"row {x['row']} ({x['error_mm']:.2f} mm)" for x in o[:10])
+                     + (f" and {len(o) - 10} more" if len(o) > 10 else ""))
+    cited = {k for why in list(j["implausible"].values()) + list(j["at_edge"].values()) for k in why}
+    texts = sorted({j["sources"][k] for k in cited if k in j["sources"]})
+    if texts:
+        lines.append("plausible ranges from: " + "; ".join(f"[{i + 1}] {t}" for i, t in enumerate(texts)))
+    lines.append(f"time: {j['seconds']:.1f} s ({j['solves']} Cosserat solves)")
+    return lines
 
 
 def error_stats(err: np.ndarray, length: np.ndarray) -> dict:
@@ -392,12 +450,13 @@ def error_stats(err: np.ndarray, length: np.ndarray) -> dict:
 
 
 def diagnose(data: MeasuredData, robot: Robot | None = None, options: DiagnoseOptions | None = None, *,
-             direction: np.ndarray | None = None) -> Diagnosis:
+             direction: np.ndarray | None = None, progress: Callable[[str], None] | None = None) -> Diagnosis:
     """Diagnose measured tips against ``robot`` (nominal if None; its calibration is part of the base
     model); see the module docstring.
 
     ``direction`` (R, 2N): direction of motion of every row, when ``data`` is a subset of a longer
-    acquisition (default: from the rows of ``data``, `motion_direction`)."""
+    acquisition (default: from the rows of ``data``, `motion_direction`). ``progress`` is called with
+    a line saying what runs now (each fit, the experiment)."""
     t0 = time.perf_counter()
     robot = robot or Robot.nominal()
     opt = options or DiagnoseOptions()
@@ -418,7 +477,7 @@ def diagnose(data: MeasuredData, robot: Robot | None = None, options: DiagnoseOp
     solved = np.setdiff1d(np.arange(len(data)), unsolved)
     noise = estimate_noise(data.q[solved], direction[solved], (data.tips_mm - nominal.tips_mm)[solved],
                            data.tubes)
-    selector = Selector(data, robot, opt, direction, nominal, q_file, direction_file)
+    selector = Selector(data, robot, opt, direction, nominal, q_file, direction_file, progress)
 
     def without(split: Split, drop: np.ndarray) -> Split:
         return replace(split, train=np.setdiff1d(split.train, np.union1d(unsolved, drop)),
@@ -440,6 +499,11 @@ def diagnose(data: MeasuredData, robot: Robot | None = None, options: DiagnoseOp
     from ctrplan.calibration.where import where_analysis
 
     diag.where = where_analysis(diag)
+    if sel.chosen is not None and sel.ties and opt.experiment_rows > 0:
+        selector.progress(f"experiment: {opt.experiment_rows} configurations that separate the ties")
+        diag.experiment = separating_rows(robot, (sel.chosen.name, sel.chosen.fit.robot),
+                                          [(t.name, t.fit.robot) for t in sel.ties], data.tubes,
+                                          opt.experiment_rows, seed=opt.seed)
     diag.seconds = time.perf_counter() - t0
     diag.solves = ev_all.solves + selector.solves
     return diag
@@ -475,9 +539,13 @@ def write_outputs(diag: Diagnosis, out_dir: str | Path, plots: bool = True) -> l
                f"base robot: {diag.robot.name}; cause: {cause}\n"
                f"held-out tip error {j['nominal']['mean_mm']:.3f} -> {j['extended']['mean_mm']:.3f} mm "
                f"({j['gain_pct']:.1f} % lower), {j['heldout_rows']} held-out rows")
-    robot_path = out / "extended_robot.yaml"
-    diag.extended_robot.save(robot_path, comment)
-    paths = [robot_path]
+    paths = []
+    if diag.cause != "undetermined":      # nothing identified: no extended robot
+        paths.append(out / "extended_robot.yaml")
+        diag.extended_robot.save(paths[-1], comment)
+    if diag.experiment is not None:
+        paths.append(out / "experiment.csv")
+        diag.experiment.write_csv(paths[-1], diag.robot.joint_names)
     with atomic_write(out / "report.json") as fh:
         json.dump(j, fh, indent=2, allow_nan=False)
         fh.write("\n")

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -92,6 +92,74 @@ class Param:
     plausible: Plausible | None = None
 
 
+#: Half-width of a confidence interval in standard deviations (about 95 %).
+CONFIDENCE_Z = 2.0
+
+
+@dataclass(frozen=True)
+class Check:
+    """A quantity of the parameters ``x`` (file units) and the range a real robot can have for it."""
+
+    name: str
+    unit: str
+    value: Callable[[np.ndarray], float]
+    plausible: Plausible
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """A check outside its plausible range: its value and standard deviation, and whether the whole
+    confidence interval misses the range (``implausible``) or overlaps it (at the edge)."""
+
+    check: Check
+    value: float
+    std: float
+    implausible: bool
+
+    def reason(self) -> str:
+        p = self.check.plausible
+        std = "" if not self.std else f" +- {self.std:.2g}"
+        where = "is outside" if self.implausible else "is at the edge of (its interval overlaps)"
+        return f"{self.value:.4g}{std} {self.check.unit} {where} [{p.low:.4g}, {p.high:.4g}]"
+
+
+def _component(i: int) -> Callable[[np.ndarray], float]:
+    return lambda x: float(x[i])
+
+
+def _norm(x: np.ndarray) -> float:
+    return float(np.linalg.norm(x))
+
+
+def _shifted(f: Callable[[np.ndarray], float], start: int, k: int) -> Callable[[np.ndarray], float]:
+    """``f`` of the ``k`` parameters from ``start`` on (an effect inside `Combined`)."""
+    return lambda x: f(x[start:start + k])
+
+
+def _propagated_std(f: Callable[[np.ndarray], float], x: np.ndarray, cov: np.ndarray | None) -> float:
+    """Standard deviation of ``f(x)`` for a covariance ``cov`` of ``x`` (linearised; 0 without cov,
+    inf when a parameter it depends on is not resolved)."""
+    if cov is None:
+        return 0.0
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    grad = np.zeros(len(x))
+    for i in range(len(x)):
+        if not np.isfinite(sd[i]):
+            h = 1e-6 * max(abs(x[i]), 1.0)
+        elif sd[i] == 0:
+            continue
+        else:
+            h = 1e-3 * sd[i]
+        xp = x.copy()
+        xp[i] += h
+        grad[i] = (f(xp) - f(x)) / h
+    used = grad != 0
+    if (~np.isfinite(sd[used])).any():
+        return float("inf")
+    c = np.where(np.isfinite(cov), cov, 0.0)
+    return float(np.sqrt(max(grad @ c @ grad, 0.0)))
+
+
 class Effect(ABC):
     """A candidate cause. Subclasses set ``name``, ``side``, ``key`` and ``description`` and define
     `params`, `values` and `with_values`; `unseen`, `limits`, `implausible`, `derived` and
@@ -129,15 +197,34 @@ class Effect(ABC):
         """Hard bounds that depend on the rows (e.g. keeping every row physical): name -> (lo, hi)."""
         return {}
 
-    def implausible(self, robot: Robot, x: np.ndarray) -> dict[str, str]:
-        """Parameters outside what a real robot can have -> the value and the range with its source.
-        ``robot`` is the base model (the ranges refer to its file values)."""
+    def checks(self, robot: Robot) -> list[Check]:
+        """The quantities with a plausible range: every parameter that has one, and (subclasses)
+        quantities of several parameters, e.g. the magnitude of a vector. ``robot`` is the base model
+        (the ranges refer to its file values)."""
+        return [Check(p.name, p.unit, _component(i), p.plausible)
+                for i, p in enumerate(self.params(robot)) if p.plausible is not None]
+
+    def plausibility(self, robot: Robot, x: np.ndarray, cov: np.ndarray | None = None,
+                     z: float = CONFIDENCE_Z) -> dict[str, Verdict]:
+        """Every check outside its plausible range at ``x`` (file units): `Verdict.implausible` when
+        its confidence interval (``z`` standard deviations from the covariance ``cov`` of ``x``,
+        propagated linearly) misses the range, else at the edge (the range lies within the
+        interval). Without ``cov`` the interval is the value itself."""
+        x = np.asarray(x, dtype=float)
         out = {}
-        for p, v in zip(self.params(robot), x, strict=True):
-            if p.plausible is not None and float(v) not in p.plausible:
-                out[p.name] = (f"{float(v):.4g} {p.unit} is outside [{p.plausible.low:.4g}, "
-                               f"{p.plausible.high:.4g}] ({p.plausible.source})")
+        for c in self.checks(robot):
+            v = float(c.value(x))
+            if v in c.plausible:
+                continue
+            std = _propagated_std(c.value, x, cov)
+            out[c.name] = Verdict(c, v, std, implausible=not (v - z * std <= c.plausible.high + 1e-12
+                                                              and v + z * std >= c.plausible.low - 1e-12))
         return out
+
+    def implausible(self, robot: Robot, x: np.ndarray, cov: np.ndarray | None = None) -> dict[str, str]:
+        """Checks whose confidence interval misses the plausible range -> why (value, interval and
+        range; the source is `Check.plausible.source`)."""
+        return {k: v.reason() for k, v in self.plausibility(robot, x, cov).items() if v.implausible}
 
     def derived(self, robot: Robot, x: np.ndarray) -> dict[str, float]:
         """Readable quantities derived from the parameters ``x`` of the base ``robot``."""
@@ -360,12 +447,9 @@ class Gravity(Effect):
         """The largest |g| a fit may need (m/s^2): 9.81 x E_file / E_true, E_true >= NiTi martensite."""
         return STANDARD_GRAVITY * robot.tubes[0].youngs_modulus_mpa * 1e-3 / NITI_E_GPA[0]
 
-    def implausible(self, robot, x):
-        out = super().implausible(robot, x)
-        g, high = float(np.linalg.norm(x)), self.max_magnitude(robot)
-        if g > high:
-            out["gravity_magnitude_m_s2"] = f"{g:.4g} m/s^2 is above {high:.4g} ({self.SOURCE})"
-        return out
+    def checks(self, robot):
+        return super().checks(robot) + [Check("gravity_magnitude_m_s2", "m/s^2", _norm,
+                                              Plausible(0.0, self.max_magnitude(robot), self.SOURCE))]
 
     def draw(self, robot, rng):
         # the robot lies horizontal (insertion axis level within 5 deg), rho*g/E within +-20 %
@@ -401,13 +485,9 @@ class TipForce(Effect):
     def with_values(self, robot, x):
         return robot.with_changes(loads=replace(robot.loads, tip_force_n=tuple(float(v) for v in x)))
 
-    def implausible(self, robot, x):
-        out = super().implausible(robot, x)
-        f = float(np.linalg.norm(x))
-        if f > self.MAX_N:
-            out["tip_force_magnitude_n"] = f"{1e3 * f:.3g} mN is above {1e3 * self.MAX_N:g} mN " \
-                                           f"({self.SOURCE})"
-        return out
+    def checks(self, robot):
+        return super().checks(robot) + [Check("tip_force_magnitude_n", "N", _norm,
+                                              Plausible(0.0, self.MAX_N, self.SOURCE))]
 
     def derived(self, robot, x):
         return {"tip_force_magnitude_mn": 1e3 * float(np.linalg.norm(x))}
@@ -550,13 +630,10 @@ class SensorOffset(MeasurementEffect):
         return [Param(f"sensor_offset_{a}_mm", "mm", 1.0, -20.0, 20.0, Plausible(-r, r, self.SOURCE))
                 for a, r in zip("xyz", (side, side, along), strict=True)]
 
-    def implausible(self, robot, x):
-        out = super().implausible(robot, x)
-        side, side_max = float(np.hypot(x[0], x[1])), self.side_max(robot)
-        if side > side_max:
-            out["sensor_offset_side_mm"] = f"{side:.3g} mm to the side is above {side_max:.3g} " \
-                                           f"({self.SOURCE})"
-        return out
+    def checks(self, robot):
+        side = Check("sensor_offset_side_mm", "mm", lambda x: float(np.hypot(x[0], x[1])),
+                     Plausible(0.0, self.side_max(robot), self.SOURCE))
+        return super().checks(robot) + [side]
 
     def draw(self, robot, rng):
         side = rng.normal(size=2)
@@ -658,8 +735,13 @@ class Combined(Effect):
     def limits(self, q, robot):
         return {k: v for e in self.effects for k, v in e.limits(q, robot).items()}
 
-    def implausible(self, robot, x):
-        return {k: v for e, xe in self._parts(robot, x) for k, v in e.implausible(robot, xe).items()}
+    def checks(self, robot):
+        out, i = [], 0
+        for e in self.effects:
+            k = len(e.params(robot))
+            out += [replace(c, value=_shifted(c.value, i, k)) for c in e.checks(robot)]
+            i += k
+        return out
 
     def derived(self, robot, x):
         return {k: v for e, xe in self._parts(robot, x) for k, v in e.derived(robot, xe).items()}

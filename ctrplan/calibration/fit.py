@@ -20,12 +20,19 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from ctrplan.calibration.effects import Effect, Param
+from ctrplan.calibration.effects import CONFIDENCE_Z, Effect, Param
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.robot import Robot
 
 FD_STEP = 1e-3  # finite-difference step in units of each parameter's typical scale
-FIT_TOL = 1e-6  # relative tolerance of least squares on the cost and on the parameter step
+FIT_TOL = 1e-5  # relative tolerance of least squares on the cost and on the parameter step
+#: The Jacobian is reused while the parameters stay this close (typical deviations) to where it was
+#: computed: the last steps of a fit are short, the model is smooth on that scale.
+JAC_REUSE = 0.1
+#: A direction of the scaled Jacobian with a relative singular value below this is not resolved.
+RESOLVED_SV = 1e-6
+#: A parameter known no better than this many typical lab deviations (``Param.scale``) is not resolved.
+RESOLVED_SCALES = 10.0
 
 
 @dataclass
@@ -118,7 +125,15 @@ class FitResult:
     fixed: dict[str, str] = field(default_factory=dict)
     #: parameters (or quantities derived from them) outside what a real robot can have -> why
     implausible: dict[str, str] = field(default_factory=dict)
-    derived: dict[str, float] = field(default_factory=dict)
+    #: outside the plausible range, but the confidence interval overlaps it -> value and interval
+    edge: dict[str, str] = field(default_factory=dict)
+    #: the plausible ranges' sources of the checks in ``implausible`` and ``edge``
+    sources: dict[str, str] = field(default_factory=dict)
+    #: readable quantities derived from ``x``; None where the interval of ``x`` reaches a singularity
+    derived: dict[str, float | None] = field(default_factory=dict)
+    #: free parameters at a bound of the fit that the data push past it -> why
+    pushed: dict[str, str] = field(default_factory=dict)
+    cov: np.ndarray | None = None   # covariance of ``x`` (file units; inf where not resolved)
 
     @property
     def name(self) -> str:
@@ -133,6 +148,11 @@ class FitResult:
         """Free parameters the data pushed to a bound of the fit (their std is not meaningful)."""
         return [p.name for p, v, lo, hi in zip(self.params, self.x, self.lower, self.upper, strict=True)
                 if p.name not in self.fixed and min(abs(v - lo), abs(v - hi)) < 1e-4 * p.scale]
+
+    def unresolved(self) -> list[str]:
+        """Free parameters the rows do not resolve (rank-deficient or ill-conditioned Jacobian)."""
+        return [p.name for p, ok in zip(self.params, self.identifiable, strict=True)
+                if p.name not in self.fixed and not ok]
 
     @property
     def rms_mm(self) -> float:
@@ -153,6 +173,12 @@ class FitResult:
                 out[p.name].update(fitted=False, reason=self.fixed[p.name], std=None)
             elif p.name in bound:
                 out[p.name].update(at_bound=True, std=None)  # pushed to its limit: std not meaningful
+                if p.name in self.pushed:
+                    out[p.name]["pushed"] = self.pushed[p.name]
+            if p.name not in self.fixed and not ok:
+                out[p.name]["resolved"] = False
+            if p.name in self.edge:
+                out[p.name]["at_edge"] = self.edge[p.name]
         return out
 
 
@@ -233,6 +259,9 @@ def fit_effect(effect: Effect, base_robot: Robot, ev: Evaluator,
         return evaluate(z)[0]
 
     def jac(z):
+        near = state.get("jac")
+        if near is not None and np.max(np.abs(np.asarray(z) - near[0]), initial=0.0) < JAC_REUSE:
+            return near[1]
         r, pred = evaluate(z)
         guess = np.where(pred.converged[:, None], pred.initial_state, state["guess"])
         fallback = np.where(pred.converged[:, None, None], pred.tips_mm, state["fallback"])
@@ -245,40 +274,105 @@ def fit_effect(effect: Effect, base_robot: Robot, ev: Evaluator,
         J = np.empty((r.size, len(idx)))
         for j, pj in enumerate(preds):
             J[:, j] = (residual_vector(measured, pj, tubes, fallback) - r) / FD_STEP
+        state["jac"] = (np.array(z, dtype=float), J)
         return J
 
     bounds = (((lower - start) / scale)[idx], ((upper - start) / scale)[idx])
     res = least_squares(fun, np.zeros(len(idx)), jac=jac, bounds=bounds, method="trf",
                         x_scale=1.0, ftol=FIT_TOL, xtol=FIT_TOL, gtol=1e-10, max_nfev=max_nfev)
-    x = phys(res.x)
-    r, pred = evaluate(res.x)
-    rss = float(r @ r)
-    n = r.size
-    k = len(idx)
-    std_free, ident_free = _uncertainty(res.jac, rss, n, k)
-    std, ident = np.full(len(params), np.nan), np.zeros(len(params), dtype=bool)
-    std[idx], ident[idx] = std_free * scale[idx], ident_free
-    return FitResult(derived=effect.derived(base_robot, x), implausible=effect.implausible(base_robot, x),
-                     effect=effect, params=params, lower=lower, upper=upper, x0=x0, x=x, std=std,
-                     robot=effect.with_values(base_robot, x),
-                     rss=rss, n_residuals=n, bic=bic(rss, n, k), nfev=res.nfev,
+    r, _ = evaluate(res.x)
+    fit = _result(effect, base_robot, params, phys(res.x), r, res, idx, scale)
+    fit.lower, fit.upper, fit.x0, fit.fixed = lower, upper, x0, fixed
+    fit.seconds = time.perf_counter() - t0
+    fit.pushed = _pushed(fit, res.jac, r, idx, scale)
+    return fit
+
+
+def _result(effect: Effect, base_robot: Robot, params: list[Param], x: np.ndarray, r: np.ndarray, res,
+            idx: np.ndarray, scale: np.ndarray) -> FitResult:
+    """The `FitResult` of a least-squares solution ``res`` (scaled free parameters ``idx``) at ``x``
+    (file units) with residual ``r``: covariance, resolved parameters, plausibility, derived values,
+    BIC. (Bounds, base values, held parameters and timing are the caller's.)"""
+    rss, n, k = float(r @ r), r.size, len(idx)
+    cov_free, ident_free = _uncertainty(res.jac, rss, n, k)
+    cov = np.zeros((len(params), len(params)))
+    cov[np.ix_(idx, idx)] = cov_free * np.outer(scale[idx], scale[idx])
+    ident = np.zeros(len(params), dtype=bool)
+    ident[idx] = ident_free
+    free = np.zeros(len(params), dtype=bool)
+    free[idx] = True
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    std[~free] = np.nan
+    verdicts = effect.plausibility(base_robot, x, cov)
+    none = np.full(len(params), np.nan)
+    return FitResult(derived=_derived(effect, base_robot, x, std, free), effect=effect, params=params,
+                     lower=none, upper=none, x0=none, x=x, std=std, robot=effect.with_values(base_robot, x),
+                     rss=rss, n_residuals=n, bic=bic(rss, n, k), nfev=res.nfev, cov=cov,
                      njev=res.njev or 0, success=bool(res.success), message=str(res.message),
-                     seconds=time.perf_counter() - t0, identifiable=ident, fixed=fixed)
+                     identifiable=ident,
+                     implausible={c: v.reason() for c, v in verdicts.items() if v.implausible},
+                     edge={c: v.reason() for c, v in verdicts.items() if not v.implausible},
+                     sources={c: v.check.plausible.source for c, v in verdicts.items()})
+
+
+def _pushed(fit: FitResult, J: np.ndarray, r: np.ndarray, idx: np.ndarray, scale: np.ndarray,
+            z: float = CONFIDENCE_Z) -> dict[str, str]:
+    """Free parameters at a bound of the fit where the data ask for a value past it: the unconstrained
+    Gauss-Newton step from the fit (scaled Jacobian ``J`` of the free parameters ``idx``, residual
+    ``r``) leaves the bound by more than ``z`` standard deviations. (A parameter that merely touches
+    a bound its true value sits at -- a joint offset at the edge of what keeps the rows physical --
+    is not pushed, nor one held at its base value on a bound: a backlash of 0 is no backlash.)"""
+    bound = set(fit.at_bound())
+    if not bound:
+        return {}
+    step = np.linalg.lstsq(J, -r, rcond=None)[0] * scale[idx]
+    out = {}
+    for j, i in enumerate(idx):
+        p, v = fit.params[i], fit.x[i]
+        if p.name not in bound or abs(v - fit.x0[i]) < 1e-4 * p.scale:
+            continue    # (held at its base value on a bound -- no backlash at all -- the cause is absent)
+        side = -1.0 if abs(v - fit.lower[i]) <= abs(v - fit.upper[i]) else 1.0
+        sd = fit.std[i]
+        if side * step[j] > z * sd or not np.isfinite(sd):
+            out[p.name] = (f"held at its bound {v:.4g} {p.unit}; the data ask for about "
+                           f"{v + step[j]:.4g} {p.unit} (+- {sd:.2g})")
+    return out
+
+
+def _derived(effect: Effect, robot: Robot, x: np.ndarray, std: np.ndarray, free: np.ndarray,
+             z: float = CONFIDENCE_Z) -> dict[str, float | None]:
+    """`Effect.derived` at ``x``; a quantity is None (not determined) when it is not finite, or
+    disappears or is not finite somewhere in the confidence interval of a parameter (e.g. a drive
+    stiffness G J / d for a transmission length d within its uncertainty of 0)."""
+    out: dict[str, float | None] = dict(effect.derived(robot, x))
+    for i in np.flatnonzero(free):
+        step = std[i] if np.isfinite(std[i]) else RESOLVED_SCALES * effect.params(robot)[i].scale
+        for sign in (-1.0, 1.0):
+            xi = x.copy()
+            xi[i] += sign * z * step
+            near = effect.derived(robot, xi)
+            for k, v in out.items():
+                if v is not None and (not np.isfinite(v) or k not in near or not np.isfinite(near[k])
+                                      or (not np.isfinite(std[i]) and near[k] != v)):
+                    out[k] = None
+    return out
 
 
 def _uncertainty(J: np.ndarray, rss: float, n: int, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Standard deviations (scaled units) from ``s^2 (J^T J)^-1``; directions the data cannot
-    resolve (relative singular value < 1e-8) are marked not identifiable."""
+    """Covariance (scaled units) ``s^2 (J^T J)^-1`` and which parameters the rows resolve: none with
+    weight on a direction of relative singular value < `RESOLVED_SV` (rank-deficient or
+    ill-conditioned), none known no better than `RESOLVED_SCALES` typical deviations. Rows and
+    columns of unresolved parameters are inf."""
     s2 = rss / max(n - k, 1)
     U, sv, Vt = np.linalg.svd(J, full_matrices=False)
-    ok = sv > 1e-8 * sv.max() if sv.size and sv.max() > 0 else np.zeros_like(sv, dtype=bool)
+    ok = sv > RESOLVED_SV * sv.max() if sv.size and sv.max() > 0 else np.zeros_like(sv, dtype=bool)
     inv = np.where(ok, 1.0 / np.where(ok, sv, 1.0) ** 2, 0.0)
     cov = (Vt.T * inv) @ Vt * s2
-    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    # a parameter is identifiable if it has no weight on an unresolved direction
     weak = (np.abs(Vt[~ok]) > 1e-3).any(axis=0) if (~ok).any() else np.zeros(k, dtype=bool)
-    std = np.where(weak, np.inf, std)
-    return std, ~weak
+    weak |= np.sqrt(np.clip(np.diag(cov), 0.0, None)) > RESOLVED_SCALES
+    cov[weak, :] = np.inf
+    cov[:, weak] = np.inf
+    return cov, ~weak
 
 
 def partner_scores(fit: FitResult, partners: Sequence[Effect], ev: Evaluator, measured: np.ndarray,

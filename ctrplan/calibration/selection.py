@@ -4,13 +4,16 @@ named.
 
 * **significant** (on a split): beats the nominal model there -- training BIC lower by more than
   ``bic_margin``, held-out mean error lower by at least ``min_gain`` with a one-sided Wilcoxon
-  signed-rank test at ``alpha``, no parameter pushed to a hard bound away from its base value, and
-  every parameter plausible (`effects.Param.plausible`); a fit that needs an implausible value is
-  reported, never named;
+  signed-rank test at ``alpha`` (rows of one configuration count once: `configuration_groups`), no
+  parameter at a hard bound away from its base value or at any bound the data push past
+  (`FitResult.pushed`), every parameter resolved by the rows (`FitResult.unresolved`), and every check
+  plausible within its confidence interval (`effects.Effect.plausibility`); a fit that needs an
+  implausible value is reported, never named;
 * **grown**: from the best significant single (and up to ``grow_from`` - 1 next ones it does not
-  beat), and from the best single that beats the nominal model only with an implausible value, the
-  ``pairs`` partners a score test ranks first are added and fitted; the best one significant against
-  the set it grew from is kept, up to ``max_causes`` causes;
+  beat), and from the best single that beats the nominal model only with an implausible value: of
+  the ``pairs`` partners a score test ranks first, those whose linearised fit could lower the BIC
+  are fitted in that order; the first significant against the set it grew from is kept, up to
+  ``max_causes`` causes;
 * **contenders**: significant, against the nominal model and against the set they grew from, and not
   beaten on the main split by another contender; each is refitted on ``resamples`` other splits
   (warm-started from its main fit) and scored against the nominal model there;
@@ -18,15 +21,17 @@ named.
 * **beats**: one candidate beats another when its held-out errors, paired row by row over all splits,
   are lower by at least ``min_gain`` with a one-sided Wilcoxon test at ``alpha``, and its training BIC
   is not higher by more than ``bic_margin``;
-* **named**: among the stable candidates that no stable candidate beats, the one with the fewest
-  causes, then the lowest pooled held-out error -- never a subset a larger set beats, and a single
-  cause at the noise before a pair. **Ties**: the others of its size among them whose training BIC is
-  not higher by more than ``bic_margin`` (equal fits the data cannot tell apart).
+* **named**: among the stable candidates that no stable candidate beats, one with the fewest
+  causes -- never a subset a larger set beats, and a single cause at the noise before a pair; among
+  the sets of that size the data cannot tell apart (training
+  BIC, or the fit without the parameter penalty, within ``bic_margin`` of the lowest BIC's) the one
+  with the fewest parameters, then the lowest pooled held-out error. **Ties**: the others of them.
 """
 
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -61,7 +66,8 @@ class Score:
     p_value: float               # one-sided Wilcoxon on the held-out rows against the reference
     gain: float                  # relative held-out gain against the reference (pooled over tubes)
     beats: bool                  # held-out gain >= min_gain at p < alpha, and delta_bic < -bic_margin
-    significant: bool            # beats, with a plausible fit inside its hard bounds
+    significant: bool            # beats, with a plausible, resolved fit not pushed past a bound
+    groups: np.ndarray | None = None   # (h,) distinct configuration of each held-out row
 
 
 @dataclass
@@ -104,6 +110,15 @@ class Candidate:
         """Per-row held-out error (mean over the measured tubes) over all splits it was scored on."""
         return np.concatenate([_per_row(s.heldout_err) for s in [self.main, *self.resamples]])
 
+    def pooled_groups(self) -> np.ndarray | None:
+        """The distinct configuration of each row of `pooled` (a configuration on another split
+        counts apart: it was scored by another fit)."""
+        scores = [self.main, *self.resamples]
+        if any(s.groups is None for s in scores):
+            return None
+        stride = 1 + max(int(s.groups.max(initial=0)) for s in scores)
+        return np.concatenate([s.groups + k * stride for k, s in enumerate(scores)])
+
     @property
     def delta_bic(self) -> float:
         """Training BIC minus the nominal model's (main split)."""
@@ -124,7 +139,8 @@ class Candidate:
                 "resamples": [{"heldout_mean_mm": float(np.nanmean(s.heldout_err[:, 0])),
                                "significant": bool(s.significant)} for s in self.resamples],
                 "fit_seconds": round(self.fit.seconds, 3), "converged": self.fit.success,
-                "at_bound": self.fit.at_bound(), "not_fitted": self.fit.fixed}
+                "at_bound": self.fit.at_bound(), "pushed_past_bound": self.fit.pushed,
+                "unresolved": self.fit.unresolved(), "at_edge": self.fit.edge, "not_fitted": self.fit.fixed}
 
 
 @dataclass
@@ -143,6 +159,8 @@ class Selection:
     ties: list[Candidate] = field(default_factory=list)
     unstable: list[Candidate] = field(default_factory=list)
     implausible: list[Candidate] = field(default_factory=list)
+    #: why no cause can be named from these rows (None: the rows could show one)
+    undetermined: str | None = None
 
     @property
     def splits(self) -> int:
@@ -156,10 +174,16 @@ class Selector:
     physical validity look at every row, also those ``max_rows`` left out)."""
 
     def __init__(self, data: MeasuredData, robot: Robot, opt: DiagnoseOptions, direction: np.ndarray,
-                 nominal: Prediction, q_file: np.ndarray, direction_file: np.ndarray):
+                 nominal: Prediction, q_file: np.ndarray, direction_file: np.ndarray,
+                 progress: Callable[[str], None] | None = None):
         self.data, self.robot, self.opt, self.direction, self.nominal = data, robot, opt, direction, nominal
         self.q_file, self.direction_file = q_file, direction_file
+        self.groups = configuration_groups(data.q, direction)
         self.solves = 0
+        self.fits = 0
+        self.progress = progress or (lambda text: None)
+        #: fitted parameters of every cause set of the last `select` (the next one starts from them)
+        self.previous: dict[frozenset[str], np.ndarray] = {}
 
     # ---- fitting and scoring -------------------------------------------------------------------------
     def _heldout_err(self, fit: FitResult, heldout: np.ndarray) -> np.ndarray:
@@ -178,6 +202,8 @@ class Selector:
         offsets bounded so that each tube keeps every row physical on its own (``share`` 1), and then
         whatever the others do (``share`` 0.5)."""
         d = self.data
+        self.progress(f"fitting {'+'.join(effect.causes)} ({self.fits} fits done)")
+        self.fits += 1
         ev = Evaluator(d.q[split.train], self.direction[split.train])
         fixed = effect.unseen(self.q_file, self.direction_file, self.robot)
         limits = effect.limits(self.q_file, self.robot)
@@ -223,8 +249,11 @@ class Selector:
             if all(p.name in unseen for p in effect.params(self.robot)):
                 not_fitted[name] = sorted(set(unseen.values()))
                 continue
-            fit = self._fit(effect, split, None, opt.max_nfev)
-            score = judge(fit, self._heldout_err(fit, split.heldout), nom_err, nom_bic, self.opt)
+            key = frozenset(effect.causes)
+            fit = self._fit(effect, split, self.previous.get(key),
+                            opt.resample_nfev if key in self.previous else opt.max_nfev)
+            score = judge(fit, self._heldout_err(fit, split.heldout), nom_err, nom_bic, self.opt,
+                          self.groups[split.heldout])
             cands[frozenset(effect.causes)] = Candidate(fit=fit, main=score, nominal=score)
         singles = sorted((c for c in cands.values() if c.significant), key=lambda c: c.heldout_mean(None))
         seeds = singles[:1] + [c for c in singles[1:] if not beats(singles[0], c, opt, pooled=False)]
@@ -239,7 +268,29 @@ class Selector:
                         nominal_err=nom_err, candidates=list(cands.values()), not_fitted=not_fitted)
         self._resample(sel)
         choose(sel, opt)
+        if sel.chosen is None:
+            sel.undetermined = self._undetermined(sel)
+        self.previous = {c.key: c.fit.x for c in sel.candidates}
         return sel
+
+    def _undetermined(self, sel: Selection) -> str | None:
+        """Why the rows cannot identify a cause, or None: too few distinct held-out configurations for
+        any gain to be significant, or candidates that beat the nominal model only along directions
+        the rows do not resolve."""
+        opt = self.opt
+        held = np.unique(self.groups[sel.split.heldout]).size
+        need = int(np.ceil(np.log(1.0 / opt.alpha) / np.log(2.0)))   # the exact one-sided test: 2^-n < alpha
+        if held < need:
+            total = np.unique(self.groups).size
+            return (f"the {len(sel.split.heldout)} held-out rows hold {held} distinct configuration"
+                    f"{'s' if held != 1 else ''} ({total} in all {len(self.groups)} rows): a gain at p < "
+                    f"{opt.alpha:g} needs at least {need}; measure more distinct configurations")
+        blind = [c for c in sel.candidates if c.nominal.beats and c.fit.unresolved()]
+        if blind and not any(c.nominal.beats and not c.fit.unresolved() for c in sel.candidates):
+            return ("the candidates that beat the nominal model do so along directions the rows do not "
+                    "resolve: " + "; ".join(f"{c.name} ({', '.join(c.fit.unresolved())})" for c in blind[:4])
+                    + "; measure configurations where these parameters act differently")
+        return None
 
     def _grow(self, chosen: Candidate, split: Split, cands: dict[frozenset[str], Candidate],
               nom_err: np.ndarray, nom_bic: float) -> None:
@@ -255,24 +306,28 @@ class Selector:
             scores = partner_scores(chosen.fit, [c.fit.effect for c in partners], ev, d.tips_mm[split.train],
                                     d.tubes, self.nominal.subset(split.train))
             self.solves += ev.solves
-            order = np.argsort(scores, kind="stable")[:opt.pairs]
-            ranked = [partners[i] for i in order]
-            grown = []
-            for partner in ranked:
+            ev.solves = 0
+            ranked = [partners[i] for i in np.argsort(scores, kind="stable")[:opt.pairs]
+                      if _promising(chosen.fit, partners[i].fit.k, scores[i])]
+            better = None
+            for partner in ranked:      # in the score test's order; the first that is significant
                 key = chosen.key | partner.key
                 if key not in cands:
                     effect = Combined([chosen.fit.effect, partner.fit.effect])
-                    x_start = np.concatenate([chosen.fit.x, partner.fit.x0])
-                    fit = self._fit(effect, split, x_start, opt.max_nfev)
+                    start = self.previous.get(key, np.concatenate([chosen.fit.x, partner.fit.x0]))
+                    fit = self._fit(effect, split, start, opt.resample_nfev if key in self.previous
+                                    else opt.max_nfev)
                     err = self._heldout_err(fit, split.heldout)
+                    g = self.groups[split.heldout]
                     cands[key] = Candidate(fit=fit, reference=chosen.name,
-                                           main=judge(fit, err, chosen.heldout_err, chosen.fit.bic, opt),
-                                           nominal=judge(fit, err, nom_err, nom_bic, opt))
-                grown.append(cands[key])
-            better = [c for c in grown if c.significant and c.reference == chosen.name]
-            if not better:
+                                           main=judge(fit, err, chosen.heldout_err, chosen.fit.bic, opt, g),
+                                           nominal=judge(fit, err, nom_err, nom_bic, opt, g))
+                if cands[key].significant and cands[key].reference == chosen.name:
+                    better = cands[key]
+                    break
+            if better is None:
                 break
-            chosen = min(better, key=lambda c: c.heldout_mean(None))
+            chosen = better
 
     # ---- other splits --------------------------------------------------------------------------------
     def _resample(self, sel: Selection) -> None:
@@ -286,18 +341,27 @@ class Selector:
             for c in contenders:
                 fit = self._fit(c.fit.effect, rs, c.fit.x, self.opt.resample_nfev)
                 err = self._heldout_err(fit, rs.heldout)
-                c.resamples.append(judge(fit, err, nom_err, nom_bic, self.opt))
+                c.resamples.append(judge(fit, err, nom_err, nom_bic, self.opt, self.groups[rs.heldout]))
+
+
+def _promising(fit: FitResult, k: int, score: float) -> bool:
+    """Whether adding a partner of ``k`` parameters whose score test (linearised training RSS with it,
+    `partner_scores`) is ``score`` could lower the BIC of ``fit`` at all: a partner the linearised
+    model gives no gain worth its parameters is not fitted."""
+    n = fit.n_residuals
+    return n * np.log(max(score, 1e-300) / max(fit.rss, 1e-300)) + k * np.log(n) < 0.0
 
 
 def judge(fit: FitResult, err: np.ndarray, ref_err: np.ndarray, ref_bic: float,
-          opt: DiagnoseOptions) -> Score:
+          opt: DiagnoseOptions, groups: np.ndarray | None = None) -> Score:
     """Score a fit with held-out errors ``err`` (h, T) against a reference model (its held-out errors
-    on the same rows and its training BIC)."""
-    gain, p, held_ok = compare(err, ref_err, opt.alpha, opt.min_gain)
+    on the same rows and its training BIC); ``groups``: the distinct configuration of each row (rows
+    that repeat one configuration count once)."""
+    gain, p, held_ok = compare(err, ref_err, opt.alpha, opt.min_gain, groups)
     d_bic = fit.bic - ref_bic
     ok = held_ok and d_bic < -opt.bic_margin
-    return Score(heldout_err=err, delta_bic=d_bic, p_value=p, gain=gain, beats=ok,
-                 significant=ok and not fit.implausible and not off_limits(fit))
+    return Score(heldout_err=err, delta_bic=d_bic, p_value=p, gain=gain, beats=ok, groups=groups,
+                 significant=ok and not fit.implausible and not off_limits(fit) and not fit.unresolved())
 
 
 def choose(sel: Selection, opt: DiagnoseOptions) -> None:
@@ -312,42 +376,77 @@ def choose(sel: Selection, opt: DiagnoseOptions) -> None:
         sel.chosen, sel.ties = None, []
         return
     size = min(len(c.causes) for c in free)
-    best = min((c for c in free if len(c.causes) == size), key=lambda c: float(np.mean(c.pooled())))
+    same = [c for c in free if len(c.causes) == size]
+    low = min(same, key=lambda c: c.fit.bic)
+    # the data cannot tell these apart: none beats another on the held-out rows, and the training BIC
+    # or the fit itself (BIC less the parameter penalty: extra parameters that buy nothing) is within
+    # the margin of the lowest BIC's
+    alike = [c for c in same if c.fit.bic <= low.fit.bic + opt.bic_margin
+             or _misfit(c.fit) <= _misfit(low.fit) + opt.bic_margin]
+    best = min(alike, key=lambda c: (c.fit.k, float(np.mean(c.pooled()))))   # fewest parameters wins
     sel.chosen = best
-    sel.ties = [c for c in free if c is not best and len(c.causes) == size
-                and c.fit.bic <= best.fit.bic + opt.bic_margin]
+    sel.ties = [c for c in alike if c is not best]
+
+
+def _misfit(fit: FitResult) -> float:
+    """The goodness-of-fit term of the BIC, n log(RSS / n): the BIC without its parameter penalty."""
+    return fit.bic - fit.k * np.log(fit.n_residuals)
 
 
 def beats(a: Candidate, b: Candidate, opt: DiagnoseOptions, pooled: bool = True) -> bool:
     """Whether ``a`` is better than ``b``: held-out errors (paired rows of every split, or of the main
-    split only) lower by at least ``min_gain`` at significance ``alpha``, training BIC not higher by
-    more than ``bic_margin``."""
+    split only; rows of one configuration count once) lower by at least ``min_gain`` at significance
+    ``alpha``, training BIC not higher by more than ``bic_margin``."""
     if a.fit.bic > b.fit.bic + opt.bic_margin:
         return False
     ea, eb = (a.pooled(), b.pooled()) if pooled else (_per_row(a.heldout_err), _per_row(b.heldout_err))
     if ea.shape != eb.shape:
         return False
-    return compare(ea[:, None], eb[:, None], opt.alpha, opt.min_gain)[2]
+    groups = a.pooled_groups() if pooled else a.main.groups
+    return compare(ea[:, None], eb[:, None], opt.alpha, opt.min_gain, groups)[2]
 
 
 def off_limits(fit: FitResult) -> list[str]:
-    """Parameters at a hard bound of their effect other than their base value: the model stops making
-    sense there. (A limit the rows set -- a joint offset that puts a row at the edge of what is
-    physical -- is not one: a robot driven to its mechanical limits sits there.)"""
-    return [p.name for p, v, v0 in zip(fit.params, fit.x, fit.x0, strict=True) if p.name not in fit.fixed
+    """Parameters at a hard bound of their effect other than their base value (the model stops making
+    sense there), and parameters at any bound of the fit that the data push past (`FitResult.pushed`:
+    a transmission length at the limit the rows set, the data asking for less). A limit the rows
+    set that the data do not push past -- a joint offset that puts a row at the edge of what is
+    physical -- is not one: a robot driven to its mechanical limits sits there."""
+    hard = [p.name for p, v, v0 in zip(fit.params, fit.x, fit.x0, strict=True) if p.name not in fit.fixed
             and any(abs(v - b) < 1e-4 * p.scale and abs(v0 - b) > 1e-9 for b in (p.lower, p.upper))]
+    return hard + [k for k in fit.pushed if k not in hard]
 
 
 def _per_row(err: np.ndarray) -> np.ndarray:
     return np.nanmean(err, axis=1)
 
 
-def compare(cand_err: np.ndarray, ref_err: np.ndarray, alpha: float,
-            min_gain: float) -> tuple[float, float, bool]:
+def group_means(values: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """Mean of ``values`` (R,) over the rows of each group (ids ``groups`` (R,)), in order of the ids."""
+    _, inv = np.unique(groups, return_inverse=True)
+    return np.bincount(inv, weights=values) / np.bincount(inv)
+
+
+def configuration_groups(q: np.ndarray, direction: np.ndarray, beta_mm: float = 1e-3,
+                         alpha_rad: float = 1e-4) -> np.ndarray:
+    """An id per row (R,) for its distinct configuration: joints ``q`` (R, 2N) equal within ``beta_mm``
+    / ``alpha_rad`` (encoder resolution) and the same directions of motion ``direction`` (R, 2N) of
+    the rotations (they matter for lags)."""
+    n = q.shape[1] // 2
+    step = np.r_[np.full(n, beta_mm), np.full(n, alpha_rad)]
+    key = np.concatenate([np.round(q / step), np.sign(direction[:, n:])], axis=1)
+    return np.unique(key, axis=0, return_inverse=True)[1].reshape(-1)
+
+
+def compare(cand_err: np.ndarray, ref_err: np.ndarray, alpha: float, min_gain: float,
+            groups: np.ndarray | None = None) -> tuple[float, float, bool]:
     """Relative gain, p-value and whether the candidate's held-out errors (R, T) beat the reference's
-    (R, T): per row the mean over tubes, a gain of at least ``min_gain`` and a one-sided Wilcoxon
-    signed-rank test at ``alpha``."""
+    (R, T): per row the mean over tubes -- per distinct configuration, with ``groups`` (R,): repeated
+    measurements of one configuration are one observation --, a gain of at least ``min_gain`` and a
+    one-sided Wilcoxon signed-rank test at ``alpha``."""
     a, b = _per_row(ref_err), _per_row(cand_err)
+    if groups is not None:
+        a, b = group_means(a, groups), group_means(b, groups)
     gain = 1.0 - b.mean() / a.mean() if a.mean() > 0 else 0.0
     diff = a - b
     if np.allclose(diff, 0.0):

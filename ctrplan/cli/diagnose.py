@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import sys
+import threading
+import time
 from pathlib import Path
 from typing import Annotated
 
@@ -23,7 +25,8 @@ RobotOpt = Annotated[str | None, typer.Option(
     help="Robot file (may be an extended robot file), or a built-in name; default: nominal.")]
 OutOpt = Annotated[Path | None, typer.Option(
     "--out", metavar="DIR", show_default=False,
-    help="Write extended_robot.yaml, report.json, report.txt and residual plots here.")]
+    help="Write extended_robot.yaml (not when undetermined), experiment.csv (when explanations tie), "
+         "report.json, report.txt and residual plots here.")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON document on stdout, nothing else.")]
 CandidatesOpt = Annotated[str | None, typer.Option(
     "--candidates", show_default=False,
@@ -43,6 +46,13 @@ MaxRowsOpt = Annotated[int, typer.Option(
                        "file; the direction of motion still comes from the full sequence).")]
 PairsOpt = Annotated[int, typer.Option(
     "--pairs", help="Grow cause sets by trying this many partners per step (0: single causes only).")]
+ExperimentOpt = Annotated[int, typer.Option(
+    "--experiment-rows", metavar="N",
+    help="When explanations tie: write N configurations (in the domain, stable) where their predicted "
+         "tips differ most to DIR/experiment.csv; measure them, append them, diagnose again.")]
+
+#: Seconds between plain progress lines when stderr is not a terminal.
+PROGRESS_EVERY_S = 10.0
 
 
 def heldout_split(heldout: float | None, heldout_last: float | None) -> tuple[float, bool]:
@@ -62,14 +72,14 @@ def heldout_split(heldout: float | None, heldout_last: float | None) -> tuple[fl
 def diagnose(data: Data, robot: RobotOpt = None, out: OutOpt = None, json_: JsonOpt = False,
              candidates: CandidatesOpt = None, heldout: HeldoutOpt = None,
              heldout_last: HeldoutLastOpt = None, seed: SeedOpt = 0, pairs: PairsOpt = 3,
-             max_rows: MaxRowsOpt = 1000) -> None:
+             max_rows: MaxRowsOpt = 1000, experiment_rows: ExperimentOpt = 20) -> None:
     """Show what the model gets wrong on measured tips, name the physical cause, extend the model.
 
     Fits every candidate cause on the training rows and names the simplest that beats the nominal
     model (training BIC and held-out error) with plausible parameters on most of several splits, and
     reports the held-out error before and after against the measurement noise (estimated from the
-    data). `none` only when the nominal model already matches to the noise; `unexplained` when it
-    does not and no cause helps.
+    data). `none` only when the nominal model already matches to the noise; `undetermined` when the
+    rows cannot identify a cause (nothing named, no extended robot); `unexplained` when no cause helps.
     """
     from ctrplan.calibration import CAUSES, DiagnoseOptions, make_effect, read_measured, write_outputs
     from ctrplan.calibration import diagnose as run_diagnosis
@@ -88,22 +98,66 @@ def diagnose(data: Data, robot: RobotOpt = None, out: OutOpt = None, json_: Json
         raise InputError(f"--max-rows: must be >= 30, got {max_rows}")
     if pairs < 0:
         raise InputError(f"--pairs: must be >= 0, got {pairs}")
+    if experiment_rows < 1:
+        raise InputError(f"--experiment-rows: must be >= 1, got {experiment_rows}")
     if out is not None:
         check_output_dir(out)  # created when the outputs are written
     model = Robot.load(robot)
     measured = read_measured(data, model)
     opts = DiagnoseOptions(candidates=names, heldout=fraction, heldout_last=last, seed=seed, pairs=pairs,
-                           max_rows=max_rows)
-    diag = run_diagnosis(measured, model, opts)
+                           max_rows=max_rows, experiment_rows=experiment_rows)
+    with _Progress() as progress:
+        diag = run_diagnosis(measured, model, opts, progress=progress)
     dropped = diag.rows_in_file - len(diag.data)
     if dropped:
         typer.echo(f"ctrplan: note: --max-rows {max_rows}: {dropped} of {diag.rows_in_file} rows dropped "
                    f"(diagnosing {len(diag.data)} rows in contiguous runs spread over the file)", err=True)
-    if out is not None:
-        write_outputs(diag, out)
+    written = [] if out is None else write_outputs(diag, out)
     if json_:
         sys.stdout.write(json.dumps(diag.to_json(), indent=2, allow_nan=False) + "\n")
     else:
         typer.echo(diag.summary())
-        if out is not None:
-            typer.echo(f"wrote {out / 'extended_robot.yaml'}, report.json and plots to {out}/")
+        if written:
+            typer.echo(f"wrote {', '.join(p.name for p in written)} to {out}/")
+
+
+class _Progress:
+    """What `diagnose` is doing, on stderr: a transient rich status line with the elapsed time on a
+    terminal, else the latest step as a plain line about every `PROGRESS_EVERY_S` seconds (a timer
+    thread: one fit can take longer)."""
+
+    def __init__(self):
+        from rich.console import Console
+
+        self.console = Console(stderr=True, highlight=False)
+        self.t0 = time.monotonic()
+        self.text = "reading"
+        self.status = None
+        self.done = threading.Event()
+        self.timer = threading.Thread(target=self._plain, daemon=True)
+
+    def __enter__(self):
+        if self.console.is_terminal:
+            self.status = self.console.status(self._line())
+            self.status.__enter__()
+        else:
+            self.timer.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.done.set()
+        if self.status is not None:
+            self.status.__exit__(*exc)
+
+    def _line(self) -> str:
+        return f"diagnose: {time.monotonic() - self.t0:.0f} s, {self.text}"
+
+    def _plain(self) -> None:
+        while not self.done.wait(PROGRESS_EVERY_S):
+            sys.stderr.write(self._line() + "\n")
+            sys.stderr.flush()
+
+    def __call__(self, text: str) -> None:
+        self.text = text
+        if self.status is not None:
+            self.status.update(self._line())
