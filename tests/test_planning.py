@@ -224,6 +224,24 @@ def test_cli_plan_end_to_end(tmp_path, capsys):
     data = re.search(r'<script id="data" type="application/json">(.*?)</script>', html, re.S).group(1)
     assert len(json.loads(data)["backbones"]) == len(full["dense_path"])
     assert not [p for p in out_dir.iterdir() if p.name.startswith(".")]  # no temporary leftovers
+    assert_trajectory_within_limits(out_dir / "trajectory.csv", full, load_scene(SCENES / "open.yaml"))
+
+
+def assert_trajectory_within_limits(path, full: dict, scene) -> None:
+    """trajectory.csv: every validated state once, in order, from rest at the start to the goal; the
+    mean joint speed between rows (the distance over the time, computed here) within the robot's
+    limits; tips and clearances those of the exact validation."""
+    lines = path.read_text().splitlines()
+    assert lines[0] == "time_s,beta1,beta2,beta3,alpha1,alpha2,alpha3,tip_x,tip_y,tip_z,clearance_mm"
+    rows = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
+    t, q, tip, clearance = rows[:, 0], rows[:, 1:7], rows[:, 7:10], rows[:, 10]
+    np.testing.assert_allclose(q, full["dense_path"], atol=1e-5)
+    np.testing.assert_allclose(tip, np.array(full["backbones_mm"])[:, -1], atol=1e-4)  # path.json: 4 decimals
+    assert t[0] == 0.0 and np.all(np.diff(t) > 0)
+    speed, _ = scene.robot.limits.per_joint(3)
+    mean_speed = np.abs(np.diff(q, axis=0)) / np.diff(t)[:, None]
+    assert np.all(mean_speed <= speed * (1 + 1e-3) + 1e-6)
+    assert clearance.min() == pytest.approx(full["validated"]["min_clearance_mm"], abs=1e-3)
 
 
 MINI = """\

@@ -32,6 +32,8 @@ SceneArg = Annotated[Path, typer.Argument(metavar="SCENE.yaml", show_default=Fal
 
 
 log = logging.getLogger("ctrplan.ompl")
+#: trajectory.csv reports clearances up to this (mm); larger ones as this.
+TRAJECTORY_CLEARANCE_CAP_MM = 50.0
 
 
 @contextmanager
@@ -85,7 +87,8 @@ def plan_command(
         help="Random seed (OMPL and goal sampling).")] = None,
     out: Annotated[Path | None, typer.Option(
         "--out", metavar="DIR", show_default=False,
-        help="Write path.json, obstacles.ply, plan.png and plan.html into DIR.")] = None,
+        help="Write path.json, trajectory.csv (solved plans), obstacles.ply, plan.png and plan.html "
+             "into DIR.")] = None,
     json_out: Annotated[bool, typer.Option(
         "--json", help="Print one JSON summary on stdout (progress and summary go to stderr).")] = False,
 ) -> None:
@@ -211,7 +214,8 @@ def plan_document(result, sc, scene_file: Path, model: str | None) -> dict:
 
 
 def write_plan_outputs(out: Path, sc, result, doc: dict) -> None:
-    """path.json, obstacles.ply, plan.png, plan.html; each file is written completely or not at all."""
+    """path.json, obstacles.ply, plan.png, plan.html and, for a solved plan, trajectory.csv; each file
+    is written completely or not at all."""
     from ctrplan.dataio import atomic_write
     from ctrplan.planning.validate import clearance_along
     from ctrplan.viz import plot_plan, viewer_data, write_viewer
@@ -223,12 +227,14 @@ def write_plan_outputs(out: Path, sc, result, doc: dict) -> None:
     if result.dense is not None:
         exact = result.dense.exact
         bbs, radii = sc.to_scene(exact.positions_mm), exact.radius_mm
-        clearance = clearance_along(sc, exact, CLEARANCE_CAP_MM)
+        clearance = clearance_along(sc, exact, TRAJECTORY_CLEARANCE_CAP_MM)
         full["dense_path"] = result.dense.dense_q.tolist()
         full["backbones_mm"] = np.round(np.where(np.isfinite(bbs), bbs, np.nan), 4).tolist()
         full["backbone_radius_mm"] = np.round(radii, 4).tolist()
         full["backbones_backend"] = "cosserat"
         full["frame"] = "scene (mm)"
+        if result.solved:
+            write_trajectory(out / "trajectory.csv", sc, result, bbs[:, -1, :], np.nanmin(clearance, axis=1))
     else:  # nothing planned: show the start
         from ctrplan.kinematics import CosseratBackend
 
@@ -245,9 +251,26 @@ def write_plan_outputs(out: Path, sc, result, doc: dict) -> None:
                     f"{'solved' if result.solved else 'not solved'}")
     tmp_png.replace(out / "plan.png")
     tmp_html = out / ".plan.html.tmp.html"
-    write_viewer(tmp_html, viewer_data(sc, bbs, radii, _viewer_info(sc, result), clearance),
+    shown = None if clearance is None else np.minimum(clearance, CLEARANCE_CAP_MM)
+    write_viewer(tmp_html, viewer_data(sc, bbs, radii, _viewer_info(sc, result), shown),
                  title=f"ctrplan: {sc.name}")
     tmp_html.replace(out / "plan.html")
+
+
+def write_trajectory(path: Path, sc, result, tips_mm: np.ndarray, clearance_mm: np.ndarray) -> None:
+    """trajectory.csv: the validated path timed within the robot's joint limits (`ctrplan.planning.
+    trajectory`), one row per exactly validated state: time_s, joints (mm, rad), the tip (scene frame,
+    mm) and the exact model's clearance (mm; `TRAJECTORY_CLEARANCE_CAP_MM` where it is larger)."""
+    from ctrplan.dataio import atomic_write, format_csv
+    from ctrplan.planning.trajectory import segment_positions, time_parametrise
+
+    dense = result.dense.dense_q
+    trajectory = time_parametrise(result.path, sc.robot.limits)
+    times = trajectory.time_of(*segment_positions(np.asarray(result.path), dense))
+    header = ["time_s", *sc.robot.joint_names, "tip_x", "tip_y", "tip_z", "clearance_mm"]
+    rows = np.column_stack([times, dense, tips_mm, clearance_mm])
+    with atomic_write(path) as fh:
+        fh.write(format_csv(header, rows, ["%.6f"] * rows.shape[1]))
 
 
 def _viewer_info(sc, result) -> dict[str, str]:

@@ -84,3 +84,25 @@ def _segment(d: np.ndarray, speed: np.ndarray, accel: np.ndarray) -> tuple[float
     if v * v / a >= 1.0:  # u never reaches v: accelerate half way, then brake
         return 2.0 / np.sqrt(a), float(np.sqrt(a)), a
     return 1.0 / v + v / a, v, a
+
+
+def segment_positions(waypoints: np.ndarray, states: np.ndarray,
+                      tol: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """Segment index and fraction (0..1) of each of ``states`` (S, 2N), points on the polyline
+    ``waypoints`` (K, 2N) taken in order (a densified path: every state lies on the segment of its
+    predecessor or a later one). Raises ValueError for a state off the polyline."""
+    k = 0
+    segment, fraction = np.zeros(len(states), dtype=int), np.zeros(len(states))
+    for i, q in enumerate(states):
+        while True:
+            a, d = waypoints[k], waypoints[k + 1] - waypoints[k]
+            dd = float(d @ d)
+            f = float((q - a) @ d / dd) if dd > 0 else 0.0
+            on = 0 <= f <= 1 + tol and np.linalg.norm(a + min(f, 1.0) * d - q) <= tol * (1 + np.sqrt(dd))
+            if on or k == len(waypoints) - 2:
+                break
+            k += 1
+        if not on:
+            raise ValueError(f"state {i} is not on the path")
+        segment[i], fraction[i] = k, min(max(f, 0.0), 1.0)
+    return segment, fraction
