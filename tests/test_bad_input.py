@@ -175,7 +175,7 @@ SCENE = str(Path(__file__).resolve().parents[1] / "scenes" / "open.yaml")
     *[(command + ["--seed", "-1"], ["--seed", "greater than or equal to 0"]) for command in (
         ["plan", SCENE], ["stability"], ["train"], ["bench", "kinematics"], ["bench", "plan", SCENE],
         ["diagnose", "data.csv"])],
-    *[(["train", "--time-limit", v], ["--time-limit", "must be a positive number of minutes"])
+    *[(["train", "--time-limit", v], ["--time-limit", "must be a positive duration"])
       for v in ("0", "-1", "nan")],
     (["train", "--steps", "0"], ["--steps", "greater than or equal to 1"]),
     (["train", "--threads", "0"], ["--threads", "greater than or equal to 1"]),

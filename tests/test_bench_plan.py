@@ -113,7 +113,7 @@ def test_executors_give_the_same_content():
     (["--planner", "prm"], "--planner: unknown planner 'prm'"),
     (["--backend", "magic"], "--backend: unknown backend 'magic'"),
     (["--runs", "0"], "--runs: need at least 1 run"),
-    (["--time-limit", "-1"], "--time-limit: must be > 0"),
+    (["--time-limit", "-1"], "--time-limit: must be a positive duration"),
     (["--workers", "64"], "--workers: 64 workers but only"),
 ])
 def test_bad_options(args, needle, tmp_path, capsys):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from ctrplan.cli.options import parse_duration
@@ -19,3 +21,14 @@ def test_units_and_the_bare_number(text, bare, seconds):
 def test_what_is_not_a_duration_is_one_line(text):
     with pytest.raises(InputError, match="--time-limit"):
         parse_duration(text, "s")
+
+
+@pytest.mark.parametrize("command", [["plan", "scenes/open.yaml"], ["bench", "plan", "scenes/open.yaml"],
+                                     ["design", "scenes/skullbase_design.yaml"], ["train"]])
+def test_every_time_limit_reads_durations_the_same_way(command, capsys, monkeypatch):
+    from ctrplan.cli import main
+
+    monkeypatch.chdir(Path(__file__).resolve().parents[1])
+    assert main([*command, "--time-limit", "ten minutes"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--time-limit: must be a positive duration (e.g. 90s, 10m, 1.5h" in err[0], err

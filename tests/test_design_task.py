@@ -153,7 +153,7 @@ def test_bad_task_files_name_the_key_and_line(task_file, capsys, change, key, ne
 
 @pytest.mark.parametrize("args, needle", [
     (["--trials", "0"], "--trials: need at least 1"),
-    (["--time-limit", "-1"], "--time-limit: must be a positive number of minutes"),
+    (["--time-limit", "-1"], "--time-limit: must be a positive duration"),
     (["--workers", "64"], "--workers: 64 workers but only"),
     (["--seed", "-3"], "--seed: must be >= 0"),
     (["--storage", "nosuchdb://x"], "--storage: cannot open 'nosuchdb://x'"),

@@ -20,6 +20,7 @@ from ctrplan.bench.fanout import check_workers, run_jobs
 from ctrplan.bench.plots import planning_plots, timing_boxplot
 from ctrplan.cli import HELP_SETTINGS, app
 from ctrplan.cli.kinematics import RobotOpt, as_option, load_backend
+from ctrplan.cli.options import parse_duration
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS
@@ -169,8 +170,9 @@ def plan(
         "--planner", help="Comma-separated planners (rrtconnect, rrt, rrtstar, bitstar, kpiece).")
     ] = ",".join(planning_bench.DEFAULT_PLANNERS),
     runs: Annotated[int, typer.Option("--runs", help="Seeded runs per scene x backend x planner.")] = 20,
-    time_limit: Annotated[float | None, typer.Option(
-        "--time-limit", help="Time budget per run in seconds (default: each scene's setting): the "
+    time_limit: Annotated[str | None, typer.Option(
+        "--time-limit", metavar="DURATION",
+        help="Time budget per run, e.g. 10s; a bare number is seconds (default: each scene's setting): the "
                              "default work budget and the wall-clock guard, as for `ctrplan plan`.")] = None,
     max_states: Annotated[int | None, typer.Option(
         "--max-states", metavar="N", show_default=False,
@@ -210,8 +212,7 @@ def plan(
             raise as_option(exc, flags) from None
     if runs < 1:
         raise InputError(f"--runs: need at least 1 run, got {runs}")
-    if time_limit is not None and not time_limit > 0:
-        raise InputError(f"--time-limit: must be > 0 s, got {time_limit}")
+    time_limit = parse_duration(time_limit, "s")
     if max_states is not None and max_states < 1:
         raise InputError(f"--max-states: must be an integer >= 1 (states), got {max_states}")
     try:

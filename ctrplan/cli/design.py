@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import shlex
 import sys
 import time
@@ -14,6 +13,7 @@ import typer
 
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import as_option
+from ctrplan.cli.options import parse_duration
 from ctrplan.errors import InputError
 
 OPTIONS = {"workers": "--workers", "ray": "--ray", "storage": "--storage", "study": "--study"}
@@ -29,11 +29,11 @@ def design(
         "--trials", metavar="N", show_default=False,
         help="Finished trials the study should have (default: the task's budget); a continued study "
              "runs only the missing ones.")] = None,
-    time_limit: Annotated[float | None, typer.Option(
-        "--time-limit", metavar="MIN", show_default=False,
-        help="Wall-clock guard in minutes: start no trial after it (trials in flight finish); the "
-             "outputs say when it stopped the study short of its trials. Each trial's own planning "
-             "is budgeted in work (the task's plan_states), not time.")] = None,
+    time_limit: Annotated[str | None, typer.Option(
+        "--time-limit", metavar="DURATION", show_default=False,
+        help="Wall-clock guard, e.g. 30m or 1.5h; a bare number is minutes: start no trial after it "
+             "(trials in flight finish); the outputs say when it stopped the study short of its trials. "
+             "Each trial's own planning is budgeted in work (the task's plan_states), not time.")] = None,
     workers: Annotated[int, typer.Option(
         "--workers", metavar="W", help="Trials at a time: local worker processes, one per core "
                                        "(1: in this process), or Ray tasks with --ray.")] = 1,
@@ -74,8 +74,8 @@ def design(
 
     if trials is not None and trials < 1:
         raise InputError(f"--trials: need at least 1, got {trials}")
-    if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
-        raise InputError(f"--time-limit: must be a positive number of minutes, got {time_limit}")
+    limit_s = parse_duration(time_limit, "min")
+    time_limit = None if limit_s is None else limit_s / 60.0  # minutes
     if seed < 0:
         raise InputError(f"--seed: must be >= 0, got {seed}")
     if study is not None and not study.strip():

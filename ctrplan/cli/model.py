@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import re
 import shlex
 import sys
@@ -18,6 +17,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, RobotOpt, as_option
+from ctrplan.cli.options import parse_duration
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
@@ -66,10 +66,11 @@ def train(
                          f"{RECIPES[DEFAULT_RECIPE].minutes:g} min; finetune with --measured).")] = None,
     steps: Annotated[int | None, typer.Option(
         "--steps", min=1, help="Optimiser steps (recipe default).")] = None,
-    time_limit: Annotated[float | None, typer.Option(
-        "--time-limit", help="Minutes for the whole command: exact data, training, evaluation and "
-                             "calibration (default: the recipe's budget); what it cuts is reported; "
-                             "the learning-rate schedule fits it.")] = None,
+    time_limit: Annotated[str | None, typer.Option(
+        "--time-limit", metavar="DURATION",
+        help="Time for the whole command, e.g. 25m or 90s; a bare number is minutes: exact data, "
+             "training, evaluation and calibration (default: the recipe's budget); what it cuts is reported; "
+             "the learning-rate schedule fits it.")] = None,
     seed: Annotated[int, typer.Option("--seed", min=0)] = 0,
     device: Annotated[str, typer.Option("--device", help="cpu | cuda | cuda:N")] = "cpu",
     threads: Annotated[int | None, typer.Option("--threads", min=1, help="CPU threads for torch.")] = None,
@@ -124,8 +125,8 @@ def train(
 
     if name is not None:
         check_model_name(name, "--name")
-    if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
-        raise InputError(f"--time-limit: must be a positive number of minutes, got {time_limit:g}")
+    limit_s = parse_duration(time_limit, "min")
+    time_limit = None if limit_s is None else limit_s / 60.0  # minutes
     if device.startswith("cuda") and not torch.cuda.is_available():
         raise InputError(f"--device: {device} requested but no CUDA device is available")
     if measured is None and shots is not None:

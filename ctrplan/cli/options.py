@@ -18,10 +18,8 @@ def parse_duration(text: str | float | None, bare_unit: str, option: str = "--ti
     if text is None:
         return None
     match = _DURATION.match(str(text))
-    if match is None:
-        raise InputError(f"{option}: {text!r} is not a duration (e.g. 90s, 10m, 1.5h; a bare number is "
-                         f"in {'seconds' if bare_unit == 's' else 'minutes'})")
-    seconds = float(match.group(1)) * DURATION_UNITS[match.group(2) or bare_unit]
-    if not math.isfinite(seconds) or seconds <= 0:
-        raise InputError(f"{option}: must be a positive duration, got {text!r}")
+    seconds = float(match.group(1)) * DURATION_UNITS[match.group(2) or bare_unit] if match else math.nan
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise InputError(f"{option}: must be a positive duration (e.g. 90s, 10m, 1.5h; a bare number is "
+                         f"in {'seconds' if bare_unit == 's' else 'minutes'}), got {str(text)!r}")
     return seconds

@@ -22,6 +22,7 @@ import typer
 from ctrplan import console as console_state
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, load_backend
+from ctrplan.cli.options import parse_duration
 from ctrplan.dataio import check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.robot import Robot
@@ -72,11 +73,12 @@ def plan_command(
     planner: Annotated[str | None, typer.Option(
         "--planner", metavar="NAME", show_default=False,
         help=f"OMPL planner: {' | '.join(PLANNERS)} (default: the scene's, rrtconnect).")] = None,
-    time_limit: Annotated[float | None, typer.Option(
-        "--time-limit", metavar="S", show_default=False,
-        help="Planning time in seconds (default: the scene's, 10): sets the work budget --max-states "
-             "takes by default (what S seconds buy on the reference machine) and the wall-clock guard "
-             "(30 x S) that stops a search on a slow or overloaded machine and says so.")] = None,
+    time_limit: Annotated[str | None, typer.Option(
+        "--time-limit", metavar="DURATION", show_default=False,
+        help="Planning time T, e.g. 10s or 2m; a bare number is seconds (default: the scene's, 10): sets "
+             "the work budget --max-states takes by default (what T buys on the reference machine) and "
+             "the wall-clock guard (30 x T) that stops a search on a slow or overloaded machine and "
+             "says so.")] = None,
     max_states: Annotated[int | None, typer.Option(
         "--max-states", metavar="N", show_default=False,
         help="Work budget: configurations the planning backend evaluates for goal sampling and search "
@@ -99,8 +101,7 @@ def plan_command(
     """
     from rich.console import Console
 
-    if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
-        raise InputError(f"--time-limit: must be a positive number of seconds, got {time_limit}")
+    time_limit = parse_duration(time_limit, "s")
     if max_states is not None and max_states < 1:
         raise InputError(f"--max-states: must be an integer >= 1 (states), got {max_states}")
     if out is not None:
