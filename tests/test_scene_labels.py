@@ -180,3 +180,18 @@ def test_bad_input_is_one_line_and_writes_nothing(inputs, tmp_path, capsys, case
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and expect in err[0], err
     assert not (tmp_path / "sub").exists()
+
+
+def test_the_shipped_example_is_what_from_labels_makes_of_its_volume(tmp_path):
+    """examples/segmentation (scripts/label_example.py): the committed scene is reproduced from the
+    committed volume, names and template."""
+    folder = Path(__file__).resolve().parents[1] / "examples" / "segmentation"
+    out = tmp_path / "phantom.yaml"
+    assert main(["scene", "from-labels", str(folder / "phantom.nii.gz"), "--names",
+                 str(folder / "names.yaml"), "--template", str(folder / "template.yaml"), "--out",
+                 str(out)]) == 0
+    made, shipped = load_scene(out), load_scene(folder / "phantom.yaml")
+    assert [o.name for o in made.obstacles] == [o.name for o in shipped.obstacles] == \
+        ["target_organ", "artery", "nerve"]
+    for a, b in zip(made.obstacles, shipped.obstacles, strict=True):
+        np.testing.assert_allclose(a.bounds, b.bounds, atol=1e-4)
