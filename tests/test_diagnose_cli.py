@@ -301,9 +301,9 @@ def test_an_unresolved_or_past_bound_fit_is_never_significant():
 
 def test_progress_is_a_plain_line_every_few_seconds_when_stderr_is_not_a_terminal(tmp_path, capsys,
                                                                                    monkeypatch):
-    import ctrplan.cli.diagnose as cli
+    import ctrplan.cli.progress as progress
 
-    monkeypatch.setattr(cli, "PROGRESS_EVERY_S", 0.01)
+    monkeypatch.setattr(progress, "PROGRESS_EVERY_S", 0.01)
     lab = make(60, {"registration": 1.0}, seed=1000 * SEED + 12)
     path = tmp_path / "lab.csv"
     lab.write_csv(path)

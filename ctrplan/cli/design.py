@@ -14,6 +14,7 @@ import typer
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import as_option
 from ctrplan.cli.options import parse_duration
+from ctrplan.cli.progress import PlainProgress
 from ctrplan.errors import InputError
 
 OPTIONS = {"workers": "--workers", "ray": "--ray", "storage": "--storage", "study": "--study"}
@@ -162,12 +163,16 @@ class _DesignProgress:
                             TimeElapsedColumn(), TextColumn("{task.fields[note]}"), console=console,
                             disable=not console.is_terminal)
         self.id = self.bar.add_task("trials", total=total, completed=already, note=self._note(""))
+        self.plain = PlainProgress(f"design {task.name}", enabled=not console.is_terminal)
+        self.plain(f"{already} of {total} trials finished")
 
     def __enter__(self):
         self.bar.__enter__()
+        self.plain.__enter__()
         return self
 
     def __exit__(self, *exc):
+        self.plain.__exit__(*exc)
         self.bar.__exit__(*exc)
 
     def _note(self, best: str) -> str:
@@ -198,8 +203,9 @@ class _DesignProgress:
             self.best = len(reached)
             self.console.print(f"trial {trial}: {len(reached)} of {n} targets ({names}) "
                                f"in {record['time_s']:.0f} s")
-        self.bar.update(self.id, completed=finished, total=self._expected(finished),
-                        note=self._note("" if self.best < 0 else f"best {self.best}/{n} targets"))
+        note = self._note("" if self.best < 0 else f"best {self.best}/{n} targets")
+        self.bar.update(self.id, completed=finished, total=self._expected(finished), note=note)
+        self.plain(f"{finished} of {self._expected(finished)} trials finished{', ' + note if note else ''}")
 
 
 def _summary(console, task, doc: dict) -> None:

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import json
 import sys
-import threading
-import time
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from ctrplan.cli import app
+from ctrplan.cli.progress import PlainProgress
 from ctrplan.dataio import check_output_dir
 from ctrplan.errors import InputError
 
@@ -50,10 +49,6 @@ ExperimentOpt = Annotated[int, typer.Option(
     "--experiment-rows", metavar="N",
     help="When explanations tie: write N configurations (in the domain, stable) where their predicted "
          "tips differ most to DIR/experiment.csv; measure them, append them, diagnose again.")]
-
-#: Seconds between plain progress lines when stderr is not a terminal.
-PROGRESS_EVERY_S = 10.0
-
 
 def heldout_split(heldout: float | None, heldout_last: float | None) -> tuple[float, bool]:
     """The held-out fraction and whether it is the last rows, from ``--heldout``/``--heldout-last``
@@ -123,41 +118,30 @@ def diagnose(data: Data, robot: RobotOpt = None, out: OutOpt = None, json_: Json
 
 class _Progress:
     """What `diagnose` is doing, on stderr: a transient rich status line with the elapsed time on a
-    terminal, else the latest step as a plain line about every `PROGRESS_EVERY_S` seconds (a timer
+    terminal, else the latest step as a plain line about every 10 s (`PlainProgress`) (a timer
     thread: one fit can take longer)."""
 
     def __init__(self):
         from rich.console import Console
 
         self.console = Console(stderr=True, highlight=False)
-        self.t0 = time.monotonic()
-        self.text = "reading"
+        self.plain = PlainProgress("diagnose", enabled=not self.console.is_terminal)
+        self.plain("reading")
         self.status = None
-        self.done = threading.Event()
-        self.timer = threading.Thread(target=self._plain, daemon=True)
 
     def __enter__(self):
         if self.console.is_terminal:
-            self.status = self.console.status(self._line())
+            self.status = self.console.status(self.plain.line())
             self.status.__enter__()
-        else:
-            self.timer.start()
+        self.plain.__enter__()
         return self
 
     def __exit__(self, *exc):
-        self.done.set()
+        self.plain.__exit__(*exc)
         if self.status is not None:
             self.status.__exit__(*exc)
 
-    def _line(self) -> str:
-        return f"diagnose: {time.monotonic() - self.t0:.0f} s, {self.text}"
-
-    def _plain(self) -> None:
-        while not self.done.wait(PROGRESS_EVERY_S):
-            sys.stderr.write(self._line() + "\n")
-            sys.stderr.flush()
-
     def __call__(self, text: str) -> None:
-        self.text = text
+        self.plain(text)
         if self.status is not None:
-            self.status.update(self._line())
+            self.status.update(self.plain.line())

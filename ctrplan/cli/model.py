@@ -18,6 +18,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, RobotOpt, as_option
 from ctrplan.cli.options import parse_duration
+from ctrplan.cli.progress import PlainProgress
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
@@ -193,8 +194,8 @@ def _run(robot: Robot, rec: Recipe, out: Path, start: PinnBackend | None, fewsho
     and calibration are cut short where the ``budget`` runs out (`ctrplan.training.budget`)."""
     bar = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[done]}"),
                    TimeElapsedColumn(), TextColumn("{task.fields[info]}"), console=console,
-                   disable=not console.is_terminal)  # a log gets the summary line below
-    with bar:
+                   disable=not console.is_terminal)  # a log gets plain lines and the summary below
+    with bar, PlainProgress("train", enabled=not console.is_terminal) as plain:
         data_task = bar.add_task("exact solutions", total=None, done="", info="")
         task = bar.add_task(f"train {rec.name}", total=1.0, done="", info="", visible=False)
 
@@ -202,6 +203,7 @@ def _run(robot: Robot, rec: Recipe, out: Path, start: PinnBackend | None, fewsho
             rate = done / max(bar.tasks[data_task].elapsed or 1e-9, 1e-9)
             bar.update(data_task, completed=done, total=total, done=f"{done}/{total}",
                        info=f"{rate:,.0f} solutions/s")
+            plain(f"exact solutions {done:,}/{total:,}")
 
         def progress(step: int, total: int, stats: dict) -> None:
             info = f"loss {stats['loss']:.4g}"
@@ -211,6 +213,7 @@ def _run(robot: Robot, rec: Recipe, out: Path, start: PinnBackend | None, fewsho
             t, limit = budget.elapsed_s(), budget.limit_s  # the whole command's clock
             bar.update(task, completed=training_fraction(step, total, t, limit),
                        done=progress_text(step, total, t, limit), info=info, visible=True)
+            plain(f"step {progress_text(step, total, t, limit)}, {info}")
 
         if fewshot is not None:
             from ctrplan.training.finetune import finetune

@@ -23,6 +23,7 @@ from ctrplan import console as console_state
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, load_backend
 from ctrplan.cli.options import parse_duration
+from ctrplan.cli.progress import PlainProgress
 from ctrplan.dataio import check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.robot import Robot
@@ -136,25 +137,27 @@ def plan_command(
 
 
 class _Progress:
-    """A transient rich status line on stderr (only on a terminal)."""
+    """A transient rich status line on stderr on a terminal; elsewhere a plain line about every
+    10 s (`PlainProgress`: kernel compilation and long searches are not silent in a log)."""
 
     def __init__(self, console):
         self.console = console
         self.status = None
+        self.plain = PlainProgress("plan", enabled=not console.is_terminal)
 
     def __enter__(self):
         if self.console.is_terminal:
             self.status = self.console.status("planning ...")
             self.status.__enter__()
+        self.plain.__enter__()
         return self
 
     def __exit__(self, *exc):
+        self.plain.__exit__(*exc)
         if self.status is not None:
             self.status.__exit__(*exc)
 
     def update(self, stage: str, **info) -> None:
-        if self.status is None:
-            return
         text = {"compile": "compiling kernels (first run only)",
                 "goal": "sampling goal configurations (IK)", "search": "searching",
                 "simplify": "simplifying the path", "validate": "validating with the exact model",
@@ -165,7 +168,9 @@ class _Progress:
             text += f"  {info['states']:,}/{info['max_states']:,} states"
         if "goals" in info:
             text += f"  {info['goals']} goals"
-        self.status.update(text)
+        self.plain(text)
+        if self.status is not None:
+            self.status.update(text)
 
 
 def _summary(console, sc, result, out: Path | None) -> None:

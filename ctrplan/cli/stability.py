@@ -12,6 +12,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import RobotOpt
+from ctrplan.cli.progress import PlainProgress
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.memory import check_fits
@@ -47,10 +48,15 @@ def stability(
     check_output_dir(out)  # created when the verdict is written
     console = Console(stderr=True)
     with Progress(TextColumn("stability sweeps"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console, disable=as_json or not console.is_terminal) as bar:
+                  console=console, disable=as_json or not console.is_terminal) as bar, \
+            PlainProgress("stability", enabled=not console.is_terminal) as plain:
         task = bar.add_task("sweeps", total=n)
-        report, certificate = certify(model, n=n, steps=steps, seed=seed,
-                                      progress=lambda: bar.advance(task))
+
+        def advance() -> None:
+            bar.advance(task)
+            plain(f"{int(bar.tasks[task].completed)} of {n} sweeps")
+
+        report, certificate = certify(model, n=n, steps=steps, seed=seed, progress=advance)
     doc = report.to_json()
     folder = output_dir(out)
     doc["plot"] = str(plot_stability(report, folder / "stability.png"))
