@@ -71,7 +71,8 @@ def test_plan_default_pinn_out_with_new_parents(tmp_path, capsys):
     doc = json.loads(stdout)
     assert doc["backend"] == "pinn" and doc["model"] == "pinn_nominal.safetensors"
     assert doc["goal_tolerance_mm"] == 3.0 and doc["target"]["kind"] == "sphere"
-    assert sorted(p.name for p in out.iterdir()) == ["obstacles.ply", "path.json", "plan.html", "plan.png"]
+    assert sorted(p.name for p in out.iterdir()) == ["obstacles.ply", "path.json", "plan.html", "plan.png",
+                                                     "trajectory.csv"]
     assert "warning" not in err  # e.g. matplotlib's tight_layout warning
 
 
