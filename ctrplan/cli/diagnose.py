@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 
 from ctrplan.cli import app
-from ctrplan.cli.progress import PlainProgress
+from ctrplan.cli.progress import StatusLine
 from ctrplan.dataio import check_output_dir
 from ctrplan.errors import InputError
 
@@ -101,7 +101,7 @@ def diagnose(data: Data, robot: RobotOpt = None, out: OutOpt = None, json_: Json
     measured = read_measured(data, model)
     opts = DiagnoseOptions(candidates=names, heldout=fraction, heldout_last=last, seed=seed, pairs=pairs,
                            max_rows=max_rows, experiment_rows=experiment_rows)
-    with _Progress() as progress:
+    with _progress() as progress:
         diag = run_diagnosis(measured, model, opts, progress=progress)
     dropped = diag.rows_in_file - len(diag.data)
     if dropped:
@@ -116,32 +116,9 @@ def diagnose(data: Data, robot: RobotOpt = None, out: OutOpt = None, json_: Json
             typer.echo(f"wrote {', '.join(p.name for p in written)} to {out}/")
 
 
-class _Progress:
-    """What `diagnose` is doing, on stderr: a transient rich status line with the elapsed time on a
-    terminal, else the latest step as a plain line about every 10 s (`PlainProgress`) (a timer
-    thread: one fit can take longer)."""
+def _progress() -> StatusLine:
+    """What `diagnose` is doing, on stderr: a rich status line with the elapsed time on a terminal,
+    else a plain line about every 10 s (a timer thread: one fit can take longer)."""
+    from rich.console import Console
 
-    def __init__(self):
-        from rich.console import Console
-
-        self.console = Console(stderr=True, highlight=False)
-        self.plain = PlainProgress("diagnose", enabled=not self.console.is_terminal)
-        self.plain("reading")
-        self.status = None
-
-    def __enter__(self):
-        if self.console.is_terminal:
-            self.status = self.console.status(self.plain.line())
-            self.status.__enter__()
-        self.plain.__enter__()
-        return self
-
-    def __exit__(self, *exc):
-        self.plain.__exit__(*exc)
-        if self.status is not None:
-            self.status.__exit__(*exc)
-
-    def __call__(self, text: str) -> None:
-        self.plain(text)
-        if self.status is not None:
-            self.status.update(self.plain.line())
+    return StatusLine(Console(stderr=True, highlight=False), "diagnose", "reading", timed=True)

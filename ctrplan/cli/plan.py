@@ -23,7 +23,7 @@ from ctrplan import console as console_state
 from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, load_backend
 from ctrplan.cli.options import parse_duration
-from ctrplan.cli.progress import PlainProgress
+from ctrplan.cli.progress import StatusLine
 from ctrplan.dataio import check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.robot import Robot
@@ -136,26 +136,12 @@ def plan_command(
         raise typer.Exit(1)  # the summary and the JSON already say why
 
 
-class _Progress:
+class _Progress(StatusLine):
     """A transient rich status line on stderr on a terminal; elsewhere a plain line about every
     10 s (`PlainProgress`: kernel compilation and long searches are not silent in a log)."""
 
     def __init__(self, console):
-        self.console = console
-        self.status = None
-        self.plain = PlainProgress("plan", enabled=not console.is_terminal)
-
-    def __enter__(self):
-        if self.console.is_terminal:
-            self.status = self.console.status("planning ...")
-            self.status.__enter__()
-        self.plain.__enter__()
-        return self
-
-    def __exit__(self, *exc):
-        self.plain.__exit__(*exc)
-        if self.status is not None:
-            self.status.__exit__(*exc)
+        super().__init__(console, "plan", "planning ...")
 
     def update(self, stage: str, **info) -> None:
         text = {"compile": "compiling kernels (first run only)",
@@ -168,9 +154,7 @@ class _Progress:
             text += f"  {info['states']:,}/{info['max_states']:,} states"
         if "goals" in info:
             text += f"  {info['goals']} goals"
-        self.plain(text)
-        if self.status is not None:
-            self.status.update(text)
+        self(text)
 
 
 def _summary(console, sc, result, out: Path | None) -> None:

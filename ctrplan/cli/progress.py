@@ -43,3 +43,35 @@ class PlainProgress:
         while not self._done.wait(self.every_s):
             sys.stderr.write(self.line() + "\n")
             sys.stderr.flush()
+
+
+class StatusLine:
+    """A job's latest step on stderr: a transient rich status line on a terminal (with the elapsed
+    time when ``timed``), else `PlainProgress` lines. Call it with the latest text."""
+
+    def __init__(self, console, what: str, first: str, timed: bool = False):
+        self.console = console
+        self.timed = timed
+        self.plain = PlainProgress(what, enabled=not console.is_terminal)
+        self.plain(first)
+        self.status = None
+
+    def _shown(self) -> str:
+        return self.plain.line() if self.timed else self.plain.text
+
+    def __enter__(self) -> StatusLine:
+        if self.console.is_terminal:
+            self.status = self.console.status(self._shown())
+            self.status.__enter__()
+        self.plain.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.plain.__exit__(*exc)
+        if self.status is not None:
+            self.status.__exit__(*exc)
+
+    def __call__(self, text: str) -> None:
+        self.plain(text)
+        if self.status is not None:
+            self.status.update(self._shown())
