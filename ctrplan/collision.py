@@ -3,7 +3,7 @@
 The robot is a chain of capsules between consecutive backbone points; each capsule's radius is the
 outer radius of the outermost tube present on that segment plus a configurable margin. The scene is
 built once (meshes as BVHs of compact chunks, primitives as FCL shapes); the capsules are FCL objects
-whose radius, length and pose are updated in place for every configuration (DESIGN §4: building from
+whose radius, length and pose are updated in place for every configuration (docs/design.md §4: building from
 Python is slow, boolean checks are cheap, distances are for final paths only).
 
 Boolean checks first ask the scene's conservative distance grid (`ctrplan.broadphase`) which capsules

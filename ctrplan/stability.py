@@ -12,8 +12,8 @@ solution), and flags a configuration when
 * the configuration is multi-valued: the cold solve (from zero torsion) reaches a different
   equilibrium than the continuation.
 
-A domain is ``snap_free`` when nothing is flagged. Two-tube check (DESIGN §1): fully overlapping curved
-tubes of length L are snap-free for every rotation iff ``L sqrt((1 + nu) kappa1 kappa2) < pi/2``.
+A domain is ``snap_free`` when nothing is flagged. Two-tube check (docs/design.md §1.4): fully overlapping
+curved tubes of length L are snap-free for every rotation iff ``L sqrt((1 + nu) kappa1 kappa2) < pi/2``.
 """
 
 from __future__ import annotations

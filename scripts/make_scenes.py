@@ -8,7 +8,7 @@
 skullbase.yaml -- endonasal, transsphenoidal approach through the right nostril. Scene frame: origin at
 the anterior nasal spine, x towards the patient's left, y superior, z posterior (depth), mm. The airway
 is one lofted tunnel from the nostril to the pituitary fossa, split into named anatomical surfaces
-(the robot is inside it, so every wall counts). Dimensions (DESIGN §4; where the planning corridor is
+(the robot is inside it, so every wall counts). Dimensions (docs/design.md §4; where the planning corridor is
 wider than the resting anatomy the reason is given):
 
 - nostril/vestibule, then the nasal valve at z = 9..14: a slit 30 mm tall and 6 mm wide (resting

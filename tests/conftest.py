@@ -16,7 +16,7 @@ import pytest
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.robot import Robot
 
-#: 52 solved cases from an independent solver (DESIGN §1: tips, u_z(0), some backbones; nominal, with
+#: 52 solved cases from an independent solver (docs/design.md §1: tips, u_z(0), some backbones; nominal, with
 #: gravity, with a tip force), copied into the repository so the tests need nothing beside it.
 REFERENCE = Path(__file__).resolve().parent / "data" / "cosserat_cases.json"
 

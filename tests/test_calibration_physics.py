@@ -12,7 +12,7 @@ from ctrplan.robot import Robot
 
 
 def test_stiffness_ratio_is_poissons_ratio_nu_equal_e_over_2g_minus_1():
-    """Table I: E = 50 GPa, G = 19.23 GPa, so nu = 50 / (2 * 19.23) - 1 = 0.300052 (DESIGN §1,
+    """Table I: E = 50 GPa, G = 19.23 GPa, so nu = 50 / (2 * 19.23) - 1 = 0.300052 (docs/design.md §1,
     Dupont et al. 2010); the cause at that value is the robot file itself, and nu = 0.5 gives
     G = E / 3 = 16.667 GPa."""
     robot, effect = Robot.nominal(), make_effect("stiffness_ratio")

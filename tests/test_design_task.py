@@ -1,4 +1,4 @@
-"""Design task files: the format of DESIGN §5, bad input (one line naming file, line and key; exit 2),
+"""Design task files: the format of docs/design.md §5, bad input (one line naming file, line and key; exit 2),
 the search space, and the skull-base task's targets lying in the anatomy's free space."""
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ budget: {{trials: 60, plan_time_s: 5.0}}
 
 @pytest.fixture()
 def task_file(tmp_path: Path) -> Path:
-    """DESIGN §5's example task, in a folder beside the scenes (paths relative to the task file)."""
+    """The task of docs/design.md §5, in a folder beside the scenes (paths relative to the task file)."""
     folder = tmp_path / "tasks"
     folder.mkdir()
     path = folder / "task.yaml"

@@ -76,7 +76,7 @@ class DiagnoseOptions:
 
 @dataclass
 class Diagnosis:
-    """Everything `diagnose` found; `to_json` gives the DESIGN §3 document."""
+    """Everything `diagnose` found; `to_json` gives the docs/design.md §3 document."""
 
     data: MeasuredData                # the rows diagnosed (all, or max_rows of them)
     rows_in_file: int
@@ -242,7 +242,7 @@ class Diagnosis:
                             f"{opt.stable_fraction:.0%} of the splits"}
 
     def to_json(self) -> dict:
-        """The JSON document of DESIGN §3 (plus details); non-finite numbers become null."""
+        """The JSON document of docs/design.md §3 (plus details); non-finite numbers become null."""
         return plain(self._json())
 
     def _json(self) -> dict:

@@ -1,6 +1,6 @@
 """Command-line interface. One module per command group; `main` turns user errors into exit 2.
 
-Contracts (DESIGN.md §3): bad input -> one line on stderr naming file/row/field, exit code 2, no
+Contracts (docs/design.md §3): bad input -> one line on stderr naming file/row/field, exit code 2, no
 traceback, nothing half-written; ``--json`` prints one JSON document on stdout and nothing else.
 """
 

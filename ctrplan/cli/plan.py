@@ -1,6 +1,6 @@
 """`ctrplan plan`: plan a collision-free motion through a scene, validate it with the exact model.
 
-Exit codes (DESIGN §3): 0 solved, 1 not solved in time (or not safe under the exact model), 2 bad
+Exit codes (docs/design.md §3): 0 solved, 1 not solved in time (or not safe under the exact model), 2 bad
 input. ``--json`` prints one JSON document on stdout; progress and the readable summary then go to
 stderr.
 """
@@ -192,7 +192,7 @@ def _summary(console, sc, result, out: Path | None) -> None:
 
 
 def plan_document(result, sc, scene_file: Path, model: str | None) -> dict:
-    """The JSON document of a plan (DESIGN §3): the result, its scene file and PINN weights file
+    """The JSON document of a plan (docs/design.md §3): the result, its scene file and PINN weights file
     (or None), and the target region."""
     doc = result.to_json()
     doc["scene"] = str(scene_file)

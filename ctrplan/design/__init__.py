@@ -1,7 +1,7 @@
 """`ctrplan design`: which tube set reaches every target of a procedure through an anatomy, stable and
 collision-free.
 
-One idea per module: `task` (the task file, DESIGN §5), `space` (study parameters <-> robot files),
+One idea per module: `task` (the task file, docs/design.md §5), `space` (study parameters <-> robot files),
 `evaluate` (feasibility and proven reach of one design), `study` (the Optuna study and its executors),
 `outputs` (best robot, per-target scenes and paths, designs.csv, design.json) and `report` (pareto.png,
 report.html).

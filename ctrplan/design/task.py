@@ -1,4 +1,4 @@
-"""Design task files (`ctrplan design TASK.yaml`, DESIGN §5): which tube set to build for a procedure.
+"""Design task files (`ctrplan design TASK.yaml`, docs/design.md §5): which tube set to build for a procedure.
 
 A task is YAML in mm and 1/m; paths are relative to the task file::
 

@@ -3,7 +3,7 @@
 Wiring follows OMPL's ``demos/OptimalPlanning.py``: a `BoxSpace` state space, a `ValidityChecker`,
 a `BatchMotionValidator`, a `TipGoal` (IK-sampled goal region), a planner by name, a solve budgeted
 in work (`ctrplan.planning.budget`), path simplification; then `validate_path` with the exact
-Cosserat model. All OMPL objects live inside function scope (DESIGN §4: module-level OMPL objects
+Cosserat model. All OMPL objects live inside function scope (docs/design.md §4: module-level OMPL objects
 leak at exit).
 """
 
@@ -103,7 +103,7 @@ class PlanningProblem:
     """The OMPL objects of one planning problem, for use with any planner from user code.
 
     Build with `build_problem`; then e.g. ``planner = og.PRMstar(problem.si)`` (single goal state
-    planners only with PRM: see DESIGN §4), ``planner.setProblemDefinition(problem.pdef)``,
+    planners only with PRM: see docs/design.md §4), ``planner.setProblemDefinition(problem.pdef)``,
     ``planner.solve(5.0)`` and `PlanningProblem.solution` for the joint path.
     """
 
@@ -349,7 +349,7 @@ def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, p
 
 @dataclass
 class PlanResult:
-    """Everything `plan` found out; `to_json` gives the CLI document (DESIGN §3)."""
+    """Everything `plan` found out; `to_json` gives the CLI document (docs/design.md §3)."""
 
     solved: bool
     planner: str

@@ -1,6 +1,6 @@
 """An independent free-space Cosserat-rod model of an N-tube concentric-tube robot.
 
-Written from DESIGN §1 and the paper's equations only (no ctrplan import): fixed-step RK4 on every
+Written from docs/design.md §1 and the paper's equations only (no ctrplan import): fixed-step RK4 on every
 piece between the points where a tube starts, starts curving or ends (so the piecewise-constant
 coefficients never change inside a step), vectorised over configurations, and Newton shooting on
 u_iz(0) with a finite-difference Jacobian. Free space: the bending moment m_b,xy is zero everywhere,
@@ -10,7 +10,7 @@ u_iz(0) with a finite-difference Jacobian. Free space: the bending moment m_b,xy
     theta_i' = u_iz - u_1z,   p' = R e3,   R' = R [u_x, u_y, u_1z]^
 
 with R(0) = Rz(psi_1), theta_i(0) = psi_i - psi_1, psi_i = alpha_i - (beta_i - d_i) u_iz(0) -- the tube
-twists over the length -beta_i behind the plate plus an extra transmission length d_i (0 in DESIGN §1:
+twists over the length -beta_i behind the plate plus an extra transmission length d_i (0 in docs/design.md §1:
 a compliant drive, or a longer clamp-to-plate length than the model's) -- and u_iz(l_i) = 0 (u_iz
 stays constant past l_i, so u_iz(l_1) = 0 for all i). Units: mm, rad.
 """
