@@ -1,18 +1,21 @@
 #!/usr/bin/env python3
-"""Refresh a generated block of README.md from the command that produces its numbers.
+"""Refresh a generated block of the documentation from the command that produces its numbers.
 
 A block sits between ``<!-- MARKER:start -->`` and ``<!-- MARKER:end -->`` (e.g. MARKER =
-``bench:kinematics``). This script runs the block's ``ctrplan ... --json`` command (extra arguments
-are passed on), renders the JSON as markdown (a table, the machine, the exact command) and rewrites
-only that block, so README numbers always come from the command. Add a block to `BLOCKS`.
+``bench:kinematics``) in the markdown file `DOC_OF` names (docs/benchmarks.md, docs/cli.md). This
+script runs the block's ``ctrplan ... --json`` command (extra arguments are passed on), renders the
+JSON as markdown (a table, the machine, the exact command) and rewrites only that block, so the
+documented numbers always come from the command. Add a block to `BLOCKS` and `DOC_OF`.
 
     python scripts/update_readme.py kinematics --n 300
+    python scripts/update_readme.py --check      # every block's markers sit once in its file
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import shlex
 import subprocess
@@ -26,12 +29,14 @@ import numpy as np
 
 #: Planners that run until the time budget is spent (their time says nothing).
 OPTIMIZING = ("rrtstar", "bitstar")
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]  #: the repository; renderers write links relative to it
+BENCHMARKS = ROOT / "docs" / "benchmarks.md"
+CLI_DOC = ROOT / "docs" / "cli.md"
 
 
 @dataclass(frozen=True)
 class Block:
-    """A generated README block: its marker, the ctrplan arguments that produce its JSON, and its
+    """A generated documentation block: its marker, the ctrplan arguments that produce its JSON, and its
     renderer."""
 
     marker: str
@@ -112,7 +117,7 @@ def render_training(cards: list[dict[str, Any]]) -> str:
                            "backbone error mean %", "max %"], rows)
 
 
-ROBOTS_JSON = README.parent / "docs" / "training" / "robots.json"
+ROBOTS_JSON = ROOT / "docs" / "training" / "robots.json"
 
 
 def render_robots(doc: dict[str, Any]) -> str:
@@ -224,7 +229,7 @@ def render_plan(doc: dict[str, Any]) -> str:
         parts.append(f"**{scene}** ({rows[0]['runs']} seeded runs per row, {rows[0]['time_limit_s']:g} s "
                      f"budget)\n\n{plan_table(rows)}")
     if out is not None:
-        rel = (README.parent / out).resolve().relative_to(README.parent)
+        rel = (ROOT / out).resolve().relative_to(ROOT)
         parts.append(f"![planning times]({rel}/planning_times.png)\n\n![time split]({rel}/time_split.png)")
     m = doc["machine"]
     parts.append(f"Machine: {m['cpu']}, {m['cores']} cores, {st['executor']}; {m['platform']}. "
@@ -270,13 +275,13 @@ def render_design(doc: dict[str, Any]) -> str:
                  f"{tt['median']:.1f} s, mean {tt['mean']:.1f} s, max {tt['max']:.1f} s. Machine: "
                  f"{m['cpu']}, {m['cores']} cores; {m['platform']}.")
     out = Path(doc["outputs"]["pareto.png"]).parent
-    rel = (README.parent / out).resolve().relative_to(README.parent)
+    rel = (ROOT / out).resolve().relative_to(ROOT)
     parts.append(f"![Pareto plot]({rel}/pareto.png)\n\nEvery trial, the paths and the anatomy: "
                  f"[{rel}/report.html]({rel}/report.html).")
     return "\n\n".join(parts)
 
 
-DESIGN_OUT = Path("docs/bench/design_skullbase")  # the design block's --out (relative to the README)
+DESIGN_OUT = Path("docs/bench/design_skullbase")  # the design block's --out (relative to ROOT)
 
 BLOCKS = {
     "kinematics": Block(marker="bench:kinematics", args=("bench", "kinematics"), render=render_kinematics),
@@ -289,7 +294,7 @@ BLOCKS = {
     "design": Block(marker="design:skullbase", args=("design", "scenes/skullbase_design.yaml", "--out",
                                                      str(DESIGN_OUT)), render=render_design),
 }
-TRAINING_CARDS = README.parent / "docs" / "training"
+TRAINING_CARDS = ROOT / "docs" / "training"
 
 
 FINETUNE_MARKER = "pinn:finetune"
@@ -338,7 +343,7 @@ def run_finetune(extra: list[str], results: Path | None = None) -> str:
         report = json.loads(results.read_text())
         report.setdefault("card", json.loads((results.parent / "ft.json").read_text()))
         return render_finetune(report)
-    sys.path.insert(0, str(README.parent / "scripts"))
+    sys.path.insert(0, str(ROOT / "scripts"))
     from fewshot_lab import run_lab
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -393,7 +398,7 @@ def run_design_loop(extra: list[str]) -> str:
     plan every target with that PINN; outputs under `DESIGN_OUT`."""
     import time
 
-    design_json = README.parent / DESIGN_OUT / "design.json"
+    design_json = ROOT / DESIGN_OUT / "design.json"
     if not design_json.exists():
         raise SystemExit(f"{design_json}: not found; run `scripts/update_readme.py design` first")
     design = json.loads(design_json.read_text())
@@ -421,13 +426,46 @@ def run_design_loop(extra: list[str]) -> str:
               f"({sum(walls.values()) / 60:.0f} min).")
 
 
-def replace_block(text: str, marker: str, content: str) -> str:
+def replace_block(text: str, marker: str, content: str, where: str = "the document") -> str:
     """``text`` with the body of block ``marker`` replaced by ``content``; the markers must exist once."""
     start, end = f"<!-- {marker}:start -->", f"<!-- {marker}:end -->"
     pattern = re.compile(re.escape(start) + r".*?" + re.escape(end), re.DOTALL)
-    if len(pattern.findall(text)) != 1:
-        raise SystemExit(f"README: need exactly one {start} ... {end} block")
+    if len(pattern.findall(text)) != 1 or text.count(start) != 1 or text.count(end) != 1:
+        raise SystemExit(f"{where}: need exactly one {start} ... {end} block")
     return pattern.sub(lambda _: f"{start}\n{content}\n{end}", text)
+
+
+#: Where each block lives (the markdown file its markers are in).
+DOC_OF = {"kinematics": BENCHMARKS, "plan": BENCHMARKS, "plan-scenes": BENCHMARKS, "design": BENCHMARKS,
+          "design-loop": BENCHMARKS, "pinn": BENCHMARKS, "robots": BENCHMARKS, "training": BENCHMARKS,
+          "finetune": CLI_DOC}
+MARKER_OF = {**{name: block.marker for name, block in BLOCKS.items()}, "design-loop": LOOP_MARKER,
+             "robots": "pinn:robots", "training": "pinn:training", "finetune": FINETUNE_MARKER}
+#: A relative markdown link target (no scheme, anchor or absolute path).
+LINK = re.compile(r"\]\((?![a-z][a-z0-9+.-]*:|#|/)([^)\s]+)\)")
+
+
+def relink(markdown: str, folder: Path) -> str:
+    """``markdown`` whose relative links, written relative to `ROOT`, are made relative to ``folder``
+    (the folder of the file the markdown goes into)."""
+    def moved(match: re.Match[str]) -> str:
+        target = match.group(1)
+        rel = Path(os.path.relpath(ROOT / target, folder.resolve())).as_posix()
+        return f"]({rel}{'/' if target.endswith('/') else ''})"
+    return LINK.sub(moved, markdown)
+
+
+def check() -> int:
+    """Exit status of ``--check``: 0 when every block's markers sit exactly once in its file."""
+    failures = 0
+    for name, doc in DOC_OF.items():
+        try:
+            replace_block(doc.read_text(), MARKER_OF[name], "", str(doc.relative_to(ROOT)))
+            print(f"{name}: <!-- {MARKER_OF[name]} --> in {doc.relative_to(ROOT)}", file=sys.stderr)
+        except SystemExit as err:
+            print(err, file=sys.stderr)
+            failures += 1
+    return 1 if failures else 0
 
 
 def ctrplan_json(args: list[str], ok: tuple[int, ...] = (0,)) -> dict[str, Any]:
@@ -435,7 +473,7 @@ def ctrplan_json(args: list[str], ok: tuple[int, ...] = (0,)) -> dict[str, Any]:
     outside ``ok`` stops the script."""
     entry = "from ctrplan.cli import main; raise SystemExit(main())"  # `ctrplan` of this interpreter
     result = subprocess.run([sys.executable, "-c", entry, *args], stdout=subprocess.PIPE, check=False,
-                            text=True, cwd=README.parent)
+                            text=True, cwd=ROOT)
     if result.returncode not in ok:
         raise SystemExit(f"ctrplan {shlex.join(args)} failed with exit code {result.returncode}")
     return json.loads(result.stdout)
@@ -454,30 +492,37 @@ def run_block(name: str, extra: list[str], results: Path | None = None) -> str:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      epilog="Other arguments are passed on to the block's command.")
-    parser.add_argument("block", choices=sorted([*BLOCKS, "training", "finetune", "robots", "design-loop"]),
-                        help="README block to regenerate")
-    parser.add_argument("--readme", type=Path, default=README, help="README file to update")
+    parser.add_argument("block", nargs="?", choices=sorted(DOC_OF), help="block to regenerate")
+    parser.add_argument("--doc", "--readme", dest="doc", type=Path, default=None,
+                        help="Markdown file to update (default: the block's own, see DOC_OF)")
+    parser.add_argument("--check", action="store_true",
+                        help="Only check that every block's markers sit once in its file; run nothing")
     parser.add_argument("--results", type=Path, default=None,
                         help="Render this results.json of an earlier run of the block's command (pass "
                              "the same extra arguments) instead of running it again")
     ns, extra = parser.parse_known_args(argv)  # the rest goes to the ctrplan command
+    if ns.check:
+        raise SystemExit(check())
+    if ns.block is None:
+        parser.error("name a block to regenerate (or --check)")
+    doc = ns.doc or DOC_OF[ns.block]
     if ns.block == "training":
         cards = [json.loads(p.read_text()) for p in sorted(TRAINING_CARDS.glob("[0-9]*_*.json"))]
-        marker = "pinn:training"
         body = render_training(cards) + ("\n\nFrom the model cards in `docs/training/` (written by "
                                          "`ctrplan train`; backbone error / arc length on the "
                                          "card's unseen configurations).")
     elif ns.block == "robots":
-        marker, body = "pinn:robots", render_robots(json.loads(ROBOTS_JSON.read_text()))
+        body = render_robots(json.loads(ROBOTS_JSON.read_text()))
     elif ns.block == "finetune":
-        marker, body = FINETUNE_MARKER, run_finetune(extra, ns.results)
+        body = run_finetune(extra, ns.results)
     elif ns.block == "design-loop":
-        marker, body = LOOP_MARKER, run_design_loop(extra)
+        body = run_design_loop(extra)
     else:
-        marker, body = BLOCKS[ns.block].marker, run_block(ns.block, extra, ns.results)
-    # read the README only now: the command may have run for minutes while it was edited
-    ns.readme.write_text(replace_block(ns.readme.read_text(), marker, body))
-    print(f"updated the {ns.block} block of {ns.readme}", file=sys.stderr)
+        body = run_block(ns.block, extra, ns.results)
+    marker = MARKER_OF[ns.block]
+    # read the file only now: the command may have run for minutes while it was edited
+    doc.write_text(replace_block(doc.read_text(), marker, relink(body, doc.parent), str(doc)))
+    print(f"updated the {ns.block} block of {doc}", file=sys.stderr)
 
 
 if __name__ == "__main__":
