@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from ctrplan.errors import InputError
 
 #: States per second of search with each backend on the reference machine (AMD EPYC, one of its 2
-#: cores per search): `ctrplan bench plan scenes/skullbase.yaml` (README), searches that use their
+#: cores per search): `ctrplan bench plan scenes/skullbase.yaml` (docs/benchmarks.md), searches that use their
 #: whole 10 s (RRT, RRT*: 15,000-17,000 with the PINN, 4,900-5,300 with the exact backends).
 REFERENCE_STATES_PER_S = {"cosserat": 5000.0, "pinn": 16000.0, "hybrid": 5000.0}
 #: The wall-clock guard of a search, in multiples of its time limit: a machine up to this much slower

@@ -32,7 +32,7 @@ COVERAGES = (0.5, 0.8, 0.9, 0.95, 0.99)
 CALIBRATION_CONFIGURATIONS = 5000
 #: Configurations compared per chunk when a deadline may cut a comparison short.
 COMPARE_CHUNK = MIN_EVAL_CONFIGURATIONS
-#: The accuracy a trained model is meant to reach (README, PINN section: issue 18's target): tube-1
+#: The accuracy a trained model is meant to reach (docs/benchmarks.md, the PINN: issue 18's target): tube-1
 #: tip error over unseen configurations, mean and max, in % of tube 1's arc length.
 ACCURACY_TARGET = {"tube1_tip_mean_pct_length": 0.1, "tube1_tip_max_pct_length": 1.0}
 
