@@ -223,3 +223,13 @@ def test_missing_pinn_for_the_robot_in_use_says_so(tmp_path, capsys, monkeypatch
         "--backend pinn: no PINN model trained for robot 'mine'", f"in {tmp_path / 'models'} or among "
         "the shipped models", "ctrplan train --robot ROBOT.yaml --name mine_pinn"])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["robot.yaml"]
+
+
+def test_fk_rejects_underscore_cell(tmp_path, capsys):
+    configs = tmp_path / "c.csv"
+    configs.write_text(",".join(JOINT_NAMES) + "\n-2_0,-10,-5,0,0,0\n")
+    out = tmp_path / "o.csv"
+    assert main(["fk", str(configs), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "c.csv: row 2: beta1 = '-2_0' is not a number" in err[0]
+    assert not out.exists()

@@ -1,18 +1,16 @@
 """Nothing half-made is left behind: an output folder check that makes and removes every missing
-parent, and an atomic write interrupted by Ctrl-C.
+parent, also when the command fails after the check.
 
 The habit these tests keep (issue 25 §5): every safety or science function gets a test that a sign,
 index, bound or unit error would fail -- here the one-level-deep case that hides a check forgetting
-the parents, and the interrupt (not an ordinary exception) that hides a handler too narrow
-(`scripts/mutations.py` applies both).
+the parents (`scripts/mutations.py` applies it; the atomic write interrupted by Ctrl-C is in
+`tests/model/test_dataio.py`).
 """
 
 from __future__ import annotations
 
-import pytest
-
 from ctrplan.cli import main
-from ctrplan.dataio import atomic_write, check_output_dir
+from ctrplan.dataio import check_output_dir
 
 
 def test_the_output_check_leaves_no_folder_of_a_deep_new_path(tmp_path):
@@ -30,15 +28,3 @@ def test_a_command_failing_after_the_output_check_leaves_no_folder(tmp_path, cap
     err = capsys.readouterr().err
     assert rc == 2 and "missing.yaml" in err and len(err.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
-
-
-def test_ctrl_c_inside_an_atomic_write_leaves_the_old_file_and_no_temporary(tmp_path):
-    """KeyboardInterrupt is not an Exception: the temporary file must go on it too, and the old file
-    stays as it was."""
-    target = tmp_path / "out.csv"
-    target.write_text("old\n")
-    with pytest.raises(KeyboardInterrupt), atomic_write(target) as fh:
-        fh.write("half")
-        raise KeyboardInterrupt
-    assert [p.name for p in tmp_path.iterdir()] == ["out.csv"]
-    assert target.read_text() == "old\n"

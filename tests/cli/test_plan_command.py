@@ -1,5 +1,6 @@
 """New-user pitfalls of `ctrplan plan` (issue 10): no silent backend fallback, --model, --out parents,
-OMPL noise and Ctrl-C, a meaningful target in the JSON, the plan figure and viewer."""
+OMPL noise and Ctrl-C, a meaningful target in the JSON; help that is never cut, and a --version that
+imports no command."""
 
 from __future__ import annotations
 
@@ -11,11 +12,9 @@ import signal
 import subprocess
 import sys
 import time
-import warnings
-from pathlib import Path
 
-import numpy as np
 import pytest
+from test_cli_kinematics import run
 
 from ctrplan.cli import main
 from ctrplan.kinematics.model_file import resolve_model
@@ -31,12 +30,6 @@ BLOCKED = OPEN.replace(TARGET, "target:\n  ellipsoid:\n    center: [37.2, -27.2,
 #: The target inside the ball: refused before any search.
 INSIDE = OPEN.replace(TARGET, "target:\n  ellipsoid:\n    center: [43.0, -47.0, 150.0]\n"
                               "    semi_axes_mm: [2.0, 3.0, 4.0]\n")
-
-
-def run(capsys, *args: str) -> tuple[int, str, str]:
-    rc = main(list(args))
-    out, err = capsys.readouterr()
-    return rc, out, err
 
 
 def one_line_error(rc: int, out: str, err: str, *fragments: str) -> None:
@@ -136,41 +129,6 @@ def test_ctrl_c_prints_one_line(tmp_path):
     assert out == ""
 
 
-def test_plan_figure_names_every_obstacle_target_and_tip_trace(tmp_path):
-    from ctrplan.scene import load_scene
-    from ctrplan.viz.plan_plot import plan_figure, plot_plan
-
-    balls = "".join(f"- name: ball{i:02d}\n  sphere:\n    center: [{-60 + 8 * i}.0, 40.0, 150.0]\n"
-                    f"    radius: 2.0\n" for i in range(16))
-    text = OPEN.replace(OPEN[OPEN.index("- name: ball"):OPEN.index("target:")], balls)
-    (tmp_path / "many.yaml").write_text(text)
-    scene = load_scene(tmp_path / "many.yaml")
-    z = np.linspace(0, 180, 30)
-    bbs = np.stack([np.column_stack([np.zeros(30) + k, np.zeros(30), z]) for k in range(5)])
-    fig = plan_figure(scene, bbs, tip_path=bbs[:, -1])
-    labels = [t.get_text() for t in fig.legends[0].get_texts()]
-    assert labels[:16] == [f"ball{i:02d}" for i in range(16)]
-    assert {"target", "tip trace", "start", "end"} <= set(labels)
-    ax3 = next(a for a in fig.axes if a.name == "3d")
-    for axis in (ax3.xaxis, ax3.yaxis, ax3.zaxis):
-        assert len(axis.get_major_locator()()) <= 6
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # the old tight_layout call warned on every figure
-        plot_plan(scene, bbs, tmp_path / "p.png", tip_path=bbs[:, -1])
-    assert (tmp_path / "p.png").stat().st_size > 0
-
-
-def test_viewer_has_a_scale_bar(tmp_path):
-    from ctrplan.scene import load_scene
-    from ctrplan.viz import viewer_data, write_viewer
-
-    scene = load_scene(REPO / "scenes" / "open.yaml")
-    bbs = np.zeros((2, 5, 3))
-    bbs[..., 2] = np.linspace(0, 100, 5)
-    html = write_viewer(tmp_path / "v.html", viewer_data(scene, bbs, np.full((2, 5), 0.75))).read_text()
-    assert "function scaleBar()" in html and "scaleBar();" in html and '" mm (at the view centre)"' in html
-
-
 @pytest.mark.parametrize("command", [[], ["fk"], ["shape"], ["plan"], ["train"], ["eval-model"],
                                      ["diagnose"], ["bench", "kinematics"], ["bench", "plan"]])
 def test_help_is_never_cut_and_flags_have_no_metavar(capsys, monkeypatch, command):
@@ -191,23 +149,3 @@ def test_version_does_not_import_the_commands():
                             timeout=60, check=True)
     version, flags = result.stdout.splitlines()
     assert version.startswith("ctrplan ") and flags == "0 False False False"
-
-
-def test_library_resolve_backend_does_not_fall_back(tmp_path):
-    from importlib import resources
-
-    from ctrplan.errors import InputError
-    from ctrplan.planning import resolve_backend
-    from ctrplan.robot import Robot
-
-    text = resources.files("ctrplan.data").joinpath("nominal.yaml").read_text()
-    (tmp_path / "r.yaml").write_text(text.replace("curvature_1_per_m: 28.0", "curvature_1_per_m: 30.0")
-                                     .replace("name: nominal", "name: r"))
-    other = Robot.load(str(tmp_path / "r.yaml"))  # the shipped PINNs were trained for other robots
-    with pytest.raises(InputError) as info:
-        resolve_backend(None, other)
-    message = str(info.value)  # names this robot, where it looked and how to train one; no other model
-    assert message.startswith("no PINN model trained for robot 'r' (fingerprint ")
-    assert str(Path("models").resolve()) in message and "shipped models (pinn_nominal" in message
-    assert "ctrplan train --robot ROBOT.yaml --name r_pinn" in message and "'nominal'" not in message
-    assert resolve_backend("cosserat", other).name == "cosserat"

@@ -27,6 +27,9 @@ BALL_R = 2.0  # mm
 TIP_R = (1 - math.cos(KAPPA * CURVED)) / KAPPA  # mm: the tip's distance from the axis
 START = (-10.0, 0.0)
 
+#: Stability certificates and distance grids in a cache of each test's own.
+pytestmark = pytest.mark.usefixtures("private_cache")
+
 
 def backbone_mm(beta: float, alpha: float, n: int = 400) -> np.ndarray:
     """Points (n, 3) of the tube in front of the plate: straight to z = beta + 50, then the arc
@@ -66,11 +69,6 @@ def write_task(folder: Path, ball: np.ndarray, targets: list[tuple[str, np.ndarr
         "constraints: {max_strain: 0.08, snap_free: false}\n"
         "objectives: [targets_reached, min_clearance_mm]\nbudget: {trials: 2, plan_time_s: 3.0}\n")
     return folder / "task.yaml"
-
-
-@pytest.fixture(autouse=True)
-def own_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
 
 
 def test_a_design_does_not_start_where_the_scenes_start_collides(tmp_path):

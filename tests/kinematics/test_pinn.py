@@ -20,11 +20,6 @@ from ctrplan.training.trainer import get_recipe, train
 from tests.paths import REPO
 
 
-@pytest.fixture(scope="module")
-def pinn(robot) -> PinnBackend:
-    return PinnBackend.load(None, robot)
-
-
 def test_ode_residual_vanishes_on_exact_states(robot, cosserat):
     """d/ds of the exact backbone (finite differences) equals the torch right-hand side of the loss."""
     q = robot.sample_joints(6, rng=21)

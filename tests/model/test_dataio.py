@@ -116,3 +116,15 @@ def test_atomic_write_leaves_nothing_when_the_block_fails(tmp_path):
 def test_atomic_write_into_missing_directory_is_an_input_error(tmp_path):
     with pytest.raises(InputError, match="does not exist"), atomic_write(tmp_path / "no" / "x.csv"):
         pass
+
+
+def test_ctrl_c_inside_an_atomic_write_leaves_the_old_file_and_no_temporary(tmp_path):
+    """KeyboardInterrupt is not an Exception: the temporary file must go on it too, and the old file
+    stays as it was."""
+    target = tmp_path / "out.csv"
+    target.write_text("old\n")
+    with pytest.raises(KeyboardInterrupt), atomic_write(target) as fh:
+        fh.write("half")
+        raise KeyboardInterrupt
+    assert [p.name for p in tmp_path.iterdir()] == ["out.csv"]
+    assert target.read_text() == "old\n"

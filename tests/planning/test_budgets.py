@@ -13,16 +13,16 @@ import time
 
 import numpy as np
 import pytest
-from tests.design.test_design import read_csv, write_one_tube_task
 
 from ctrplan.cli import main
 from ctrplan.design.outputs import Design, best_design
 from ctrplan.design.task import Objective
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend
-from ctrplan.planning import plan, resolve_backend
+from ctrplan.planning import plan
 from ctrplan.planning.budget import GUARD_FACTOR, states_for
 from ctrplan.robot import Robot
 from ctrplan.scene import load_scene
+from tests.design.test_design import read_csv, write_one_tube_task
 from tests.paths import SCENES
 
 
@@ -59,16 +59,6 @@ class Sleepy(Backend):
     @property
     def error_bound(self):
         return self.inner.error_bound
-
-
-@pytest.fixture(scope="module")
-def open_scene():
-    return load_scene(SCENES / "open.yaml")
-
-
-@pytest.fixture(scope="module")
-def pinn(open_scene):
-    return resolve_backend("pinn", open_scene.robot)
 
 
 def test_a_seeded_plan_is_the_same_path_on_a_slowed_machine(open_scene, pinn):

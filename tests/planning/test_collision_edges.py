@@ -8,13 +8,6 @@ import pytest
 
 from ctrplan.planning.validity import EDGE_BATCHES, ConfigurationChecker, bisection_order, edge_batches
 from ctrplan.robot import Robot
-from ctrplan.scene import load_scene
-from tests.paths import SCENES
-
-
-@pytest.fixture(scope="module")
-def open_scene():
-    return load_scene(SCENES / "open.yaml")
 
 
 @pytest.mark.parametrize("k", [0, 1, 14, 15, 16, 31, 200])

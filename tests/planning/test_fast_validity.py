@@ -19,14 +19,9 @@ from tests.paths import SCENES
 
 
 @pytest.fixture(scope="module")
-def skull():
-    return load_scene(SCENES / "skullbase.yaml")
-
-
-@pytest.fixture(scope="module")
-def pinn_checker(skull):
-    be, margin, _ = planning_backend(skull, make_backend("pinn", skull.robot))
-    return ConfigurationChecker(skull, be, margin_mm=margin)
+def pinn_checker(skullbase):
+    be, margin, _ = planning_backend(skullbase, make_backend("pinn", skullbase.robot))
+    return ConfigurationChecker(skullbase, be, margin_mm=margin)
 
 
 def _fcl_valid(checker: ConfigurationChecker, q: np.ndarray) -> np.ndarray:
@@ -52,7 +47,7 @@ def _one_by_one(checker: ConfigurationChecker, q: np.ndarray) -> np.ndarray:
     return np.array([fresh.is_valid(qi) for qi in q])
 
 
-def test_staged_state_checks_agree_with_fcl_on_the_whole_backbone(skull, pinn_checker):
+def test_staged_state_checks_agree_with_fcl_on_the_whole_backbone(skullbase, pinn_checker):
     assert len(pinn_checker.stages) == 2  # the PINN makes part of a backbone cheaper
     q = _states_near_start(pinn_checker, 400, seed=7)
     valid = pinn_checker.check(q)
@@ -61,12 +56,12 @@ def test_staged_state_checks_agree_with_fcl_on_the_whole_backbone(skull, pinn_ch
     np.testing.assert_array_equal(_one_by_one(pinn_checker, q), valid)
 
 
-def test_a_body_is_the_backbone_a_collision_check_needs(skull, pinn_checker):
+def test_a_body_is_the_backbone_a_collision_check_needs(skullbase, pinn_checker):
     """`Backend.body` (what a validity check asks for) equals the corresponding parts of `forward`:
     the PINN's own kernel, and the planning margin added by region."""
     q = _states_near_start(pinn_checker, 50, seed=3)
     stage = pinn_checker.stages[0]
-    for be in (pinn_checker.backend, pinn_checker.backend.inner, CosseratBackend(skull.robot)):
+    for be in (pinn_checker.backend, pinn_checker.backend.inner, CosseratBackend(skullbase.robot)):
         body, bb = be.body(q, stage, check=False), be.forward(q, stage, check=False)
         np.testing.assert_allclose(body.positions_mm, bb.positions_mm, atol=1e-6)  # float32 network
         np.testing.assert_allclose(body.radius_mm, bb.radius_mm, atol=1e-12)
@@ -92,12 +87,12 @@ def test_contacts_on_the_proximal_half_alone_are_found():
     np.testing.assert_array_equal(_one_by_one(checker, q), valid)
 
 
-def test_staged_edge_checks_agree_with_fcl_on_every_state(skull, pinn_checker):
+def test_staged_edge_checks_agree_with_fcl_on_every_state(skullbase, pinn_checker):
     """An edge is valid exactly when its end and every interior state at the resolution are."""
     q = _states_near_start(pinn_checker, 400, seed=8)
     starts = q[pinn_checker.check(q)][:12]
     rng = np.random.default_rng(9)
-    res = skull.settings.resolution_mm
+    res = skullbase.settings.resolution_mm
     outcomes = []
     for q1 in starts:
         y2 = pinn_checker.space.to_coords(q1) + rng.normal(scale=4.0, size=pinn_checker.space.dimension)
@@ -105,7 +100,7 @@ def test_staged_edge_checks_agree_with_fcl_on_every_state(skull, pinn_checker):
         n = max(1, int(np.ceil(float(pinn_checker.space.distance(q1, q2)) / res)))
         line = pinn_checker.space.interpolate(q1, q2, np.arange(1, n + 1) / n)
         expected = bool(_fcl_valid(pinn_checker, line).all())
-        fresh = ConfigurationChecker(skull, pinn_checker.backend, margin_mm=pinn_checker.margin_mm,
+        fresh = ConfigurationChecker(skullbase, pinn_checker.backend, margin_mm=pinn_checker.margin_mm,
                                      world=pinn_checker.world)
         fresh.check(q1)
         assert fresh.check_motion(q1, q2, res) == expected

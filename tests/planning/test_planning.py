@@ -6,6 +6,7 @@ import json
 import re
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -33,16 +34,6 @@ from ctrplan.scene import PLANNERS, load_scene
 from tests.independent.cosserat import Tubes, solve
 from tests.independent.geometry import axis_angle, box_gap, sphere_gap
 from tests.paths import SCENES
-
-
-@pytest.fixture(scope="module")
-def open_scene():
-    return load_scene(SCENES / "open.yaml")
-
-
-@pytest.fixture(scope="module")
-def exact():
-    return CosseratBackend(Robot.nominal())
 
 
 def test_box_space_round_trip_and_metric():
@@ -333,3 +324,23 @@ def test_a_tiny_budget_ends_the_search_by_work_not_by_the_clock(open_scene, exac
     assert not res.solved and res.status == "TIMEOUT"
     assert res.max_states == 5 and "budget used up while sampling goal configurations" in res.message
     assert res.details["budget"]["states"] >= 5 and not res.cut_short
+
+
+def test_library_resolve_backend_does_not_fall_back(tmp_path):
+    from importlib import resources
+
+    from ctrplan.errors import InputError
+    from ctrplan.planning import resolve_backend
+    from ctrplan.robot import Robot
+
+    text = resources.files("ctrplan.data").joinpath("nominal.yaml").read_text()
+    (tmp_path / "r.yaml").write_text(text.replace("curvature_1_per_m: 28.0", "curvature_1_per_m: 30.0")
+                                     .replace("name: nominal", "name: r"))
+    other = Robot.load(str(tmp_path / "r.yaml"))  # the shipped PINNs were trained for other robots
+    with pytest.raises(InputError) as info:
+        resolve_backend(None, other)
+    message = str(info.value)  # names this robot, where it looked and how to train one; no other model
+    assert message.startswith("no PINN model trained for robot 'r' (fingerprint ")
+    assert str(Path("models").resolve()) in message and "shipped models (pinn_nominal" in message
+    assert "ctrplan train --robot ROBOT.yaml --name r_pinn" in message and "'nominal'" not in message
+    assert resolve_backend("cosserat", other).name == "cosserat"

@@ -9,21 +9,11 @@ import numpy as np
 import pytest
 
 from ctrplan.errors import InputError
-from ctrplan.kinematics import CosseratBackend, make_backend
+from ctrplan.kinematics import make_backend
 from ctrplan.planning import ConfigurationChecker, GoalSampler, plan, validate_path
 from ctrplan.planning.goal import tip_tangents
 from ctrplan.scene import load_scene
 from tests.paths import SCENES
-
-
-@pytest.fixture(scope="module")
-def open_scene():
-    return load_scene(SCENES / "open.yaml")
-
-
-@pytest.fixture(scope="module")
-def exact(open_scene):
-    return CosseratBackend(open_scene.robot)
 
 
 def test_scene_reads_the_approach_direction(tmp_path):

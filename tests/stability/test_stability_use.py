@@ -7,8 +7,6 @@ import json
 import math
 
 import numpy as np
-import pytest
-from test_any_robot import overlapping_pair
 
 from ctrplan.cli import main
 from ctrplan.kinematics import CosseratBackend
@@ -17,6 +15,7 @@ from ctrplan.planning.validity import ConfigurationChecker
 from ctrplan.robot import Robot
 from ctrplan.scene import load_scene
 from ctrplan.stability import critical_length_mm, is_certified, user_certificate_dir
+from tests.model.test_any_robot import overlapping_pair
 from tests.paths import REPO
 
 HALF_TURN = np.array([0.0, 0.0, 0.0, math.pi])
@@ -30,12 +29,6 @@ def snapping_pair_file(tmp_path) -> str:
     path = tmp_path / "snapping_pair.yaml"
     path.write_text(yaml.safe_dump(r.to_dict()))
     return str(path)
-
-
-@pytest.fixture()
-def private_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    return tmp_path / "cache"
 
 
 def test_shipped_robots_are_certified_and_others_are_not(private_cache):
@@ -102,7 +95,7 @@ def test_stability_command_bad_input(tmp_path, capsys):
 
 
 #: Overlap 1.3 times the critical length: at half a turn the straight-twist equilibrium has the
-#: Jacobi measure cos(1.3 pi / 2) = -0.45 < 0 (Dupont et al. 2010; tests/test_any_robot.py checks the
+#: Jacobi measure cos(1.3 pi / 2) = -0.45 < 0 (Dupont et al. 2010; tests/model/test_any_robot.py checks the
 #: solver against it), and cold solves from 2.8 rad to pi end on that unstable branch.
 SNAP_FACTOR = 1.3
 

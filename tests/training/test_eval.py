@@ -11,7 +11,7 @@ import pytest
 from ctrplan.errors import InputError
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.kinematics.model_file import read_card, resolve_model
-from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnBackend
+from ctrplan.kinematics.pinn import ERROR_BOUND_KEY
 from ctrplan.planning.planner import RegionMarginBackend, planning_backend
 from ctrplan.robot import Robot
 from ctrplan.scene import load_scene
@@ -27,11 +27,6 @@ from ctrplan.training.evaluate import (
     region_bounds_mm,
 )
 from tests.paths import SCENES
-
-
-@pytest.fixture(scope="module")
-def pinn() -> PinnBackend:
-    return PinnBackend.load(None, Robot.nominal())
 
 
 def test_conformal_quantile_is_the_right_order_statistic_and_covers():

@@ -12,11 +12,11 @@ import shlex
 from pathlib import Path
 
 import pytest
-from tests.cli.test_ctrl_c import interrupt
 
 from ctrplan.cli import main
 from ctrplan.training.evaluate import ACCURACY_TARGET
 from ctrplan.training.trainer import get_recipe, pool_size, train
+from tests.cli.test_ctrl_c import interrupt
 from tests.paths import REPO
 
 TINY = dict(steps=20, collocation=64, boundary=32, dense_configs=100, dense_batch=256, dense_points=9)

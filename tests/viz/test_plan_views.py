@@ -1,8 +1,11 @@
 """What plan.png and plan.html show a surgeon: the target in its own colour, anatomy told apart,
-orientation named, the result as labelled lines, the clearance along the backbone, and projections
-that draw only what lies near the path in the hidden axis."""
+orientation named, the result as labelled lines, the clearance along the backbone, projections that
+draw only what lies near the path in the hidden axis; every obstacle named in the figure's legend, and
+a scale bar in the viewer."""
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 import pytest
@@ -14,12 +17,9 @@ from ctrplan.viz import viewer_data, write_viewer
 from ctrplan.viz.framing import section
 from ctrplan.viz.plan_plot import plan_figure
 from ctrplan.viz.style import TARGET_COLOR, obstacle_colors
-from tests.paths import SCENES
+from tests.paths import REPO, SCENES
 
-
-@pytest.fixture(scope="module")
-def skullbase():
-    return load_scene(SCENES / "skullbase.yaml")
+OPEN = (SCENES / "open.yaml").read_text()
 
 
 def midline_path(scene) -> np.ndarray:
@@ -94,3 +94,38 @@ def test_scene_anatomy_errors_name_the_key(tmp_path, anatomy, fragment):
     (tmp_path / "s.yaml").write_text(text)
     with pytest.raises(InputError, match=fragment):
         load_scene(tmp_path / "s.yaml")
+
+
+def test_plan_figure_names_every_obstacle_target_and_tip_trace(tmp_path):
+    from ctrplan.scene import load_scene
+    from ctrplan.viz.plan_plot import plan_figure, plot_plan
+
+    balls = "".join(f"- name: ball{i:02d}\n  sphere:\n    center: [{-60 + 8 * i}.0, 40.0, 150.0]\n"
+                    f"    radius: 2.0\n" for i in range(16))
+    text = OPEN.replace(OPEN[OPEN.index("- name: ball"):OPEN.index("target:")], balls)
+    (tmp_path / "many.yaml").write_text(text)
+    scene = load_scene(tmp_path / "many.yaml")
+    z = np.linspace(0, 180, 30)
+    bbs = np.stack([np.column_stack([np.zeros(30) + k, np.zeros(30), z]) for k in range(5)])
+    fig = plan_figure(scene, bbs, tip_path=bbs[:, -1])
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert labels[:16] == [f"ball{i:02d}" for i in range(16)]
+    assert {"target", "tip trace", "start", "end"} <= set(labels)
+    ax3 = next(a for a in fig.axes if a.name == "3d")
+    for axis in (ax3.xaxis, ax3.yaxis, ax3.zaxis):
+        assert len(axis.get_major_locator()()) <= 6
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the old tight_layout call warned on every figure
+        plot_plan(scene, bbs, tmp_path / "p.png", tip_path=bbs[:, -1])
+    assert (tmp_path / "p.png").stat().st_size > 0
+
+
+def test_viewer_has_a_scale_bar(tmp_path):
+    from ctrplan.scene import load_scene
+    from ctrplan.viz import viewer_data, write_viewer
+
+    scene = load_scene(REPO / "scenes" / "open.yaml")
+    bbs = np.zeros((2, 5, 3))
+    bbs[..., 2] = np.linspace(0, 100, 5)
+    html = write_viewer(tmp_path / "v.html", viewer_data(scene, bbs, np.full((2, 5), 0.75))).read_text()
+    assert "function scaleBar()" in html and "scaleBar();" in html and '" mm (at the view centre)"' in html
