@@ -12,7 +12,8 @@ no kernel compiled from a mutated file is reused after the file is restored, and
 the real file hides a mutation. Exit code 1 when a mutation survived or is stale.
 
 The habit the mutations check: every safety or science function gets a test that a sign, index,
-bound or unit error would fail (tests/test_guard_*.py hold those written for issue 25).
+bound or unit error would fail (tests/<package>/, e.g. tests/model/test_target_and_domain_geometry.py,
+hold those written for issue 25).
 """
 
 from __future__ import annotations
@@ -38,16 +39,17 @@ class Mutation:
     tests: tuple[str, ...]
 
 
-FRAMES = "tests/test_planning_frames.py::test_"
-STABILITY = "tests/test_stability_use.py::test_"
-BAD = "tests/test_bad_input.py::test_"
-PHYSICS = "tests/test_calibration_physics.py::test_"
-GEOMETRY = "tests/test_guard_geometry.py::test_"
-SWEEP = "tests/test_guard_stability.py::test_"
-DESIGN = "tests/test_guard_design.py::test_"
-RULES = "tests/test_guard_calibration.py::test_"
-FILES = "tests/test_guard_files.py::test_"
-THRESHOLD = "tests/test_any_robot.py::test_domain_check_reproduces_the_two_tube_threshold"
+FRAMES = "tests/planning/test_planning_frames.py::test_"
+STABILITY = "tests/stability/test_stability_use.py::test_"
+BAD = "tests/cli/test_bad_input.py::test_"
+PHYSICS = "tests/calibration/test_calibration_physics.py::test_"
+GEOMETRY = "tests/model/test_target_and_domain_geometry.py::test_"
+SWEEP = "tests/stability/test_sweep_flags.py::test_"
+DESIGN = "tests/design/test_design_record.py::test_"
+RULES = "tests/calibration/test_selection_rules.py::test_"
+FILES = "tests/cli/test_output_folders.py::test_"
+ATOMIC = "tests/model/test_dataio.py::test_"
+THRESHOLD = "tests/model/test_any_robot.py::test_domain_check_reproduces_the_two_tube_threshold"
 
 MUTATIONS = (
     Mutation("exact validation at the identity pose", "ctrplan/planning/validate.py",
@@ -127,20 +129,20 @@ MUTATIONS = (
     Mutation("--time-limit 0 accepted", "ctrplan/cli/options.py",
              "if not (math.isfinite(seconds) and seconds > 0):",
              "if not (math.isfinite(seconds) and seconds >= 0):",
-             (BAD + "bad_option_fails_cleanly_and_writes_nothing", "tests/test_cli_options.py")),
+             (BAD + "bad_option_fails_cleanly_and_writes_nothing", "tests/cli/test_cli_options.py")),
     Mutation("train leaves its checkpoint", "ctrplan/cli/model.py",
              "    remove_checkpoint(out)  # the run finished: nothing to resume\n", "",
-             ("tests/test_newuser_trainer.py::"
+             ("tests/training/test_trainer.py::"
               "test_cli_train_with_a_time_limit_reports_its_last_step_and_leaves_no_checkpoint",)),
     Mutation("train's progress stops at the last multiple of 10 steps", "ctrplan/training/trainer.py",
              "last = self.step == steps or self._out_of_time()", "last = self.step == steps",
-             ("tests/test_newuser_trainer.py::"
+             ("tests/training/test_trainer.py::"
               "test_cli_train_with_a_time_limit_reports_its_last_step_and_leaves_no_checkpoint",)),
     Mutation("an interrupt that became another exception leaks a traceback", "ctrplan/cli/__init__.py",
              "if not (console.interrupted() or isinstance(exc, (KeyboardInterrupt, typer.Abort))):",
              "if not isinstance(exc, (KeyboardInterrupt, typer.Abort)):",
-             ("tests/test_ctrl_c.py::test_ctrl_c_inside_a_numba_kernel",)),
-    # ---- issue 25 §5: bugs nobody listed (tests/test_guard_*.py and the strengthened tests) ----------
+             ("tests/cli/test_ctrl_c.py::test_ctrl_c_inside_a_numba_kernel",)),
+    # ---- issue 25 §5: bugs nobody listed (the guard tests and the strengthened ones) ----------
     Mutation("ellipsoid target rotation applied transposed", "ctrplan/scene.py",
              "return (np.asarray(p, dtype=float) - self.center) @ self.rotation\n",
              "return (np.asarray(p, dtype=float) - self.center) @ self.rotation.T\n",
@@ -183,7 +185,7 @@ MUTATIONS = (
              (DESIGN + "a_design_does_not_start_where_the_scenes_start_collides",)),
     Mutation("infeasible designs kept in the ranking", "ctrplan/design/outputs.py",
              'feasible = [d for d in designs if d.record["feasible"]]', "feasible = list(designs)",
-             ("tests/test_design.py::test_over_strained_designs_are_never_best",)),
+             ("tests/design/test_design.py::test_over_strained_designs_are_never_best",)),
     Mutation("diagnose's BIC margin with its sign flipped", "ctrplan/calibration/selection.py",
              "ok = held_ok and d_bic < -opt.bic_margin", "ok = held_ok and d_bic < opt.bic_margin",
              (RULES + "a_cause_must_lower_the_bic_by_more_than_the_margin",)),
@@ -204,13 +206,13 @@ MUTATIONS = (
     Mutation("atomic write leaves its temporary file on Ctrl-C", "ctrplan/dataio.py",
              "    except BaseException:\n        tmp.unlink(missing_ok=True)",
              "    except Exception:\n        tmp.unlink(missing_ok=True)",
-             (FILES + "ctrl_c_inside_an_atomic_write_leaves_the_old_file_and_no_temporary",)),
+             (ATOMIC + "ctrl_c_inside_an_atomic_write_leaves_the_old_file_and_no_temporary",)),
     Mutation("tail metric p99.9 taken at p99", "ctrplan/training/evaluate.py",
              '"p99_9": float(np.percentile(x, 99.9))', '"p99_9": float(np.percentile(x, 99))',
-             ("tests/test_eval.py::test_metrics_report_the_tail",)),
+             ("tests/training/test_eval.py::test_metrics_report_the_tail",)),
     Mutation("orientation error is half the rotation angle", "ctrplan/training/evaluate.py",
              "angle = np.degrees(2 * np.arccos(", "angle = np.degrees(np.arccos(",
-             ("tests/test_eval.py::test_metrics_report_the_tail",)),
+             ("tests/training/test_eval.py::test_metrics_report_the_tail",)),
 )
 
 

@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 from rich import box
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from ctrplan.bench import kinematics as kinematics_bench
@@ -21,6 +21,7 @@ from ctrplan.bench.plots import planning_plots, timing_boxplot
 from ctrplan.cli import HELP_SETTINGS, app
 from ctrplan.cli.kinematics import RobotOpt, as_option, load_backend
 from ctrplan.cli.options import parse_duration
+from ctrplan.cli.progress import CountProgress
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS
@@ -63,13 +64,13 @@ def parse_ints(value: str, option: str, minimum: int) -> list[int]:
     return out
 
 
-def progress_bar() -> Progress:
+def progress_bar(what: str, thread: bool = True) -> CountProgress:
     """A progress bar on stderr, refreshed only from the caller's thread (no background thread that
-    would share the pinned core with the timed calls); silent when stderr is not a terminal."""
-    console = Console(stderr=True)
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TimeRemainingColumn(), console=console, auto_refresh=False,
-                    disable=not console.is_terminal)
+    would share the pinned core with the timed calls); when stderr is not a terminal, a plain line
+    about every 10 s instead (from the caller only, without ``thread``)."""
+    return CountProgress(Console(stderr=True), what, (TextColumn("{task.description}"), BarColumn(),
+                                                      MofNCompleteColumn(), TimeRemainingColumn()),
+                         thread=thread)
 
 
 def publish(doc: dict, out: Path, as_json: bool) -> bool:
@@ -122,7 +123,7 @@ def kinematics(
                "configurations")
     check_backbones("--batch", batch, None, kinematics_bench.BATCH_POINTS, model.n_tubes, 2)
     check_output_dir(out)  # created when the results are written
-    with progress_bar() as bar, single_core() as core:
+    with progress_bar("bench kinematics", thread=False) as bar, single_core() as core:
         task = bar.add_task("bench kinematics", total=n * len(cases))
         last = 0.0
 
@@ -223,7 +224,7 @@ def plan(
     specs = planning_bench.make_specs(limits, backends, planners, runs, seed, max_states)
     check_output_dir(out)  # created when the results are written
     t0 = time.perf_counter()
-    with progress_bar() as bar:
+    with progress_bar("bench plan") as bar:
         task = bar.add_task("bench plan", total=len(specs))
 
         def tick(done: int, total: int) -> None:

@@ -145,9 +145,12 @@ class _Progress(StatusLine):
 
     def update(self, stage: str, **info) -> None:
         text = {"compile": "compiling kernels (first run only)",
+                "start": "checking the start (collision world)",
                 "goal": "sampling goal configurations (IK)", "search": "searching",
                 "simplify": "simplifying the path", "validate": "validating with the exact model",
                 "repair": "repairing with the exact model"}.get(stage, stage)
+        if stage == "compile" and "total" in info:
+            text = f"compiling kernels {info['done']}/{info['total']} (first run only)"
         if "elapsed" in info:
             text += f"  {info['elapsed']:.1f} s"
         if "states" in info and "max_states" in info:

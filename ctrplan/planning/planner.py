@@ -407,14 +407,18 @@ def check_start(scene: Scene, checker: ConfigurationChecker, exact: Backend) -> 
         raise InputError("; ".join(p.message for p in report.problems))
 
 
-def compile_kernels(backends: list[Backend], q: np.ndarray, points: int) -> None:
+def compile_kernels(backends: list[Backend], q: np.ndarray, points: int,
+                    progress: Progress = _quiet) -> None:
     """Run every backend on one and on two configurations ``q`` (mm, rad), so that numba compiles
     (first run only) or loads from its cache every kernel a plan uses before the planning clock
-    starts."""
+    starts. ``progress("compile", done=k, total=n)`` counts the n kernel sets (a backend's
+    single-query and batched ones), k of them ready."""
     q = np.asarray(q, dtype=float)
-    for be in backends:
-        be.forward(q, points=points, check=False)                  # single-query kernels
-        be.forward(np.stack([q, q]), points=points, check=False)   # batched (parallel) kernels
+    calls = [(be, batch) for be in backends for batch in (q, np.stack([q, q]))]  # single, batched
+    for done, (be, batch) in enumerate(calls):
+        progress("compile", done=done, total=len(calls))
+        be.forward(batch, points=points, check=False)
+    progress("compile", done=len(calls), total=len(calls))
 
 
 class RegionMarginBackend(Backend):
@@ -648,8 +652,9 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     exact = exact or (be if be.exact and be.robot is scene.robot else CosseratBackend(scene.robot))
     if not is_certified(scene.robot):  # the planner must never use a configuration that snaps
         be, exact = be.checking_stability(), exact.checking_stability()
-    compile_kernels([be] if be is exact else [be, exact], scene.start, s.points)
+    compile_kernels([be] if be is exact else [be, exact], scene.start, s.points, progress)
     compile_s = time.perf_counter() - t_compile
+    progress("start")  # the collision world: its distance grid and kernels on first use
     planning_be, margin, margin_source = planning_backend(scene, be)
     checker = ConfigurationChecker(scene, planning_be, margin_mm=margin)
     check_start(scene, checker, exact)

@@ -1,0 +1,131 @@
+"""What plan.png and plan.html show a surgeon: the target in its own colour, anatomy told apart,
+orientation named, the result as labelled lines, the clearance along the backbone, projections that
+draw only what lies near the path in the hidden axis; every obstacle named in the figure's legend, and
+a scale bar in the viewer."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from matplotlib.colors import to_hex
+
+from ctrplan.errors import InputError
+from ctrplan.scene import load_scene
+from ctrplan.viz import viewer_data, write_viewer
+from ctrplan.viz.framing import section
+from ctrplan.viz.plan_plot import plan_figure
+from ctrplan.viz.style import TARGET_COLOR, obstacle_colors
+from tests.paths import REPO, SCENES
+
+OPEN = (SCENES / "open.yaml").read_text()
+
+
+def midline_path(scene) -> np.ndarray:
+    """Two straight backbones (2, 40, 3) from in front of the face to the target centre, 2.5 mm
+    right of the midline like the approach through the right nostril."""
+    end = scene.target.center
+    start = end + np.array([0.0, -16.0, -100.0])
+    line = start + np.linspace(0.0, 1.0, 40)[:, None] * (end - start)
+    return np.stack([line, line])
+
+
+def test_skull_base_anatomy_has_its_own_colours_and_directions(skullbase):
+    names = [o.name for o in skullbase.obstacles]
+    colours = obstacle_colors(names)
+    assert len(set(colours.values())) == len(names)  # every obstacle told apart (septum, chiasm ...)
+    assert TARGET_COLOR not in colours.values()
+    assert skullbase.anatomy == {"x": "left", "y": "superior", "z": "posterior"}
+
+
+def test_viewer_marks_target_tip_orientation_clearance_and_result(skullbase, tmp_path):
+    bbs = midline_path(skullbase)
+    clearance = np.full((2, 39), 1.5)
+    info = {"result": "solved", "min clearance": "0.63 mm to optic_chiasm"}
+    data = viewer_data(skullbase, bbs, np.full((2, 40), 0.75), info, clearance)
+    assert data["target"]["color"] == TARGET_COLOR
+    assert data["axes"] == {"x": ("left", "right"), "y": ("superior", "inferior"),
+                            "z": ("posterior", "anterior")}
+    assert data["info"] == [["result", "solved"], ["min clearance", "0.63 mm to optic_chiasm"]]
+    assert np.shape(data["clearance"]) == (2, 39)
+    faint = {o["name"] for o in data["obstacles"] if o["alpha"] < 0.1}
+    assert faint == {"face"}  # the 220 mm face plate does not dominate the view
+    lo, hi = bbs[-1].min(axis=0), bbs[-1].max(axis=0) + 8.0
+    assert np.all((np.array(data["view"]["center"]) >= lo - 8.0) & (np.array(data["view"]["center"]) <= hi))
+    html = write_viewer(tmp_path / "v.html", data).read_text()
+    for drawn in ("function marks(", "function triad(", "function clearanceBar(", "function scaleBar(",
+                  "<th>"):
+        assert drawn in html
+
+
+def test_section_keeps_only_triangles_near_the_path_in_the_hidden_axis():
+    """A path along z at x = 0: a triangle 3 mm beside it (x) is kept with a 4 mm section, one
+    10 mm beside it is not, whatever its height (y, the other projected axis)."""
+    path = np.stack([np.column_stack([np.zeros(20), np.zeros(20), np.linspace(0, 50, 20)])])
+    tri = np.array([[[3.0, 20.0, 20.0], [3.5, 25.0, 22.0], [3.2, 20.0, 24.0]],
+                    [[10.0, 0.0, 20.0], [10.5, 1.0, 22.0], [10.2, 0.0, 24.0]],
+                    [[-2.0, 0.0, 80.0], [-2.0, 1.0, 82.0], [-2.0, 0.0, 84.0]]])  # beyond the path's end
+    assert section(tri, path, along=2, away=0, half_width=4.0).tolist() == [True, False, False]
+
+
+def test_projections_do_not_draw_the_carotids_over_a_midline_path(skullbase):
+    """The carotids lie 7-11 mm lateral of the sella: the sagittal projection (hiding x) leaves them
+    out, the axial one (hiding y) shows them beside the path."""
+    fig = plan_figure(skullbase, midline_path(skullbase))
+    colours = obstacle_colors([o.name for o in skullbase.obstacles])
+    carotids = {c for n, c in colours.items() if "carotid" in n}
+    views = {ax.get_title().split(" ")[0]: ax for ax in fig.axes if ax.name != "3d" and ax.get_title()}
+    drawn = {v: {to_hex(c.get_facecolor()[0], keep_alpha=False) for c in ax.collections
+                 if len(c.get_paths())} for v, ax in views.items()}
+    assert not carotids & drawn["sagittal"]
+    assert carotids <= drawn["axial"]
+    assert views["sagittal"].get_xlabel() == "z (mm): anterior to posterior"
+    assert views["sagittal"].get_ylabel() == "y (mm): inferior to superior"
+
+
+@pytest.mark.parametrize(("anatomy", "fragment"), [
+    ("{x: left, y: up, z: posterior}", "anatomy.y: expected one of"),
+    ("{x: left, y: right, z: posterior}", "anatomy: each axis needs its own pair"),
+    ("{x: left, y: superior}", "missing required key 'z'"),
+])
+def test_scene_anatomy_errors_name_the_key(tmp_path, anatomy, fragment):
+    text = (SCENES / "open.yaml").read_text().replace("target:", f"anatomy: {anatomy}\ntarget:", 1)
+    (tmp_path / "s.yaml").write_text(text)
+    with pytest.raises(InputError, match=fragment):
+        load_scene(tmp_path / "s.yaml")
+
+
+def test_plan_figure_names_every_obstacle_target_and_tip_trace(tmp_path):
+    from ctrplan.scene import load_scene
+    from ctrplan.viz.plan_plot import plan_figure, plot_plan
+
+    balls = "".join(f"- name: ball{i:02d}\n  sphere:\n    center: [{-60 + 8 * i}.0, 40.0, 150.0]\n"
+                    f"    radius: 2.0\n" for i in range(16))
+    text = OPEN.replace(OPEN[OPEN.index("- name: ball"):OPEN.index("target:")], balls)
+    (tmp_path / "many.yaml").write_text(text)
+    scene = load_scene(tmp_path / "many.yaml")
+    z = np.linspace(0, 180, 30)
+    bbs = np.stack([np.column_stack([np.zeros(30) + k, np.zeros(30), z]) for k in range(5)])
+    fig = plan_figure(scene, bbs, tip_path=bbs[:, -1])
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert labels[:16] == [f"ball{i:02d}" for i in range(16)]
+    assert {"target", "tip trace", "start", "end"} <= set(labels)
+    ax3 = next(a for a in fig.axes if a.name == "3d")
+    for axis in (ax3.xaxis, ax3.yaxis, ax3.zaxis):
+        assert len(axis.get_major_locator()()) <= 6
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the old tight_layout call warned on every figure
+        plot_plan(scene, bbs, tmp_path / "p.png", tip_path=bbs[:, -1])
+    assert (tmp_path / "p.png").stat().st_size > 0
+
+
+def test_viewer_has_a_scale_bar(tmp_path):
+    from ctrplan.scene import load_scene
+    from ctrplan.viz import viewer_data, write_viewer
+
+    scene = load_scene(REPO / "scenes" / "open.yaml")
+    bbs = np.zeros((2, 5, 3))
+    bbs[..., 2] = np.linspace(0, 100, 5)
+    html = write_viewer(tmp_path / "v.html", viewer_data(scene, bbs, np.full((2, 5), 0.75))).read_text()
+    assert "function scaleBar()" in html and "scaleBar();" in html and '" mm (at the view centre)"' in html
