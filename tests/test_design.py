@@ -18,12 +18,12 @@ import optuna
 import pytest
 from scipy.optimize import brentq
 
-from ctrplan.bench.fanout import run_jobs
 from ctrplan.cli import main
 from ctrplan.design.evaluate import DesignJob, evaluate, evaluate_job
 from ctrplan.design.task import load_task
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.kinematics.cosserat import SolverSettings
+from ctrplan.parallel import run_jobs
 from ctrplan.planning import BoxSpace
 from ctrplan.robot import Robot
 from ctrplan.stability import critical_length_mm, is_certified

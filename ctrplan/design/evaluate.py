@@ -55,7 +55,7 @@ START_CHUNK = 64
 
 @dataclass(frozen=True)
 class DesignJob:
-    """One evaluation for `ctrplan.bench.fanout`: the task file, the design's parameters (``{}``: the
+    """One evaluation for `ctrplan.parallel`: the task file, the design's parameters (``{}``: the
     base design) and the study seed."""
 
     task_file: str

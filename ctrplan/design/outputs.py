@@ -32,12 +32,12 @@ from typing import Any
 import numpy as np
 import optuna
 
-from ctrplan.bench import machine_info
 from ctrplan.dataio import atomic_write
 from ctrplan.design.space import build_robot
 from ctrplan.design.study import NOMINAL, RECORD, dominates, finished_trials, objective_value, ranking_key
 from ctrplan.design.task import DesignTask
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.machine import machine_info
 from ctrplan.stability import certify, is_certified
 from ctrplan.yamlio import dump_yaml, load_yaml
 

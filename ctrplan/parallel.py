@@ -22,8 +22,8 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from contextlib import ExitStack, contextmanager
 from typing import Any, TypeVar
 
-from ctrplan.bench import limit_threads, single_core
 from ctrplan.errors import InputError
+from ctrplan.machine import limit_threads, single_core
 
 Spec = TypeVar("Spec")
 Job = Callable[[Any], dict]
