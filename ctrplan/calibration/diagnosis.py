@@ -34,13 +34,13 @@ import numpy as np
 from scipy import stats
 
 from ctrplan.calibration.data import MeasuredData, rows_text
-from ctrplan.calibration.effects import CAUSES, make_effect
 from ctrplan.calibration.experiment import Experiment, separating_rows
 from ctrplan.calibration.fit import Evaluator, Prediction
 from ctrplan.calibration.noise import estimate_noise
 from ctrplan.calibration.selection import Candidate, Selection, Selector, configuration_groups
 from ctrplan.calibration.split import Split, contiguous_subsample, split_rows
 from ctrplan.dataio import plain
+from ctrplan.effects import CAUSES, make_effect
 from ctrplan.errors import InputError
 from ctrplan.measurement import motion_direction
 from ctrplan.robot import Robot

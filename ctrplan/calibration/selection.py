@@ -38,7 +38,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy import stats
 
-from ctrplan.calibration.effects import Combined, Effect, make_effect, offset_limits
 from ctrplan.calibration.fit import (
     Evaluator,
     FitResult,
@@ -49,6 +48,7 @@ from ctrplan.calibration.fit import (
     residual_vector,
 )
 from ctrplan.calibration.split import Split
+from ctrplan.effects import Combined, Effect, make_effect, offset_limits
 from ctrplan.errors import InputError
 
 if TYPE_CHECKING:
