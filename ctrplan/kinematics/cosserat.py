@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from ctrplan.kinematics import _shooting as kernel
+import ctrplan.kinematics._shooting as kernel
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, arc_fractions, outer_radius_along
 from ctrplan.robot import Robot

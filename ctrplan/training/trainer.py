@@ -35,7 +35,8 @@ from safetensors.torch import load_file, save
 from ctrplan.dataio import atomic_write
 from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import save_model
-from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnNet
+from ctrplan.kinematics.pinn import ERROR_BOUND_KEY
+from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.machine import cpu_model
 from ctrplan.robot import Robot
 from ctrplan.training.budget import TimeBudget
