@@ -37,7 +37,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ctrplan.calibration.diagnosis import DiagnoseOptions, Diagnosis, diagnose, error_stats
+from ctrplan.calibration.diagnosis import Diagnosis, diagnose, error_stats
+from ctrplan.calibration.options import DiagnoseOptions
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.model_file import file_sha256, read_card, save_model, write_card_field
 from ctrplan.kinematics.pinn import PinnBackend
