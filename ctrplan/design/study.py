@@ -36,7 +36,7 @@ from pathlib import Path
 import optuna
 from optuna.trial import TrialState
 
-from ctrplan.design.evaluate import DesignJob, evaluate_job
+from ctrplan.design.evaluate import DesignContext, DesignJob, evaluate_job
 from ctrplan.design.space import distributions
 from ctrplan.design.task import DesignTask, Objective
 from ctrplan.errors import InputError
@@ -139,7 +139,7 @@ def run_study(task: DesignTask, study: optuna.Study, *, trials: int, seed: int =
     nominal_needed = NOMINAL not in study.user_attrs
     running: dict[int, optuna.Trial | None] = {}  # job number -> trial (None: the base design)
     stopped = False
-    with open_pool(workers, ray_address) as pool:
+    with open_pool(workers, ray_address, context=DesignContext) as pool:
 
         def fill() -> None:
             nonlocal nominal_needed, stopped

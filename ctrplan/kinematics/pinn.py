@@ -14,7 +14,7 @@ from torch import nn
 
 from ctrplan.kinematics._pinn_infer import backbone_fields, backbones, backbones_chunked, body_points, infer
 from ctrplan.kinematics.backbone import Backbone
-from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Body, arc_fractions, tangent_of
+from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Body, Points, arc_fractions, tangent_of
 from ctrplan.kinematics.blas import one_blas_thread
 from ctrplan.kinematics.cosserat import RodArrays
 from ctrplan.kinematics.model_file import load_model
@@ -126,7 +126,7 @@ class PinnBackend(Backend):
         return q, np.ascontiguousarray(q + self._offset if self._has_offset else q, dtype=float)
 
     @staticmethod
-    def _writable_fractions(points: int | np.ndarray) -> np.ndarray:
+    def _writable_fractions(points: Points) -> np.ndarray:
         """`arc_fractions` as a writable array: one compiled kernel type."""
         return arc_fractions(points).copy()
 
@@ -139,7 +139,7 @@ class PinnBackend(Backend):
                   *self._compiled, out)
         return out
 
-    def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
+    def forward(self, q: np.ndarray, points: Points = DEFAULT_POINTS, *,
                 guess: np.ndarray | None = None, check: bool = True) -> Backbone:
         q, qm = self._joints(q, check)
         frac = self._writable_fractions(points)
@@ -167,7 +167,7 @@ class PinnBackend(Backend):
             iterations=np.zeros(len(qm), dtype=np.int64), residual=residual, backend=self.name,
         )
 
-    def body(self, q: np.ndarray, points: int | np.ndarray, *, guess: np.ndarray | None = None,
+    def body(self, q: np.ndarray, points: Points, *, guess: np.ndarray | None = None,
              check: bool = True) -> Body:
         """The network at the nodes the points need and nothing else (no tube ends, no s = 0): a
         planner's single-state checks spend most of their time here. One thread (no chunking)."""
