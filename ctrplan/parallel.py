@@ -186,8 +186,10 @@ class RayPool(Pool):
         super().__init__()
         self.ray = ray
         self.task = ray.remote(num_cpus=1)(_ray_call)
-        actor = ray.remote(num_cpus=1)(_RayWorker)
-        self.actors = [] if context is None else [actor.remote(context) for _ in range(workers)]
+        self.actors: list[Any] = []
+        if context is not None:
+            actor = ray.remote(num_cpus=1)(_RayWorker)
+            self.actors = [actor.remote(context) for _ in range(workers)]
         self._in_flight = [0] * len(self.actors)
         self._refs: dict[Any, tuple[int, int | None]] = {}  # ref -> (job number, actor or None)
 
