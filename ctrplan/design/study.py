@@ -19,8 +19,9 @@ record as the user attribute ``record``; the base design's record is the study a
 ``nominal``.
 
 **Executors.** The driver (this process) asks the sampler for a design, hands its evaluation to a
-`ctrplan.parallel` pool (this process, local worker processes or Ray tasks) and tells the result
-back, keeping as many trials in flight as there are workers. With one worker a study is reproducible
+`ctrplan.parallel` pool (this process, local worker processes or Ray actors, each with its own
+`ctrplan.design.evaluate.DesignContext`) and tells the result back, keeping as many trials in flight
+as there are workers. With one worker a study is reproducible
 for a seed: the sampler is seeded, and each evaluation is a function of its parameters and the seed
 (`ctrplan.design.evaluate`).
 """
