@@ -25,7 +25,6 @@ import hashlib
 import math
 import os
 import time
-from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -320,9 +319,6 @@ def cache_dir() -> Path:
     return Path(base) / "ctrplan" / "broadphase"
 
 
-_MEMORY: OrderedDict[str, DistanceGrid] = OrderedDict()
-
-
 def _load(path: Path) -> DistanceGrid | None:
     try:
         with np.load(path) as z:
@@ -346,22 +342,17 @@ def _save(grid: DistanceGrid, path: Path) -> None:
 
 def grid_for(obstacles: Sequence[Obstacle], cell_mm: float = CELL_MM, band_mm: float = BAND_MM,
              use_disk: bool = True) -> DistanceGrid | None:
-    """The `DistanceGrid` of ``obstacles``: from memory, from the disk cache, or built (and
-    cached on disk when building took at least `SAVE_AFTER_S`). None without obstacles."""
+    """The `DistanceGrid` of ``obstacles``: from the disk cache, or built (and cached on disk when
+    building took at least `SAVE_AFTER_S`). None without obstacles. Nothing is kept in memory here:
+    a `ctrplan.collision.CollisionWorld` holds its grid, so share the world."""
     if not obstacles:
         return None
     key = geometry_key(obstacles, cell_mm, band_mm)
-    grid = _MEMORY.get(key)
     path = cache_dir() / f"{key}.npz"
-    if grid is None and use_disk and path.is_file():
-        grid = _load(path)
+    grid = _load(path) if use_disk and path.is_file() else None
     if grid is None:
         t = time.perf_counter()
         grid = DistanceGrid.build(obstacles, cell_mm, band_mm)
         if use_disk and time.perf_counter() - t >= SAVE_AFTER_S:
             _save(grid, path)
-    _MEMORY[key] = grid
-    _MEMORY.move_to_end(key)
-    while len(_MEMORY) > 4:
-        _MEMORY.popitem(last=False)
     return grid

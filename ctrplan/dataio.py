@@ -25,7 +25,12 @@ from typing import IO, Any
 import numpy as np
 
 from ctrplan.errors import InputError
-from ctrplan.robot import Robot, joint_names
+
+
+def joint_names(n_tubes: int) -> tuple[str, ...]:
+    """``(beta1 … betaN, alpha1 … alphaN)``: joint and CSV column names for N tubes."""
+    tubes = range(1, n_tubes + 1)
+    return tuple(f"beta{i}" for i in tubes) + tuple(f"alpha{i}" for i in tubes)
 
 
 def tip_names(n_tubes: int) -> tuple[str, ...]:
@@ -167,32 +172,6 @@ def parse_table(text: str, path: str | Path, columns: Sequence[str], *, optional
         raise InputError(f"{path}: no data rows after the header")
     return Table(path=path, columns=tuple(wanted), values=np.array(values, dtype=float),
                  lines=np.array(lines, dtype=np.int64))
-
-
-def read_joints(path: str | Path, robot: Robot, *, allow_outside_domain: bool = False) -> Table:
-    """Read a configurations CSV (header ``beta1,...,betaN,alpha1,...,alphaN`` for the robot's N tubes)
-    and validate every row against ``robot``.
-
-    Out-of-domain rows raise `DomainError` (or warn, with ``allow_outside_domain``) naming the row's
-    line and the violated inequality; physically impossible rows always raise `InputError`.
-    """
-    table = read_table(path, robot.joint_names, n_tubes=robot.n_tubes)
-    check_joint_rows(robot, table.joints, table.lines, str(table.path),
-                     allow_outside_domain=allow_outside_domain)
-    return table
-
-
-def check_joint_rows(robot: Robot, q: np.ndarray, lines: np.ndarray, where: str, *,
-                     allow_outside_domain: bool = False) -> None:
-    """`Robot.check_joints` on joints ``q`` (N, 6) read from lines ``lines`` (N,) of file ``where``,
-    so that every message names the row's line in the file."""
-    if len(q) == 0:
-        return
-    # check_joints numbers rows from an offset; split where skipped blank lines break the numbering.
-    runs = np.split(np.arange(len(q)), np.flatnonzero(np.diff(lines) != 1) + 1)
-    for run in runs:
-        robot.check_joints(q[run], allow_outside_domain=allow_outside_domain, where=where,
-                           row_offset=int(lines[run[0]]))
 
 
 def output_dir(path: str | Path, option: str = "--out") -> Path:

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from ctrplan.dataio import Table, atomic_write, joint_names, plain, read_table
 from ctrplan.errors import DomainError, InputError
 from ctrplan.measurement import CALIBRATION_KEY, Calibration
 from ctrplan.yamlio import YamlDoc, load_yaml
@@ -111,12 +112,6 @@ class JointLimits:
         accel = np.r_[np.full(n_tubes, self.acceleration_mm_per_s2),
                       np.full(n_tubes, self.acceleration_rad_per_s2)]
         return speed, accel
-
-
-def joint_names(n_tubes: int) -> tuple[str, ...]:
-    """``(beta1 … betaN, alpha1 … alphaN)``: joint and CSV column names for N tubes."""
-    tubes = range(1, n_tubes + 1)
-    return tuple(f"beta{i}" for i in tubes) + tuple(f"alpha{i}" for i in tubes)
 
 
 def box_names(n_tubes: int) -> tuple[str, ...]:
@@ -314,8 +309,6 @@ class Robot:
     def save(self, path: str | Path, comment: str = "") -> None:
         """Write the robot file (`to_dict`, atomic); ``comment`` lines go on top as YAML comments."""
         import yaml
-
-        from ctrplan.dataio import atomic_write, plain
 
         text = yaml.safe_dump(plain(self.to_dict()), sort_keys=False, default_flow_style=None, width=100)
         head = "".join(f"# {ln}\n" if ln else "#\n" for ln in comment.splitlines())
@@ -637,3 +630,29 @@ def _limits_from_yaml(doc: YamlDoc) -> JointLimits:
         if not 0.0 < v < 1e6:
             raise doc.error(("limits", k), f"must be > 0 (and finite), got {v:g}")
     return JointLimits(**values)
+
+
+def read_joints(path: str | Path, robot: Robot, *, allow_outside_domain: bool = False) -> Table:
+    """Read a configurations CSV (header ``beta1,...,betaN,alpha1,...,alphaN`` for the robot's N tubes)
+    and validate every row against ``robot``.
+
+    Out-of-domain rows raise `DomainError` (or warn, with ``allow_outside_domain``) naming the row's
+    line and the violated inequality; physically impossible rows always raise `InputError`.
+    """
+    table = read_table(path, robot.joint_names, n_tubes=robot.n_tubes)
+    check_joint_rows(robot, table.joints, table.lines, str(table.path),
+                     allow_outside_domain=allow_outside_domain)
+    return table
+
+
+def check_joint_rows(robot: Robot, q: np.ndarray, lines: np.ndarray, where: str, *,
+                     allow_outside_domain: bool = False) -> None:
+    """`Robot.check_joints` on joints ``q`` (N, 6) read from lines ``lines`` (N,) of file ``where``,
+    so that every message names the row's line in the file."""
+    if len(q) == 0:
+        return
+    # check_joints numbers rows from an offset; split where skipped blank lines break the numbering.
+    runs = np.split(np.arange(len(q)), np.flatnonzero(np.diff(lines) != 1) + 1)
+    for run in runs:
+        robot.check_joints(q[run], allow_outside_domain=allow_outside_domain, where=where,
+                           row_offset=int(lines[run[0]]))

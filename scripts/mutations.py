@@ -96,7 +96,7 @@ MUTATIONS = (
              'return doc.get("fingerprint") == robot.fingerprint and doc.get("snap_free") is True',
              'return doc.get("fingerprint") == robot.fingerprint',
              (STABILITY + "a_certificate_counts_only_for_its_robot_and_a_snap_free_verdict",)),
-    Mutation("stiffness_ratio with nu = E/G - 1", "ctrplan/calibration/effects.py",
+    Mutation("stiffness_ratio with nu = E/G - 1", "ctrplan/effects.py",
              "t.youngs_modulus_mpa / (2.0 * t.shear_modulus_mpa) - 1.0",
              "t.youngs_modulus_mpa / t.shear_modulus_mpa - 1.0",
              (PHYSICS + "stiffness_ratio_is_poissons_ratio_nu_equal_e_over_2g_minus_1",)),

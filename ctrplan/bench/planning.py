@@ -4,7 +4,7 @@ One run is `ctrplan.planning.plan` (search, exact re-validation, repair) on one 
 planner, seed); `run_one` turns it into a flat record (times in s, lengths in mm) and `summarize`
 aggregates the records per (scene, backend, planner). Every backend x planner pair gets the same seeds,
 so their runs are paired. Runs are independent and deterministic for a seed (OMPL is re-seeded per run,
-and every search is budgeted in work, `ctrplan.planning.budget`): `ctrplan.bench.fanout` spreads them
+and every search is budgeted in work, `ctrplan.planning.budget`): `ctrplan.parallel` spreads them
 over processes or a Ray cluster with the same content, whatever the load -- except a run whose
 wall-clock guard fired (``cut_short``: counted in the summary).
 """

@@ -2,10 +2,12 @@
 wrong, name the physical cause, extend the model, measure the gain.
 
 Modules: `data` (readers and writers of measured data), `split` (which rows train and which are
-held out), `effects` (the library of causes, each registered by its class), `fit` (batched least
-squares), `noise` (measurement noise from the data alone), `selection` (significance, stability and
-the named causes), `diagnosis` (the procedure and its report), `where` and `plots` (where the error
-grows), `synthetic` (generated data with a hidden cause).
+held out), `fit` (batched least squares), `noise` (measurement noise from the data alone),
+`selection` (significance, stability and the named causes), `diagnosis` (the procedure and its
+report) with its knobs in `options`, `where` and `plots` (where the error grows), `synthetic`
+(generated data with a hidden cause). The library of causes, each registered by its class, is
+`ctrplan.effects`: part of the robot model (a robot's calibration holds its measurement-side
+causes), below this package.
 
 The result is one extended `ctrplan.robot.Robot`: its mechanics in its fields, its measurement side
 in `Robot.calibration` (`ctrplan.measurement.Calibration` -- what "calibration" means on a robot).
@@ -17,15 +19,15 @@ import importlib
 from typing import Any
 
 _EXPORTS = {
-    "CAUSES": "effects",
+    "CAUSES": "ctrplan.effects",
     "Calibration": "ctrplan.measurement",
-    "DiagnoseOptions": "diagnosis",
+    "DiagnoseOptions": "options",
     "Diagnosis": "diagnosis",
-    "EFFECTS": "effects",
+    "EFFECTS": "ctrplan.effects",
     "MeasuredData": "data",
     "Split": "split",
     "diagnose": "diagnosis",
-    "make_effect": "effects",
+    "make_effect": "ctrplan.effects",
     "motion_direction": "ctrplan.measurement",
     "read_measured": "data",
     "split_rows": "split",

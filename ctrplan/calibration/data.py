@@ -21,15 +21,15 @@ import numpy as np
 
 from ctrplan.dataio import (
     atomic_write,
-    check_joint_rows,
     format_csv,
+    joint_names,
     parse_number,
     parse_table,
     read_text,
     tip_names,
 )
 from ctrplan.errors import InputError
-from ctrplan.robot import Robot, joint_names
+from ctrplan.robot import Robot, check_joint_rows
 
 CRL_COLUMNS = 40
 #: Order of the joints in a CRL row: alpha1 beta1 alpha2 beta2 alpha3 beta3 -> index into q.

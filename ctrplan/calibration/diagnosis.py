@@ -6,7 +6,7 @@ Procedure (`diagnose`):
 1. split the rows (`split.split_rows`): contiguous blocks held out at random, or the last rows;
 2. nominal errors per tube and where they grow (joints, direction of motion, residual direction); the
    measurement noise from the data alone (`noise.estimate_noise`), independent of any fitted model;
-3. fit every candidate cause of `effects.CAUSES` on the training rows (least squares on all measured
+3. fit every candidate cause of `ctrplan.effects.CAUSES` on the training rows (least squares on all measured
    tube tips, finite-difference Jacobians, warm-started batched Cosserat solves); parameters the data
    cannot show (`Effect.unseen`, e.g. the offset of a joint that never moves) are not fitted, and
    joint offsets stay within what keeps every row of the file physical;
@@ -34,44 +34,17 @@ import numpy as np
 from scipy import stats
 
 from ctrplan.calibration.data import MeasuredData, rows_text
-from ctrplan.calibration.effects import CAUSES, make_effect
 from ctrplan.calibration.experiment import Experiment, separating_rows
 from ctrplan.calibration.fit import Evaluator, Prediction
 from ctrplan.calibration.noise import estimate_noise
+from ctrplan.calibration.options import DiagnoseOptions
 from ctrplan.calibration.selection import Candidate, Selection, Selector, configuration_groups
-from ctrplan.calibration.split import Split, contiguous_subsample, split_rows
+from ctrplan.calibration.split import Split, contiguous_subsample
 from ctrplan.dataio import plain
+from ctrplan.effects import make_effect
 from ctrplan.errors import InputError
 from ctrplan.measurement import motion_direction
 from ctrplan.robot import Robot
-
-
-@dataclass(frozen=True)
-class DiagnoseOptions:
-    """Knobs of the diagnosis (defaults are what the CLI uses)."""
-
-    candidates: tuple[str, ...] = CAUSES
-    heldout: float = 0.25          # fraction of the rows held out ...
-    heldout_last: bool = False     # ... the last ones in acquisition order (else contiguous blocks)
-    seed: int = 0                  # seed of the held-out blocks
-    pairs: int = 3                 # grow a cause set by trying this many partners (0: single causes only)
-    grow_from: int = 2             # grow cause sets from this many best single causes
-    max_causes: int = 3            # up to this many causes
-    bic_margin: float = 10.0       # BIC must drop by more than this ("very strong" evidence)
-    min_gain: float = 0.05         # and the held-out mean error by at least this fraction
-    alpha: float = 0.01            # with this significance (one-sided Wilcoxon, held-out rows)
-    outlier_mads: float = 8.0      # outlier: error > median + this many robust sigmas (and > 3 x median)
-    max_nfev: int = 30
-    max_rows: int = 1000           # larger files: this many rows in 20 contiguous runs spread over the file
-    noise_tolerance: float = 1.3   # "within the noise": held-out mean error <= this x noise_mm
-    resamples: int = 2             # other splits every significant candidate is refitted on (stability)
-    resample_nfev: int = 10        # their fits start from the main fit: a few steps suffice
-    stable_fraction: float = 2 / 3  # stable: significant on at least this share of the splits
-    experiment_rows: int = 20      # configurations that separate tied explanations (experiment.csv)
-
-    def split(self, n: int) -> Split:
-        """The main split of ``n`` rows."""
-        return split_rows(n, self.heldout, last=self.heldout_last, seed=self.seed)
 
 
 @dataclass
@@ -524,7 +497,7 @@ def _outliers(data: MeasuredData, pred: Prediction, unsolved: np.ndarray, mads: 
     return np.setdiff1d(np.flatnonzero(ok & (err > thr)), unsolved)
 
 
-__all__ = ["DiagnoseOptions", "Diagnosis", "diagnose", "error_stats", "write_outputs"]
+__all__ = ["Diagnosis", "diagnose", "error_stats", "write_outputs"]
 
 
 def write_outputs(diag: Diagnosis, out_dir: str | Path, plots: bool = True) -> list[Path]:

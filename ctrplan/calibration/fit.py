@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from ctrplan.calibration.effects import CONFIDENCE_Z, Effect, Param
+from ctrplan.effects import CONFIDENCE_Z, Effect, Param
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.robot import Robot
 

@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ctrplan.calibration.data import MeasuredData
-from ctrplan.calibration.effects import make_effect
 from ctrplan.calibration.fit import Evaluator
+from ctrplan.effects import make_effect
 from ctrplan.measurement import motion_direction
 from ctrplan.robot import Robot
 

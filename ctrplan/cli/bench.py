@@ -14,9 +14,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemaini
 from rich.table import Table
 
 from ctrplan.bench import kinematics as kinematics_bench
-from ctrplan.bench import machine_info, single_core
 from ctrplan.bench import planning as planning_bench
-from ctrplan.bench.fanout import check_workers, run_jobs
 from ctrplan.bench.plots import planning_plots, timing_boxplot
 from ctrplan.cli import HELP_SETTINGS, app
 from ctrplan.cli.kinematics import RobotOpt, as_option, load_backend
@@ -25,7 +23,9 @@ from ctrplan.cli.progress import CountProgress
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS
+from ctrplan.machine import machine_info, single_core
 from ctrplan.memory import check_backbones, check_fits
+from ctrplan.parallel import check_workers, run_jobs
 from ctrplan.robot import Robot
 
 BENCH_HELP = "Benchmarks: timings, JSON summaries and plots."

@@ -67,11 +67,11 @@ def design(
     """
     from rich.console import Console
 
-    from ctrplan.bench.fanout import check_workers
     from ctrplan.dataio import output_dir
     from ctrplan.design.outputs import write_outputs
     from ctrplan.design.study import default_storage, open_study
     from ctrplan.design.task import load_task
+    from ctrplan.parallel import check_workers
 
     if trials is not None and trials < 1:
         raise InputError(f"--trials: need at least 1, got {trials}")

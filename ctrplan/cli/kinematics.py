@@ -18,12 +18,12 @@ import numpy as np
 import typer
 
 from ctrplan.cli import app
-from ctrplan.dataio import atomic_write, format_csv, read_joints, tip_names
+from ctrplan.dataio import atomic_write, format_csv, tip_names
 from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS, Backbone, Backend, make_backend
 from ctrplan.kinematics.base import DEFAULT_POINTS
 from ctrplan.memory import backbone_bytes, check_fits
-from ctrplan.robot import Robot
+from ctrplan.robot import Robot, read_joints
 
 #: Output rows (configurations x backbone points) solved and written per chunk.
 CHUNK_ROWS = 10_000

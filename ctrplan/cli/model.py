@@ -22,7 +22,8 @@ from ctrplan.cli.progress import PlainProgress
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
-from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnBackend, PinnNet
+from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnBackend
+from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.memory import backbone_bytes, check_backbones, check_fits
 from ctrplan.robot import Robot
 from ctrplan.training.budget import MIN_EVAL_CONFIGURATIONS, TimeBudget

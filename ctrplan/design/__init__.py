@@ -7,8 +7,9 @@ One idea per module: `task` (the task file, docs/design.md §5), `space` (study 
 report.html).
 """
 
-from ctrplan.design.evaluate import DesignJob, evaluate, evaluate_job
+from ctrplan.design.evaluate import DesignContext, DesignJob, evaluate, evaluate_job
 from ctrplan.design.study import open_study, run_study
 from ctrplan.design.task import DesignTask, load_task
 
-__all__ = ["DesignJob", "DesignTask", "evaluate", "evaluate_job", "load_task", "open_study", "run_study"]
+__all__ = ["DesignContext", "DesignJob", "DesignTask", "evaluate", "evaluate_job", "load_task", "open_study",
+           "run_study"]

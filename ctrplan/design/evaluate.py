@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from ctrplan.collision import CollisionWorld
 from ctrplan.design.space import Parameters, build_robot, max_strain, robot_dict, total_length_mm
 from ctrplan.design.task import DesignTask, NamedTarget, load_task
 from ctrplan.errors import InputError
@@ -55,7 +56,7 @@ START_CHUNK = 64
 
 @dataclass(frozen=True)
 class DesignJob:
-    """One evaluation for `ctrplan.bench.fanout`: the task file, the design's parameters (``{}``: the
+    """One evaluation for `ctrplan.parallel`: the task file, the design's parameters (``{}``: the
     base design) and the study seed."""
 
     task_file: str
@@ -63,19 +64,39 @@ class DesignJob:
     seed: int = 0
 
 
-_TASKS: dict[str, DesignTask] = {}
+class DesignContext:
+    """What the evaluations in one process share: the tasks loaded by file, each task's collision
+    world (its meshes and broadphase grid built once) and the stability verdicts found so far, by
+    robot fingerprint. A worker builds one (`ctrplan.parallel.open_pool` with
+    ``context=DesignContext``) and hands it to every `evaluate_job`; a fresh one shares nothing."""
+
+    def __init__(self) -> None:
+        self.tasks: dict[str, DesignTask] = {}
+        self.worlds: dict[str, CollisionWorld] = {}
+        self.verdicts: dict[str, dict] = {}
+
+    def task(self, task_file: str) -> DesignTask:
+        """The task in ``task_file``, loaded on first use."""
+        if task_file not in self.tasks:
+            self.tasks[task_file] = load_task(task_file)
+        return self.tasks[task_file]
+
+    def world(self, task: DesignTask) -> CollisionWorld:
+        """The collision world of the task's scene, built on first use."""
+        key = str(task.path)
+        if key not in self.worlds:
+            self.worlds[key] = CollisionWorld.from_scene(task.scene)
+        return self.worlds[key]
 
 
-def evaluate_job(job: DesignJob) -> dict:
-    """`evaluate` a `DesignJob` (the task is loaded once per process)."""
+def evaluate_job(context: DesignContext, job: DesignJob) -> dict:
+    """`evaluate` a `DesignJob` with the worker's ``context`` (the task is loaded once per worker)."""
     from ompl import util as ou
 
     # a target a design cannot reach is a result (recorded with its stage), not an error to print
     # over the progress bar ("Unable to sample any valid states for goal tree")
     ou.setLogLevel(ou.LOG_NONE)
-    if job.task_file not in _TASKS:
-        _TASKS[job.task_file] = load_task(job.task_file)
-    return evaluate(_TASKS[job.task_file], job.parameters, job.seed)
+    return evaluate(context.task(job.task_file), job.parameters, job.seed, context=context)
 
 
 def target_seed(seed: int, fingerprint: str, target: str) -> int:
@@ -84,8 +105,10 @@ def target_seed(seed: int, fingerprint: str, target: str) -> int:
     return int.from_bytes(digest[:4], "little") % (2**31 - 1)
 
 
-def evaluate(task: DesignTask, parameters: Parameters, seed: int = 0) -> dict:
-    """The record of one design.
+def evaluate(task: DesignTask, parameters: Parameters, seed: int = 0, *,
+             context: DesignContext | None = None) -> dict:
+    """The record of one design; ``context``: what earlier evaluations in this worker built (none:
+    a fresh `DesignContext`).
 
     Keys: ``parameters``; ``feasible`` and, when not, ``infeasible`` ``{constraint, message}``
     (constraint one of ``robot``, ``max_strain``, ``domain``, ``snap_free``, ``start``);
@@ -108,7 +131,7 @@ def evaluate(task: DesignTask, parameters: Parameters, seed: int = 0) -> dict:
         "fingerprint": None, "stability": None, "start": None, "targets": [], "reached": [],
         "cut_short": [], "min_clearance_mm": None, "time_s": 0.0, "timings": {},
     }
-    design = _feasible(task, record)
+    design = _feasible(task, record, context or DesignContext())
     if design is not None:
         _reach(task, *design, record, seed)
     record["time_s"] = time.perf_counter() - t0
@@ -119,7 +142,7 @@ def _refuse(record: dict, constraint: str, message: str) -> None:
     record["infeasible"] = {"constraint": constraint, "message": message}
 
 
-def _feasible(task: DesignTask, record: dict):
+def _feasible(task: DesignTask, record: dict, context: DesignContext):
     """Check the feasibility conditions in order, filling ``record``; the design's scene (with its
     start) and exact configuration checker, or None after recording the first condition that
     fails."""
@@ -133,14 +156,14 @@ def _feasible(task: DesignTask, record: dict):
                                              f"above the limit {100 * task.max_strain:.2f} %")
     if task.snap_free:
         t = time.perf_counter()
-        verdict = record["stability"] = stability_verdict(robot)
+        verdict = record["stability"] = stability_verdict(robot, context)
         record["timings"]["stability_s"] = time.perf_counter() - t
         if not verdict["snap_free"]:
             return _refuse(record, "snap_free", f"the joint domain is not snap-free "
                                                 f"({verdict['example_reason']} at q = "
                                                 f"{np.round(verdict['example_q'], 3).tolist()})")
     t = time.perf_counter()
-    scene, checker = _design_scene(task, robot)
+    scene, checker = _design_scene(task, robot, context)
     start = design_start(scene, checker)
     record["timings"]["start_s"] = time.perf_counter() - t
     if start is None:
@@ -150,44 +173,35 @@ def _feasible(task: DesignTask, record: dict):
     return replace(scene, start=start), checker
 
 
-_VERDICTS: dict[str, dict] = {}
-
-
-def stability_verdict(robot: Robot) -> dict:
+def stability_verdict(robot: Robot, context: DesignContext) -> dict:
     """Whether the robot's domain is snap-free: a certificate if one exists (shipped or made here),
     else the sweep of `ctrplan stability` with its default settings, stopped at the first flagged
-    sweep (a snap-free verdict is stored as a certificate); remembered per process by
+    sweep (a snap-free verdict is stored as a certificate); remembered in ``context`` by
     fingerprint."""
+    verdicts = context.verdicts
     fp = robot.fingerprint
-    if fp not in _VERDICTS:
+    if fp not in verdicts:
         if is_certified(robot):
-            _VERDICTS[fp] = {"snap_free": True, "source": "certificate", "checked": None,
-                             "example_q": None, "example_reason": None}
+            verdicts[fp] = {"snap_free": True, "source": "certificate", "checked": None,
+                            "example_q": None, "example_reason": None}
         else:
             report, _ = certify(robot, stop_at_first=True)
-            _VERDICTS[fp] = {"snap_free": report.snap_free, "source": "sweep", "checked": report.checked,
-                             "example_q": report.example_q, "example_reason": report.example_reason}
-    return dict(_VERDICTS[fp])
+            verdicts[fp] = {"snap_free": report.snap_free, "source": "sweep", "checked": report.checked,
+                            "example_q": report.example_q, "example_reason": report.example_reason}
+    return dict(verdicts[fp])
 
 
-_WORLDS: dict[str, Any] = {}
-
-
-def _design_scene(task: DesignTask, robot: Robot):
+def _design_scene(task: DesignTask, robot: Robot, context: DesignContext):
     """The task's scene with the design's robot, and a configuration checker with the exact model
-    (testing stability per state unless the robot is certified), on a collision world built once per
-    process."""
-    from ctrplan.collision import CollisionWorld
+    (testing stability per state unless the robot is certified), on the task's collision world of
+    ``context``."""
     from ctrplan.planning import ConfigurationChecker
 
-    key = str(task.path)
-    if key not in _WORLDS:
-        _WORLDS[key] = CollisionWorld.from_scene(task.scene)
     scene = replace(task.scene, robot=robot)
     exact = CosseratBackend(robot)
     if not is_certified(robot):
         exact = exact.checking_stability()
-    return scene, ConfigurationChecker(scene, exact, world=_WORLDS[key])
+    return scene, ConfigurationChecker(scene, exact, world=context.world(task))
 
 
 def design_start(scene: Scene, checker) -> np.ndarray | None:

@@ -25,65 +25,22 @@ import json
 import os
 import shutil
 import statistics
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import optuna
 
-from ctrplan.bench import machine_info
 from ctrplan.dataio import atomic_write
+from ctrplan.design.ranking import Design, best_design, designs_of, nominal_of, pareto_front, ranked
+from ctrplan.design.report import pareto_figure, write_report
 from ctrplan.design.space import build_robot
-from ctrplan.design.study import NOMINAL, RECORD, dominates, finished_trials, objective_value, ranking_key
+from ctrplan.design.study import finished_trials, objective_value
 from ctrplan.design.task import DesignTask
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.machine import machine_info
 from ctrplan.stability import certify, is_certified
 from ctrplan.yamlio import dump_yaml, load_yaml
-
-
-@dataclass(frozen=True)
-class Design:
-    """A finished trial: its number (None: the base design) and evaluation record."""
-
-    trial: int | None
-    record: dict
-
-
-def designs_of(study: optuna.Study) -> list[Design]:
-    """The study's finished trials, by number."""
-    return [Design(t.number, t.user_attrs[RECORD]) for t in finished_trials(study)]
-
-
-def nominal_of(study: optuna.Study) -> Design | None:
-    record = study.user_attrs.get(NOMINAL)
-    return None if record is None else Design(None, record)
-
-
-def ranked(designs: list[Design], task: DesignTask) -> list[Design]:
-    """The feasible designs, best first (objectives in order; ties by trial number)."""
-    feasible = [d for d in designs if d.record["feasible"]]
-    return sorted(feasible, key=lambda d: (ranking_key(d.record, task.objectives), d.trial))
-
-
-def best_design(order: list[Design], nominal: Design | None, task: DesignTask) -> Design | None:
-    """The best design: the first of the ranked trials ``order`` if it beats the base design
-    ``nominal`` in the task's objective order, else the base design (when feasible; a tie keeps the
-    base design: nothing was gained)."""
-    top = order[0] if order else None
-    if nominal is None or not nominal.record["feasible"]:
-        return top
-    if top is not None and ranking_key(top.record, task.objectives) < ranking_key(nominal.record,
-                                                                                   task.objectives):
-        return top
-    return nominal
-
-
-def pareto_front(designs: list[Design], task: DesignTask) -> list[Design]:
-    """The feasible designs no other feasible design dominates, best first."""
-    feasible = ranked(designs, task)
-    return [d for d in feasible
-            if not any(dominates(o.record, d.record, task.objectives) for o in feasible)]
 
 
 def targets_of(record: dict) -> dict[str, dict]:
@@ -102,8 +59,6 @@ def write_outputs(task: DesignTask, study: optuna.Study, out: Path, *, storage: 
                   time_s: float, executor: str, cut_short: str | None = None) -> dict:
     """Write every output into ``out`` (see the module docstring); return the JSON summary.
     ``cut_short``: what the run's wall-clock limit stopped (None: it did not fire)."""
-    from ctrplan.design.report import pareto_figure, write_report
-
     designs = designs_of(study)
     nominal = nominal_of(study)
     best = best_design(ranked(designs, task), nominal, task)
@@ -219,10 +174,10 @@ def write_target_scene(task: DesignTask, target, start: np.ndarray, robot_file: 
 def write_target_path(task: DesignTask, exact, scene_file: Path, result: dict, folder: Path) -> Path:
     """Validate a reached target's path again with the exact model and write what ``ctrplan plan
     --out`` writes for it; returns its ``path.json``."""
-    from ctrplan.cli.plan import plan_document, write_plan_outputs
     from ctrplan.planning import PlanResult, validate_path
     from ctrplan.planning.budget import states_for
     from ctrplan.scene import load_scene
+    from ctrplan.viz.plan_outputs import plan_document, write_plan_outputs
 
     scene = load_scene(scene_file)
     path_q = np.asarray(result["path"])

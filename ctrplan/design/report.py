@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from ctrplan.dataio import save_figure
-from ctrplan.design.outputs import Design
+from ctrplan.design.ranking import Design, ranked
 from ctrplan.design.study import objective_value
 from ctrplan.design.task import OBJECTIVES, DesignTask
 
@@ -187,7 +187,6 @@ def write_report(task: DesignTask, doc: dict, designs: list[Design], best: Desig
     """``report.html`` in ``out`` (after the other outputs: it embeds ``pareto.png`` and each
     reached target's ``plan.png``)."""
     from ctrplan.dataio import atomic_write
-    from ctrplan.design.outputs import ranked
 
     parts = [f"<h1>ctrplan design: {html.escape(task.name)}</h1>",
              f"<p>Study <b>{html.escape(doc['study'])}</b> in <code>{html.escape(doc['storage'])}</code>: "

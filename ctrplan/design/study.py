@@ -19,8 +19,9 @@ record as the user attribute ``record``; the base design's record is the study a
 ``nominal``.
 
 **Executors.** The driver (this process) asks the sampler for a design, hands its evaluation to a
-`ctrplan.bench.fanout` pool (this process, local worker processes or Ray tasks) and tells the result
-back, keeping as many trials in flight as there are workers. With one worker a study is reproducible
+`ctrplan.parallel` pool (this process, local worker processes or Ray actors, each with its own
+`ctrplan.design.evaluate.DesignContext`) and tells the result back, keeping as many trials in flight
+as there are workers. With one worker a study is reproducible
 for a seed: the sampler is seeded, and each evaluation is a function of its parameters and the seed
 (`ctrplan.design.evaluate`).
 """
@@ -36,11 +37,11 @@ from pathlib import Path
 import optuna
 from optuna.trial import TrialState
 
-from ctrplan.bench.fanout import open_pool
-from ctrplan.design.evaluate import DesignJob, evaluate_job
+from ctrplan.design.evaluate import DesignContext, DesignJob, evaluate_job
 from ctrplan.design.space import distributions
 from ctrplan.design.task import DesignTask, Objective
 from ctrplan.errors import InputError
+from ctrplan.parallel import open_pool
 
 RECORD = "record"
 NOMINAL = "nominal"
@@ -128,7 +129,7 @@ def run_study(task: DesignTask, study: optuna.Study, *, trials: int, seed: int =
               report: Report = _quiet) -> bool:
     """Run trials until the study has ``trials`` finished ones (or, with ``time_limit_s``, an outer
     wall-clock guard, until that long has passed: trials in flight then finish), ``workers`` at a
-    time on the executor of `ctrplan.bench.fanout.open_pool`. The base design is evaluated first if
+    time on the executor of `ctrplan.parallel.open_pool`. The base design is evaluated first if
     the study has no record of it. Trials in flight when an exception (Ctrl-C) stops the run are
     marked failed. Returns whether the time limit stopped the run before ``trials`` were
     finished."""
@@ -139,7 +140,7 @@ def run_study(task: DesignTask, study: optuna.Study, *, trials: int, seed: int =
     nominal_needed = NOMINAL not in study.user_attrs
     running: dict[int, optuna.Trial | None] = {}  # job number -> trial (None: the base design)
     stopped = False
-    with open_pool(workers, ray_address) as pool:
+    with open_pool(workers, ray_address, context=DesignContext) as pool:
 
         def fill() -> None:
             nonlocal nominal_needed, stopped

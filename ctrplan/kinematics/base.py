@@ -16,45 +16,46 @@ from ctrplan.robot import Robot
 DEFAULT_POINTS = 64
 
 
-@lru_cache(maxsize=64)
+@lru_cache(maxsize=64)  # a pure function of n with read-only results
 def _uniform_fractions(n: int) -> np.ndarray:
     frac = np.linspace(0.0, 1.0, n)
     frac.flags.writeable = False
     return frac
 
 
-def arc_fractions(points: int | np.ndarray) -> np.ndarray:
-    """Output arc lengths as fractions of l1: ``points`` uniform samples in [0, 1], or the given
-    ascending fractions (N,). An array this function returned comes back as it is, at once (planners
-    pass the same few again and again)."""
-    if id(points) in _checked_ids:
-        return points
+def arc_fractions(points: Points) -> np.ndarray:
+    """Output arc lengths as fractions of l1: ``points`` uniform samples in [0, 1], the given
+    ascending fractions (N,) (checked on every call), or the values of an `ArcFractions` (checked
+    once, when it was made: what a caller passes again and again, a planner its validity stages)."""
+    if isinstance(points, ArcFractions):
+        return points.values
     if np.isscalar(points):
         n = int(points)
         if n < 2:
             raise InputError(f"points: need at least 2 backbone points, got {n}")
         return _uniform_fractions(n)
     frac = np.asarray(points, dtype=float).ravel()
-    key = frac.tobytes()
-    if key in _checked_fractions:
-        return _checked_fractions[key]
     if frac.size < 1 or not np.all(np.isfinite(frac)) or frac.min() < 0 or frac.max() > 1 \
             or np.any(np.diff(frac) < 0):
         raise InputError("points: arc fractions must be ascending values in [0, 1]")
-    if len(_checked_fractions) >= 256:
-        _checked_fractions.clear()
-        _checked_ids.clear()
     frac = frac.copy()
     frac.flags.writeable = False
-    _checked_fractions[key] = frac
-    _checked_ids.add(id(frac))
     return frac
 
 
-#: validated fraction arrays by content, and their ids: an id is in the set only while the dict keeps
-#: its array alive, so it cannot belong to another object
-_checked_fractions: dict[bytes, np.ndarray] = {}
-_checked_ids: set[int] = set()
+class ArcFractions:
+    """Backbone output points as arc fractions of l1, checked once (`arc_fractions`): ``values``, a
+    read-only ascending (P,) array in [0, 1]. A backend takes one as ``points`` without checking
+    it again."""
+
+    __slots__ = ("values",)
+
+    def __init__(self, points: Points) -> None:
+        self.values = arc_fractions(points)
+
+
+#: What a backend takes as ``points``: a count (uniform), fractions of l1 (N,), or `ArcFractions`.
+Points = int | np.ndarray | ArcFractions
 
 
 def outer_radius_along(robot: Robot, s_mm: np.ndarray, ends_mm: np.ndarray) -> np.ndarray:
@@ -117,7 +118,7 @@ class Backend(ABC):
         self.robot = robot
 
     @abstractmethod
-    def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
+    def forward(self, q: np.ndarray, points: Points = DEFAULT_POINTS, *,
                 guess: np.ndarray | None = None, check: bool = True) -> Backbone:
         """Backbones of configurations q (mm, rad) at ``points`` arc lengths (count or fractions of l1).
 
@@ -125,7 +126,7 @@ class Backend(ABC):
         With ``check``, joints are validated against the robot (`Robot.check_joints`).
         """
 
-    def body(self, q: np.ndarray, points: int | np.ndarray, *, guess: np.ndarray | None = None,
+    def body(self, q: np.ndarray, points: Points, *, guess: np.ndarray | None = None,
              check: bool = True) -> Body:
         """The `Body` of configurations q (B, 2N) at ``points`` (as `forward`): a planner's validity
         check needs no more. Default: from `forward`; a backend may compute less."""

@@ -10,9 +10,9 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from ctrplan.kinematics import _shooting as kernel
+import ctrplan.kinematics._shooting as kernel
 from ctrplan.kinematics.backbone import Backbone
-from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, arc_fractions, outer_radius_along
+from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Points, arc_fractions, outer_radius_along
 from ctrplan.robot import Robot
 
 G_TO_N_PER_MM = 1e-9  # rho [kg/m^3] * A [mm^2] * g [m/s^2] * 1e-9 = N/mm
@@ -126,7 +126,7 @@ class CosseratBackend(Backend):
             return np.concatenate([state0[:, 0:2] / self.rod.EI[0], state0[:, 2:2 + n]], axis=1)
         return state0[:, 3:2 + n].copy()
 
-    def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
+    def forward(self, q: np.ndarray, points: Points = DEFAULT_POINTS, *,
                 guess: np.ndarray | None = None, check: bool = True) -> Backbone:
         q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
         qm = self.robot.apply_offset(q)

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ctrplan.kinematics.backbone import Backbone
-from ctrplan.kinematics.base import DEFAULT_POINTS, Backend
+from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Points
 from ctrplan.kinematics.cosserat import CosseratBackend, SolverSettings
 from ctrplan.kinematics.pinn import PinnBackend
 from ctrplan.robot import Robot
@@ -39,7 +39,7 @@ class HybridBackend(Backend):
         checked.solver = self.solver.checking_stability()
         return checked
 
-    def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
+    def forward(self, q: np.ndarray, points: Points = DEFAULT_POINTS, *,
                 guess: np.ndarray | None = None, check: bool = True) -> Backbone:
         q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
         if guess is None:

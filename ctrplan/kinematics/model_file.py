@@ -20,7 +20,7 @@ from safetensors.torch import load_file, save
 
 from ctrplan.dataio import atomic_write, plain
 from ctrplan.errors import InputError
-from ctrplan.kinematics.pinn import FEATURES, PinnNet
+from ctrplan.kinematics.pinn_net import FEATURES, PinnNet
 from ctrplan.robot import Robot
 
 #: Users' own models (`ctrplan train` writes here), relative to the working directory.

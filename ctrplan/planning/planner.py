@@ -25,7 +25,7 @@ from ompl import util as ou
 from ctrplan.errors import InputError
 from ctrplan.kinematics import make_backend
 from ctrplan.kinematics.backbone import Backbone
-from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Body, arc_fractions
+from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Body, Points, arc_fractions
 from ctrplan.kinematics.blas import single_threaded_blas
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY
@@ -439,12 +439,12 @@ class RegionMarginBackend(Backend):
         self.analytic_tip_jacobian = inner.analytic_tip_jacobian
         self.partial_backbones_cheap = inner.partial_backbones_cheap
 
-    def forward(self, q: np.ndarray, points: int | np.ndarray = DEFAULT_POINTS, *,
+    def forward(self, q: np.ndarray, points: Points = DEFAULT_POINTS, *,
                 guess: np.ndarray | None = None, check: bool = True) -> Backbone:
         bb = self.inner.forward(q, points, guess=guess, check=check)
         return bb.with_radius(bb.radius_mm + self._margins(arc_fractions(points)))
 
-    def body(self, q: np.ndarray, points: int | np.ndarray, *, guess: np.ndarray | None = None,
+    def body(self, q: np.ndarray, points: Points, *, guess: np.ndarray | None = None,
              check: bool = True) -> Body:
         pos, radius, usable, init = self.inner.body(q, points, guess=guess, check=check)
         return Body(pos, radius + self._margins(arc_fractions(points)), usable, init)

@@ -20,7 +20,7 @@ from ompl import base as ob
 
 from ctrplan.collision import CollisionWorld, RobotCollisionChecker
 from ctrplan.kinematics.backbone import Backbone
-from ctrplan.kinematics.base import Backend, Body, arc_fractions
+from ctrplan.kinematics.base import ArcFractions, Backend, Body, Points, arc_fractions
 from ctrplan.planning.space import BoxSpace
 from ctrplan.scene import Scene
 
@@ -86,7 +86,7 @@ class ConfigurationChecker:
         #: arc fractions checked in turn (see `_stages`)
         self.stages = self._stages()
 
-    def _stages(self) -> tuple[np.ndarray, ...]:
+    def _stages(self) -> tuple[ArcFractions, ...]:
         """Arc fractions of the backbone points checked in turn. Where the backend makes part of a
         backbone cheaper (``partial_backbones_cheap``): the distal half first -- a robot probing
         anatomy meets it there first, and an invalid state then costs half a backbone -- and the
@@ -95,9 +95,9 @@ class ConfigurationChecker:
         exactly when every capsule of the ``points``-point backbone is free."""
         frac = arc_fractions(self.points)
         if not self.backend.partial_backbones_cheap:
-            return (frac,)
+            return (ArcFractions(frac),)
         k = self.points // 2
-        return arc_fractions(frac[k:]), arc_fractions(frac[:k + 1])
+        return ArcFractions(frac[k:]), ArcFractions(frac[:k + 1])
 
     # ---- kinematics ------------------------------------------------------------------------------
     def _counted(self, call: Callable[[], Any], n_states: int) -> Any:
@@ -118,7 +118,7 @@ class ConfigurationChecker:
             self.hook()
 
     def forward(self, q: np.ndarray, guess: np.ndarray | None = None,
-                points: int | np.ndarray | None = None) -> Backbone:
+                points: Points | None = None) -> Backbone:
         """Backbones of joints (B, 2N) (no joint checks: planner states lie in the domain)."""
         q = np.atleast_2d(q)
         return self._counted(lambda: self.backend.forward(

@@ -37,10 +37,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ctrplan.calibration.diagnosis import DiagnoseOptions, Diagnosis, diagnose, error_stats
+from ctrplan.calibration.diagnosis import Diagnosis, diagnose, error_stats
+from ctrplan.calibration.options import DiagnoseOptions
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.model_file import file_sha256, read_card, save_model, write_card_field
-from ctrplan.kinematics.pinn import PinnBackend, PinnNet
+from ctrplan.kinematics.pinn import PinnBackend
+from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.robot import Robot
 from ctrplan.training.evaluate import compare
 from ctrplan.training.fewshot import FewShot, mechanics_joints, model_joints, observations, validation_split

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import torch
 
-from ctrplan.kinematics.pinn import P_REF_MM, PinnNet
+from ctrplan.kinematics.pinn_net import P_REF_MM, PinnNet
 from ctrplan.training.physics import TubeTensors, initial_theta_and_quat, quat_to_matrix, rhs
 
 

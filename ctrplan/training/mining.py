@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from ctrplan.kinematics.cosserat import CosseratBackend
-from ctrplan.kinematics.pinn import PinnNet
+from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.robot import Robot
 from ctrplan.training.samples import solve_dense
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ctrplan.kinematics.cosserat import CosseratBackend
-from ctrplan.kinematics.pinn import P_REF_MM
+from ctrplan.kinematics.pinn_net import P_REF_MM
 from ctrplan.robot import Robot
 
 #: Configurations solved per call while a pool is built (progress is reported between chunks).

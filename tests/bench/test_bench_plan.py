@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from ctrplan.bench import planning as planning_bench
-from ctrplan.bench.fanout import run_jobs
 from ctrplan.bench.ompl_log import STATUS, planner_label, status_index
 from ctrplan.cli import main
+from ctrplan.parallel import run_jobs
 from tests.paths import SCENES
 
 OPEN = str((SCENES / "open.yaml").resolve())

@@ -13,9 +13,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ctrplan.calibration import CAUSES, EFFECTS, make_effect
-from ctrplan.calibration.effects import SIDES, MeasurementEffect, StiffnessRatio
 from ctrplan.calibration.fit import Evaluator
 from ctrplan.cli.diagnose import CandidatesOpt
+from ctrplan.effects import SIDES, MeasurementEffect, StiffnessRatio
 from ctrplan.errors import InputError
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.measurement import Calibration, motion_direction

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ctrplan.calibration.effects import make_effect
 from ctrplan.calibration.selection import compare  # the held-out significance test
+from ctrplan.effects import make_effect
 from ctrplan.robot import Robot
 
 

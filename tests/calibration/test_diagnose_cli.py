@@ -18,11 +18,11 @@ from ctrplan.calibration import (
     write_measured_csv,
     write_outputs,
 )
-from ctrplan.calibration.effects import offset_limits
 from ctrplan.calibration.fit import FitResult
 from ctrplan.calibration.selection import Candidate, Selection, choose, judge, off_limits
 from ctrplan.calibration.synthetic import generate
 from ctrplan.cli import main
+from ctrplan.effects import offset_limits
 from ctrplan.robot import Robot
 from tests.independent.lab import make, test_seed
 from tests.paths import REPO

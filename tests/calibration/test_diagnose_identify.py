@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from ctrplan.calibration import read_measured
-from ctrplan.calibration.effects import StiffnessRatio, make_effect
 from ctrplan.calibration.fit import FitResult, _derived, _pushed, _uncertainty
 from ctrplan.calibration.selection import compare, configuration_groups
 from ctrplan.cli import main
+from ctrplan.effects import StiffnessRatio, make_effect
 from ctrplan.robot import Robot
 from tests.independent.cosserat import Tubes, solve
 from tests.independent.lab import LabData, make, random_rows, sweep, test_seed

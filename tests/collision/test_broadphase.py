@@ -22,9 +22,8 @@ from tests.paths import SCENES
 
 @pytest.fixture(autouse=True)
 def _private_cache(tmp_path, monkeypatch):
-    """Grids go to a per-test directory, never to the user's cache; no grid is shared in memory."""
+    """Grids go to a per-test directory, never to the user's cache."""
     monkeypatch.setenv("CTRPLAN_CACHE_DIR", str(tmp_path / "cache"))
-    monkeypatch.setattr(broadphase, "_MEMORY", type(broadphase._MEMORY)())
 
 
 def mesh_obstacle(mesh: trimesh.Trimesh, name: str = "mesh") -> Obstacle:
@@ -155,14 +154,12 @@ def test_grid_is_cached_on_disk_by_geometry(tmp_path, monkeypatch):
     grid = grid_for(obstacles)
     files = list((tmp_path / "cache" / "broadphase").glob("*.npz"))
     assert [f.stem for f in files] == [geometry_key(obstacles, broadphase.CELL_MM, broadphase.BAND_MM)]
-    broadphase._MEMORY.clear()
     again = grid_for(obstacles)
     assert again is not grid and np.array_equal(again.values, grid.values)
     assert np.array_equal(again.lo, grid.lo) and again.cell_mm == grid.cell_mm
     moved = [mesh_obstacle(obstacles[0].to_trimesh().apply_translation([0, 0, 0.01]), "septum")]
     assert geometry_key(moved, 0.5, 4.0) != geometry_key(obstacles[:1], 0.5, 4.0)
     # a damaged file is rebuilt, not trusted
-    broadphase._MEMORY.clear()
     files[0].write_bytes(b"not a grid")
     rebuilt = grid_for(obstacles)
     assert np.array_equal(rebuilt.values, grid.values)

@@ -18,12 +18,12 @@ import optuna
 import pytest
 from scipy.optimize import brentq
 
-from ctrplan.bench.fanout import run_jobs
 from ctrplan.cli import main
-from ctrplan.design.evaluate import DesignJob, evaluate, evaluate_job
+from ctrplan.design.evaluate import DesignContext, DesignJob, evaluate, evaluate_job
 from ctrplan.design.task import load_task
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.kinematics.cosserat import SolverSettings
+from ctrplan.parallel import run_jobs
 from ctrplan.planning import BoxSpace
 from ctrplan.robot import Robot
 from ctrplan.stability import critical_length_mm, is_certified
@@ -338,8 +338,8 @@ def test_evaluation_is_deterministic_on_every_executor(two_trials, tmp_path):
     here = [evaluate(load_task(task), s.parameters, s.seed) for s in specs]
     assert [content(r) for r in here[:2]] == [content(r) for r in records]
     assert here[2]["reached"] == ["arc"] and here[2]["targets"][1]["stage"] == "screen"
-    pool = run_jobs(evaluate_job, specs, workers=2)
-    ray = run_jobs(evaluate_job, specs, ray_address="local", workers=2)
+    pool = run_jobs(evaluate_job, specs, workers=2, context=DesignContext)
+    ray = run_jobs(evaluate_job, specs, ray_address="local", workers=2, context=DesignContext)
     assert [content(r) for r in here] == [content(r) for r in pool] == [content(r) for r in ray]
 
 

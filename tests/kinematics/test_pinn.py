@@ -12,7 +12,8 @@ import torch
 from ctrplan.errors import InputError
 from ctrplan.kinematics import CosseratBackend, make_backend
 from ctrplan.kinematics.model_file import save_model
-from ctrplan.kinematics.pinn import PinnBackend, PinnNet
+from ctrplan.kinematics.pinn import PinnBackend
+from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.training.evaluate import compare
 from ctrplan.training.losses import boundary_residual
 from ctrplan.training.physics import TubeTensors, rhs

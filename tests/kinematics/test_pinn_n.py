@@ -14,7 +14,8 @@ from test_rhs_agree import LOADS, robot_of
 
 from ctrplan.errors import InputError
 from ctrplan.kinematics import CosseratBackend
-from ctrplan.kinematics.pinn import PinnBackend, PinnNet
+from ctrplan.kinematics.pinn import PinnBackend
+from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.robot import Loads, Robot
 from ctrplan.training.losses import boundary_residual, tracked_tips
 from ctrplan.training.physics import TubeTensors

@@ -7,9 +7,9 @@ import os
 import numpy as np
 import pytest
 
-from ctrplan.dataio import atomic_write, format_csv, read_joints, read_table
+from ctrplan.dataio import atomic_write, format_csv, read_table
 from ctrplan.errors import DomainError, InputError
-from ctrplan.robot import JOINT_NAMES
+from ctrplan.robot import JOINT_NAMES, read_joints
 
 HEADER = ",".join(JOINT_NAMES)
 

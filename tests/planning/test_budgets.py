@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from ctrplan.cli import main
-from ctrplan.design.outputs import Design, best_design
+from ctrplan.design.ranking import Design, best_design
 from ctrplan.design.task import Objective
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend
 from ctrplan.planning import plan

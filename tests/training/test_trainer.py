@@ -7,7 +7,7 @@ import inspect
 import pytest
 import torch
 
-from ctrplan.kinematics.pinn import PinnNet
+from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.training.trainer import (
     CosineSchedule,
     Trainer,

@@ -7,6 +7,9 @@ and returns the results in spec order, so a run is the same document whichever e
 Every worker runs single-threaded (numba, torch, BLAS) and local workers are pinned one per core, so
 per-job timings are one-core timings. Workers ignore Ctrl-C: the caller gets it and `open_pool` stops
 them, so an interrupted run ends with one line, not one traceback per worker.
+
+What jobs share within a worker (a loaded task, a collision world) is a context object the pool
+builds once per worker from a ``context`` factory and passes to every job: ``fn(context, spec)``.
 """
 
 from __future__ import annotations
@@ -22,11 +25,13 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from contextlib import ExitStack, contextmanager
 from typing import Any, TypeVar
 
-from ctrplan.bench import limit_threads, single_core
 from ctrplan.errors import InputError
+from ctrplan.machine import limit_threads, single_core
 
 Spec = TypeVar("Spec")
 Job = Callable[[Any], dict]
+#: A job of a pool with a context: ``fn(context, spec)``.
+ContextJob = Callable[[Any, Any], dict]
 Tick = Callable[[int, int], None]
 
 
@@ -34,14 +39,36 @@ def _quiet_tick(_done: int, _total: int) -> None:
     return None
 
 
-def _pin_worker(cores: Any) -> None:
+class _Worker:
+    """A worker's side of a pool with a context: builds the context once, then runs every job with it."""
+
+    def __init__(self, context: Callable[[], Any]) -> None:
+        self.context = context()
+
+    def run(self, fn: ContextJob, spec: Any) -> dict:
+        return fn(self.context, spec)
+
+
+#: This process's `_Worker` when it is a worker of a `LocalPool` with a context (set by
+#: `_pin_worker`): a pool process has no other place to keep state from one job to the next.
+_local_worker: _Worker | None = None
+
+
+def _pin_worker(cores: Any, context: Callable[[], Any] | None) -> None:
     """Process-pool initializer: ignore Ctrl-C (the parent stops the pool), take one core off the
-    queue, pin to it, go single-threaded."""
+    queue, pin to it, go single-threaded; build this worker's context (if the pool has one)."""
+    global _local_worker
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     core = cores.get()
     if core is not None and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {core})
     limit_threads()
+    _local_worker = None if context is None else _Worker(context)
+
+
+def _run_with_context(fn: ContextJob, spec: Any) -> dict:
+    """A job of a `LocalPool` with a context, in the worker process."""
+    return _local_worker.run(fn, spec)
 
 
 def available_cores() -> list[int]:
@@ -94,23 +121,24 @@ class Pool(ABC):
 class InlinePool(Pool):
     """Jobs run in this process, one at a time, when their result is asked for."""
 
-    def __init__(self) -> None:
+    def __init__(self, context: Callable[[], Any] | None = None) -> None:
         super().__init__()
         self._queue: deque[tuple[int, Job, Any]] = deque()
+        self._worker = None if context is None else _Worker(context)
 
     def _start(self, number: int, fn: Job, spec: Any) -> None:
         self._queue.append((number, fn, spec))
 
     def _finish_one(self) -> tuple[int, dict]:
         number, fn, spec = self._queue.popleft()
-        return number, fn(spec)
+        return number, fn(spec) if self._worker is None else self._worker.run(fn, spec)
 
 
 class LocalPool(Pool):
     """Jobs on ``workers`` spawned processes, each pinned to its own core (round robin if there are
     more workers than cores: `check_workers` keeps the CLI from asking for that)."""
 
-    def __init__(self, workers: int) -> None:
+    def __init__(self, workers: int, context: Callable[[], Any] | None = None) -> None:
         super().__init__()
         cores = available_cores()
         ctx = mp.get_context("spawn")  # no fork of a process that holds OMPL, numba and torch threads
@@ -118,11 +146,14 @@ class LocalPool(Pool):
         for k in range(workers):
             cores_queue.put(cores[-1 - k % len(cores)])
         self.executor = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pin_worker,
-                                            initargs=(cores_queue,))
+                                            initargs=(cores_queue, context))
         self._futures: dict[Future, int] = {}
+        self._with_context = context is not None
 
     def _start(self, number: int, fn: Job, spec: Any) -> None:
-        self._futures[self.executor.submit(fn, spec)] = number
+        job = self.executor.submit(_run_with_context, fn, spec) if self._with_context else \
+            self.executor.submit(fn, spec)
+        self._futures[job] = number
 
     def _finish_one(self) -> tuple[int, dict]:
         done, _ = wait(self._futures, return_when=FIRST_COMPLETED)
@@ -145,27 +176,54 @@ class LocalPool(Pool):
 
 
 class RayPool(Pool):
-    """Jobs as Ray tasks of one CPU each on the cluster ``ray`` is connected to."""
+    """Jobs as Ray tasks of one CPU each on the cluster ``ray`` is connected to; with a context, on
+    ``workers`` Ray actors of one CPU each (each builds its context once), a job going to the actor
+    with the fewest jobs in flight."""
 
-    def __init__(self) -> None:
+    def __init__(self, workers: int = 1, context: Callable[[], Any] | None = None) -> None:
         import ray
 
         super().__init__()
         self.ray = ray
         self.task = ray.remote(num_cpus=1)(_ray_call)
-        self._refs: dict[Any, int] = {}
+        self.actors: list[Any] = []
+        if context is not None:
+            actor = ray.remote(num_cpus=1)(_RayWorker)
+            self.actors = [actor.remote(context) for _ in range(workers)]
+        self._in_flight = [0] * len(self.actors)
+        self._refs: dict[Any, tuple[int, int | None]] = {}  # ref -> (job number, actor or None)
 
     def _start(self, number: int, fn: Job, spec: Any) -> None:
-        self._refs[self.task.remote(fn, spec)] = number
+        if not self.actors:
+            self._refs[self.task.remote(fn, spec)] = (number, None)
+            return
+        k = min(range(len(self.actors)), key=self._in_flight.__getitem__)
+        self._in_flight[k] += 1
+        self._refs[self.actors[k].run.remote(fn, spec)] = (number, k)
 
     def _finish_one(self) -> tuple[int, dict]:
         ready, _ = self.ray.wait(list(self._refs), num_returns=1)
         ref = ready[0]
-        return self._refs.pop(ref), self.ray.get(ref)
+        number, k = self._refs.pop(ref)
+        if k is not None:
+            self._in_flight[k] -= 1
+        return number, self.ray.get(ref)
 
-    def cancel(self) -> None:
-        for ref in self._refs:
-            self.ray.cancel(ref, force=True)
+    def close(self, ok: bool) -> None:
+        """Release the actors (their CPUs); without ``ok`` stop the tasks in flight first."""
+        if not ok and not self.actors:
+            for ref in self._refs:
+                self.ray.cancel(ref, force=True)
+        for actor in self.actors:  # killing an actor also ends the jobs it still had
+            self.ray.kill(actor)
+
+
+class _RayWorker(_Worker):
+    """A Ray actor: single-threaded, its context built once."""
+
+    def __init__(self, context: Callable[[], Any]) -> None:
+        limit_threads()
+        super().__init__(context)
 
 
 def _ray_call(fn: Job, spec: Any) -> dict:
@@ -201,38 +259,42 @@ def _ray_session(address: str, workers: int | None) -> Iterator[None]:
 
 
 @contextmanager
-def open_pool(workers: int = 1, ray_address: str | None = None) -> Iterator[Pool]:
+def open_pool(workers: int = 1, ray_address: str | None = None,
+              context: Callable[[], Any] | None = None) -> Iterator[Pool]:
     """A `Pool`: Ray tasks if ``ray_address`` (``auto``, ``HOST:PORT``, ``ray://HOST:PORT``, or
     ``local`` for a private local instance with ``workers`` CPUs), else ``workers`` local processes,
     else (``workers == 1``) this process pinned to one core. Jobs still in flight when the block
-    ends by an exception (Ctrl-C) are stopped."""
+    ends by an exception (Ctrl-C) are stopped.
+
+    With ``context`` (a picklable callable, e.g. a class) every worker builds its context once,
+    ``context()``, and the pool calls each job as ``fn(context, spec)``; without, as ``fn(spec)``."""
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     with ExitStack() as stack:
         if ray_address:
             stack.enter_context(_ray_session(ray_address, workers if workers > 1 else None))
-            pool: Pool = RayPool()
+            pool: Pool = RayPool(workers, context)
         elif workers > 1:
-            pool = LocalPool(workers)
+            pool = LocalPool(workers, context)
         else:
             stack.enter_context(single_core())
-            pool = InlinePool()
+            pool = InlinePool(context)
         ok = False
         try:
             yield pool
             ok = True
         finally:
-            if isinstance(pool, LocalPool):
+            if isinstance(pool, LocalPool | RayPool):
                 pool.close(ok)
-            elif isinstance(pool, RayPool) and not ok:
-                pool.cancel()
 
 
-def run_jobs(fn: Callable[[Spec], dict], specs: Sequence[Spec], *, workers: int = 1,
-             ray_address: str | None = None, tick: Tick = _quiet_tick) -> list[dict]:
-    """``fn`` over ``specs`` on the executor of `open_pool`; results in spec order."""
+def run_jobs(fn: Callable[..., dict], specs: Sequence[Spec], *, workers: int = 1,
+             ray_address: str | None = None, context: Callable[[], Any] | None = None,
+             tick: Tick = _quiet_tick) -> list[dict]:
+    """``fn`` over ``specs`` on the executor of `open_pool` (with its ``context``); results in spec
+    order."""
     results: list[dict | None] = [None] * len(specs)
-    with open_pool(workers, ray_address) as pool:
+    with open_pool(workers, ray_address, context) as pool:
         for spec in specs:
             pool.submit(fn, spec)
         for done in range(1, len(specs) + 1):

@@ -1,0 +1,48 @@
+"""`ctrplan.parallel`: a pool with a context builds it once per worker and hands it to every job."""
+
+from __future__ import annotations
+
+import os
+from collections import defaultdict
+
+import pytest
+
+from ctrplan.parallel import available_cores, run_jobs
+
+
+class Tally:
+    """A worker's context: where it was built and how many jobs it has seen."""
+
+    def __init__(self) -> None:
+        self.pid = os.getpid()
+        self.jobs = 0
+
+
+def tally(context: Tally, spec: int) -> dict:
+    context.jobs += 1
+    return {"spec": spec, "pid": os.getpid(), "built_in": context.pid, "nth": context.jobs}
+
+
+def _per_worker(records: list[dict]) -> dict[int, list[int]]:
+    seen = defaultdict(list)
+    for r in records:
+        seen[r["pid"]].append(r["nth"])
+    return dict(seen)
+
+
+def test_this_process_keeps_one_context_for_every_job():
+    records = run_jobs(tally, list(range(5)), context=Tally)
+    assert [r["spec"] for r in records] == list(range(5))
+    assert {r["pid"] for r in records} == {r["built_in"] for r in records} == {os.getpid()}
+    assert [r["nth"] for r in records] == [1, 2, 3, 4, 5]
+
+
+@pytest.mark.skipif(len(available_cores()) < 2, reason="needs two cores")
+def test_each_worker_process_builds_its_context_once():
+    records = run_jobs(tally, list(range(8)), workers=2, context=Tally)
+    assert [r["spec"] for r in records] == list(range(8))  # results in spec order
+    assert all(r["built_in"] == r["pid"] != os.getpid() for r in records)  # built in the worker
+    per_worker = _per_worker(records)
+    assert 1 <= len(per_worker) <= 2
+    for counts in per_worker.values():  # one context per worker, kept from job to job
+        assert sorted(counts) == list(range(1, len(counts) + 1))
