@@ -24,6 +24,7 @@ from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, load_backend
 from ctrplan.cli.options import parse_duration
 from ctrplan.cli.progress import StatusLine
+from ctrplan.collision import CollisionWorld, RobotCollisionChecker
 from ctrplan.dataio import check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.robot import Robot
@@ -36,6 +37,8 @@ SceneArg = Annotated[Path, typer.Argument(metavar="SCENE.yaml", show_default=Fal
 log = logging.getLogger("ctrplan.ompl")
 #: trajectory.csv reports clearances up to this (mm); larger ones as this.
 TRAJECTORY_CLEARANCE_CAP_MM = 50.0
+#: The summary lists the clearance to this many nearest structures (and every one below its margin).
+SUMMARY_STRUCTURES = 4
 
 
 @contextmanager
@@ -126,10 +129,11 @@ def plan_command(
     if console_state.interrupted():  # Ctrl-C inside an OMPL callback ends the search, not the command
         raise KeyboardInterrupt
     pinn = getattr(be, "pinn", be)  # hybrid keeps its PINN in .pinn
-    doc = plan_document(result, sc, scene, getattr(pinn, "card", {}).get("weights_file"))
+    world = CollisionWorld.from_scene(sc)
+    doc = plan_document(result, sc, scene, getattr(pinn, "card", {}).get("weights_file"), world)
     if out is not None:
-        write_plan_outputs(out, sc, result, doc)
-    _summary(console, sc, result, out)
+        write_plan_outputs(out, sc, result, doc, world)
+    _summary(console, sc, result, doc, out)
     if json_out:
         typer.echo(json.dumps(doc))
     if not result.solved:
@@ -157,7 +161,7 @@ class _Progress(StatusLine):
         self(text)
 
 
-def _summary(console, sc, result, out: Path | None) -> None:
+def _summary(console, sc, result, doc: dict, out: Path | None) -> None:
     from rich.table import Table
 
     v = result.validated
@@ -185,27 +189,65 @@ def _summary(console, sc, result, out: Path | None) -> None:
                                + (f" ({dist:.2f} mm outside)" if dist > 0 else ""))
         if v.repaired:
             t.add_row("repair", "the path was repaired with the exact model")
+        listed = listed_structures(doc)
+        shown = [c for i, c in enumerate(listed) if i < SUMMARY_STRUCTURES or c["below_margin"]]
+        for c in shown:
+            t.add_row(f"  {c['name']}", structure_line(c, rich=True))
+        if len(shown) < len(listed):
+            t.add_row("", f"{len(listed) - len(shown)} farther structures: see --json or plan.html")
     t.add_row("message", result.message)
     if out is not None:
         t.add_row("outputs", str(out))
     console.print(t)
 
 
-def plan_document(result, sc, scene_file: Path, model: str | None) -> dict:
+def plan_document(result, sc, scene_file: Path, model: str | None,
+                  world: CollisionWorld | None = None) -> dict:
     """The JSON document of a plan (DESIGN §3): the result, its scene file and PINN weights file
-    (or None), and the target region."""
+    (or None), the target region and, for a path the exact model checked, ``validated.structures``:
+    the exact model's clearance to every named structure along it (`structure_clearances`).
+    ``world``: the scene's collision world, if built already."""
     doc = result.to_json()
     doc["scene"] = str(scene_file)
     doc["model"] = model
     doc["target"] = sc.target.to_dict()
     if np.ptp(sc.target.semi_axes) > 0:  # one tolerance describes only a sphere; see doc["target"]
         doc["goal_tolerance_mm"] = None
+    if result.dense is not None and doc["validated"] is not None:
+        doc["validated"]["structures"] = [c.to_json() for c in structure_clearances(sc, result.dense.exact,
+                                                                                     world)]
     return doc
 
 
-def write_plan_outputs(out: Path, sc, result, doc: dict) -> None:
+def structure_clearances(sc, exact, world: CollisionWorld | None = None) -> list:
+    """`ctrplan.collision.StructureClearance` of every obstacle of ``sc`` along the exact backbones
+    ``exact`` (robot frame) of a path, with the scene's margin and each obstacle's own."""
+    checker = RobotCollisionChecker(world or CollisionWorld.from_scene(sc), sc.base_pose,
+                                    exact.positions_mm.shape[1], sc.settings.margin_mm)
+    return checker.structure_clearances(exact.positions_mm, exact.radius_mm, exact.s_mm)
+
+
+def listed_structures(doc: dict) -> list[dict]:
+    """The per-structure clearances `plan_document` listed (none without a checked path), nearest
+    first."""
+    listed = (doc.get("validated") or {}).get("structures", [])
+    return sorted(listed, key=lambda c: np.inf if c["clearance_mm"] is None else c["clearance_mm"])
+
+
+def structure_line(c: dict, rich: bool = False) -> str:
+    """One structure's clearance as a line: distance, margin, where, and a flag when below it."""
+    where = f"state {c['state']}, {c['arc_length_mm']:.1f} mm along the robot" \
+        if c["arc_length_mm"] is not None else "no state"
+    flag = "BELOW its margin" if c["below_margin"] else ""
+    if flag and rich:
+        flag = f"[bold red]{flag}[/]"
+    return (f"{c['clearance_mm']:.2f} mm (margin {c['required_mm']:g} mm; {where})"
+            + (f" {flag}" if flag else ""))
+
+
+def write_plan_outputs(out: Path, sc, result, doc: dict, world: CollisionWorld | None = None) -> None:
     """path.json, obstacles.ply, plan.png, plan.html and, for a solved plan, trajectory.csv; each file
-    is written completely or not at all."""
+    is written completely or not at all. ``world``: the scene's collision world, if built already."""
     from ctrplan.dataio import atomic_write
     from ctrplan.planning.validate import clearance_along
     from ctrplan.viz import plot_plan, viewer_data, write_viewer
@@ -217,7 +259,7 @@ def write_plan_outputs(out: Path, sc, result, doc: dict) -> None:
     if result.dense is not None:
         exact = result.dense.exact
         bbs, radii = sc.to_scene(exact.positions_mm), exact.radius_mm
-        clearance = clearance_along(sc, exact, TRAJECTORY_CLEARANCE_CAP_MM)
+        clearance = clearance_along(sc, exact, TRAJECTORY_CLEARANCE_CAP_MM, world)
         full["dense_path"] = result.dense.dense_q.tolist()
         full["backbones_mm"] = np.round(np.where(np.isfinite(bbs), bbs, np.nan), 4).tolist()
         full["backbone_radius_mm"] = np.round(radii, 4).tolist()
@@ -238,11 +280,12 @@ def write_plan_outputs(out: Path, sc, result, doc: dict) -> None:
     tmp_png = out / ".plan.png.tmp.png"
     plot_plan(sc, bbs, tmp_png, tip_path=bbs[:, -1, :],
               title=f"{sc.name}: {result.planner}/{result.backend}, "
-                    f"{'solved' if result.solved else 'not solved'}")
+                    f"{'solved' if result.solved else 'not solved'}", notes=_figure_notes(result, doc))
     tmp_png.replace(out / "plan.png")
     tmp_html = out / ".plan.html.tmp.html"
     shown = None if clearance is None else np.minimum(clearance, CLEARANCE_CAP_MM)
-    write_viewer(tmp_html, viewer_data(sc, bbs, radii, _viewer_info(sc, result), shown),
+    listed = {c["name"]: (structure_line(c), c["below_margin"]) for c in listed_structures(doc)}
+    write_viewer(tmp_html, viewer_data(sc, bbs, radii, _viewer_info(sc, result), shown, structures=listed),
                  title=f"ctrplan: {sc.name}")
     tmp_html.replace(out / "plan.html")
 
@@ -261,6 +304,29 @@ def write_trajectory(path: Path, sc, result, tips_mm: np.ndarray, clearance_mm: 
     rows = np.column_stack([times, dense, tips_mm, clearance_mm])
     with atomic_write(path) as fh:
         fh.write(format_csv(header, rows, ["%.6f"] * rows.shape[1]))
+
+
+def _figure_notes(result, doc: dict) -> list[tuple[str, bool]]:
+    """plan.png's notes (text, warn): the result or why it failed, the exact model's clearance and
+    the clearance to each structure, nearest first, those below their margin as warnings."""
+    notes = [("solved" if result.solved else result.message or "not solved", not result.solved)]
+    v = result.validated
+    if v is None:
+        return notes + [("no path: no clearance to show (the start is drawn)", False)]
+    notes.append((f"min clearance {v.min_clearance_mm:.2f} mm to {v.nearest_obstacle or 'nothing'} "
+                  f"(exact model, {v.states} states)", not v.collision_free))
+    listed = listed_structures(doc)
+    width = max([len(c["name"]) for c in listed] + [9])
+    key = ("clearance to each structure along the path (exact model, mm; margin: the scene's plus its "
+           "own; s: arc length from the front plate; !: below its margin)")
+    header = f"{'structure':<{width}} clear. margin state  s"
+    notes += [("", False), (key, False), ("", False), (header, False)]
+    for c in listed:
+        clear = "-" if c["clearance_mm"] is None else f"{c['clearance_mm']:.2f}"
+        arc = "-" if c["arc_length_mm"] is None else f"{c['arc_length_mm']:.0f}"
+        notes.append((f"{c['name']:<{width}} {clear:>6} {c['required_mm']:>6.2f} {c['state']:>5} {arc:>4}"
+                      + (" !" if c["below_margin"] else ""), c["below_margin"]))
+    return notes
 
 
 def _viewer_info(sc, result) -> dict[str, str]:
