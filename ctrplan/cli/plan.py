@@ -241,7 +241,7 @@ def structure_line(c: dict, rich: bool = False) -> str:
     flag = "BELOW its margin" if c["below_margin"] else ""
     if flag and rich:
         flag = f"[bold red]{flag}[/]"
-    return (f"{c['clearance_mm']:.2f} mm (margin {c['required_mm']:g} mm; {where})"
+    return (f"{c['clearance_mm']:.2f} mm (required {c['required_mm']:g} mm; {where})"
             + (f" {flag}" if flag else ""))
 
 
@@ -285,8 +285,8 @@ def write_plan_outputs(out: Path, sc, result, doc: dict, world: CollisionWorld |
     tmp_html = out / ".plan.html.tmp.html"
     shown = None if clearance is None else np.minimum(clearance, CLEARANCE_CAP_MM)
     listed = {c["name"]: (structure_line(c), c["below_margin"]) for c in listed_structures(doc)}
-    write_viewer(tmp_html, viewer_data(sc, bbs, radii, _viewer_info(sc, result), shown, structures=listed),
-                 title=f"ctrplan: {sc.name}")
+    data = viewer_data(sc, bbs, radii, _viewer_info(sc, result, doc), shown, structures=listed)
+    write_viewer(tmp_html, data, title=f"ctrplan: {sc.name}")
     tmp_html.replace(out / "plan.html")
 
 
@@ -317,19 +317,19 @@ def _figure_notes(result, doc: dict) -> list[tuple[str, bool]]:
                   f"(exact model, {v.states} states)", not v.collision_free))
     listed = listed_structures(doc)
     width = max([len(c["name"]) for c in listed] + [9])
-    key = ("clearance to each structure along the path (exact model, mm; margin: the scene's plus its "
-           "own; s: arc length from the front plate; !: below its margin)")
-    header = f"{'structure':<{width}} clear. margin state  s"
+    key = ("clearance to each structure along the path (exact model, mm; need: the scene's margin plus "
+           "the structure's own; s: arc length from the front plate; !: below it)")
+    header = f"  {'structure':<{width}} clear.   need state  s"
     notes += [("", False), (key, False), ("", False), (header, False)]
     for c in listed:
         clear = "-" if c["clearance_mm"] is None else f"{c['clearance_mm']:.2f}"
         arc = "-" if c["arc_length_mm"] is None else f"{c['arc_length_mm']:.0f}"
-        notes.append((f"{c['name']:<{width}} {clear:>6} {c['required_mm']:>6.2f} {c['state']:>5} {arc:>4}"
-                      + (" !" if c["below_margin"] else ""), c["below_margin"]))
+        row = f"{c['name']:<{width}} {clear:>6} {c['required_mm']:>6.2f} {c['state']:>5} {arc:>4}"
+        notes.append((("! " if c["below_margin"] else "  ") + row, c["below_margin"]))
     return notes
 
 
-def _viewer_info(sc, result) -> dict[str, str]:
+def _viewer_info(sc, result, doc: dict) -> dict[str, str]:
     """The result as labelled lines for plan.html."""
     info = {"result": "solved" if result.solved else result.message,
             "planner / backend": f"{result.planner} / {result.backend}",
@@ -347,6 +347,10 @@ def _viewer_info(sc, result) -> dict[str, str]:
             info[f"{result.backend} vs exact"] = f"backbones differ by {error:.2f} mm at most"
         if v.repaired:
             info["repair"] = "stretches re-planned with the exact model"
+    below = [c["name"] for c in listed_structures(doc) if c["below_margin"]]
+    if listed_structures(doc):
+        info["structures"] = (f"below their margin: {', '.join(below)}" if below else
+                              "every one keeps its margin") + " (hover one for its clearance)"
     return info
 
 

@@ -185,7 +185,7 @@ def _projections(fig, grid, d: _Drawing) -> None:
                      f"within {SECTION_MM:g} mm of the final path in {'xyz'[away]}", fontsize=10)
 
 
-def _notes(ax, notes: Sequence[tuple[str, bool]], width: int = 50) -> None:
+def _notes(ax, notes: Sequence[tuple[str, bool]], width: int = 52) -> None:
     """The notes as wrapped lines (fixed width: tables stay aligned) from the top of an empty panel;
     warnings in red."""
     ax.axis("off")

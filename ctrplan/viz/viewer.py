@@ -291,7 +291,7 @@ function triad(){
   });
 }
 function clearanceBar(){
-  const x0 = 20, y0 = H - 112, w = 190, h = 10, g = ctx.createLinearGradient(x0, 0, x0 + w, 0);
+  const x0 = 20, y0 = H - 138, w = 190, h = 10, g = ctx.createLinearGradient(x0, 0, x0 + w, 0);
   stops.forEach(([f, c]) => g.addColorStop(f, "rgb(" + c.join(",") + ")"));
   ctx.fillStyle = "#fffc"; ctx.fillRect(x0 - 6, y0 - 20, w + 80, 42);
   ctx.fillStyle = g; ctx.fillRect(x0, y0, w, h); ctx.strokeStyle = "#333"; ctx.lineWidth = 1; ctx.strokeRect(x0, y0, w, h);
@@ -302,7 +302,7 @@ function clearanceBar(){
 // scale bar: a round length in mm, true at the depth of the view centre
 function scaleBar(){
   const pxmm = F/dist, want = 140/pxmm, e = Math.pow(10, Math.floor(Math.log10(want)));
-  const mm = [1,2,5,10].map(m => m*e).filter(m => m <= want).pop(), len = mm*pxmm, x0 = 20, y0 = H - 56;
+  const mm = [1,2,5,10].map(m => m*e).filter(m => m <= want).pop(), len = mm*pxmm, x0 = 20, y0 = H - 82;
   ctx.strokeStyle = "#222"; ctx.lineWidth = 2; ctx.beginPath();
   ctx.moveTo(x0,y0); ctx.lineTo(x0+len,y0); ctx.moveTo(x0,y0-5); ctx.lineTo(x0,y0+5); ctx.moveTo(x0+len,y0-5); ctx.lineTo(x0+len,y0+5); ctx.stroke();
   ctx.fillStyle = "#222"; ctx.font = "12px system-ui,sans-serif"; ctx.fillText(+mm.toPrecision(3) + " mm (at the view centre)", x0, y0-9);
@@ -311,7 +311,7 @@ function scaleBar(){
 let drawn = [];
 const tipEl = document.getElementById("tip");
 function showTip(o, x, y){
-  tipEl.textContent = o.name + (o.target ? "" : ": " + (o.note || "no clearance computed (no checked path)"));
+  tipEl.textContent = o.name + (o.target ? "" : " \u00b7 nearest along the path: " + (o.note || "not computed (no checked path)"));
   tipEl.className = o.warn ? "warn" : ""; tipEl.style.display = "block";
   tipEl.style.left = Math.min(x, W - tipEl.offsetWidth - 8) + "px"; tipEl.style.top = (y + 16) + "px";
 }
