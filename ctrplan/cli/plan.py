@@ -309,7 +309,8 @@ def write_trajectory(path: Path, sc, result, tips_mm: np.ndarray, clearance_mm: 
 def _figure_notes(result, doc: dict) -> list[tuple[str, bool]]:
     """plan.png's notes (text, warn): the result or why it failed, the exact model's clearance and
     the clearance to each structure, nearest first, those below their margin as warnings."""
-    notes = [("solved" if result.solved else result.message or "not solved", not result.solved)]
+    why = result.message if result.message.startswith("not solved") else f"not solved: {result.message}"
+    notes = [("solved" if result.solved else why, not result.solved)]
     v = result.validated
     if v is None:
         return notes + [("no path: no clearance to show (the start is drawn)", False)]

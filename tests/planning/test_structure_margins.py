@@ -80,3 +80,23 @@ def test_a_structure_margin_invalidates_a_close_path_and_the_replan_keeps_it(ope
     fb = first.dense.exact
     old = {c.name: c for c in ch.structure_clearances(fb.positions_mm, fb.radius_mm, fb.s_mm)}
     assert old["ball"].below_margin and old["ball"].distance_mm <= gap0 + 1e-9
+
+
+class ShortCurvatures(CosseratBackend):
+    """A deliberately wrong planning model (every pre-curvature 40 % too small): its paths fail exact
+    validation and are repaired with the exact model."""
+
+    name = "wrong"
+
+    def __init__(self):
+        robot = Robot.nominal()
+        tubes = tuple(replace(t, curvature_per_mm=0.6 * t.curvature_per_mm) for t in robot.tubes)
+        super().__init__(robot.with_changes(tubes=tubes))
+
+
+def test_a_repaired_path_keeps_the_structure_margin(open_scene):
+    margin = 1.5
+    guarded = with_ball_margin(open_scene, margin)
+    res = plan(guarded, ShortCurvatures(), seed=1, time_limit_s=5.0)
+    assert res.solved and res.validated.repaired, res.message
+    assert ball_gap(res.dense.exact) >= open_scene.settings.margin_mm + margin - 1e-6
