@@ -14,7 +14,7 @@ import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import typer
@@ -24,11 +24,13 @@ from ctrplan.cli import app
 from ctrplan.cli.kinematics import ModelOpt, load_backend
 from ctrplan.cli.options import parse_duration
 from ctrplan.cli.progress import StatusLine
-from ctrplan.collision import CollisionWorld, RobotCollisionChecker
 from ctrplan.dataio import check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.robot import Robot
 from ctrplan.scene import PLANNERS
+
+if TYPE_CHECKING:
+    from ctrplan.collision import CollisionWorld, StructureClearance
 
 SceneArg = Annotated[Path, typer.Argument(metavar="SCENE.yaml", show_default=False,
                                           help="Scene file (robot, base pose, obstacles, target, start).")]
@@ -128,6 +130,8 @@ def plan_command(
                       progress=progress.update)
     if console_state.interrupted():  # Ctrl-C inside an OMPL callback ends the search, not the command
         raise KeyboardInterrupt
+    from ctrplan.collision import CollisionWorld
+
     pinn = getattr(be, "pinn", be)  # hybrid keeps its PINN in .pinn
     world = CollisionWorld.from_scene(sc)
     doc = plan_document(result, sc, scene, getattr(pinn, "card", {}).get("weights_file"), world)
@@ -219,9 +223,11 @@ def plan_document(result, sc, scene_file: Path, model: str | None,
     return doc
 
 
-def structure_clearances(sc, exact, world: CollisionWorld | None = None) -> list:
+def structure_clearances(sc, exact, world: CollisionWorld | None = None) -> list[StructureClearance]:
     """`ctrplan.collision.StructureClearance` of every obstacle of ``sc`` along the exact backbones
     ``exact`` (robot frame) of a path, with the scene's margin and each obstacle's own."""
+    from ctrplan.collision import CollisionWorld, RobotCollisionChecker
+
     checker = RobotCollisionChecker(world or CollisionWorld.from_scene(sc), sc.base_pose,
                                     exact.positions_mm.shape[1], sc.settings.margin_mm)
     return checker.structure_clearances(exact.positions_mm, exact.radius_mm, exact.s_mm)
@@ -241,7 +247,8 @@ def structure_line(c: dict, rich: bool = False) -> str:
     flag = "BELOW its margin" if c["below_margin"] else ""
     if flag and rich:
         flag = f"[bold red]{flag}[/]"
-    return (f"{c['clearance_mm']:.2f} mm (required {c['required_mm']:g} mm; {where})"
+    clear = "no finite state:" if c["clearance_mm"] is None else f"{c['clearance_mm']:.2f} mm"
+    return (f"{clear} (required {c['required_mm']:g} mm; {where})"
             + (f" {flag}" if flag else ""))
 
 
