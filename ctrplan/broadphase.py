@@ -1,17 +1,20 @@
 """Conservative distance-grid broadphase: clears capsules far from every obstacle before FCL.
 
 `DistanceGrid` stores, per cubic cell of ``cell_mm`` over the obstacles' bounding box grown by
-``band_mm``, the exact distance (mm) from the cell centre to the nearest obstacle geometry, capped at
-``band_mm`` and rounded down to 1/255 of it (uint8). The geometry is what FCL tests: the triangles of a
-mesh obstacle (a surface -- FCL's BVH models are triangle soups) and the solid of a primitive. The
-distance is 1-Lipschitz, so for any point x in a cell with centre c, ``d(x) >= value(c) - |x - c|``,
-and a point outside the grid is at least ``band_mm`` from every obstacle. A capsule's axis is sampled
+``band_mm`` plus the largest obstacle margin, the margin-reduced distance d(x) = min over obstacles j of
+(distance to j - ``margin_mm`` of j) (mm) at the cell centre, clamped to [0, ``band_mm``] and rounded
+down to 1/255 of ``band_mm`` (uint8). The geometry is what FCL tests: the triangles of a mesh obstacle
+(a surface -- FCL's BVH models are triangle soups) and the solid of a primitive. d is 1-Lipschitz, so
+for any point x in a cell with centre c, ``d(x) >= value(c) - |x - c|`` where d(c) >= 0 (a cell where
+d(c) < 0 stores 0, and its bound then never clears a capsule), and a point outside the grid has
+d >= ``band_mm``. A capsule's axis is sampled
 at spacing <= ``cell_mm / 2``; every axis point is within half that spacing of a sample, so
 
     d(axis) >= min_samples(value(c) - |x - c|) - spacing / 2,
 
-a lower bound of the clearance of the axis. A capsule of radius r (margin included) is *certainly free*
-when that bound exceeds r; only the other capsules go to FCL, which stays the judge of every contact.
+a lower bound of the margin-reduced clearance of the axis. A capsule of radius r (the robot's margin
+included) is *certainly free* -- further than r plus its margin from every obstacle -- when that bound
+exceeds r; only the other capsules go to FCL, which stays the judge of every contact.
 
 The grid is built once per set of obstacles (compiled; seconds for the skull-base anatomy) and cached
 in memory and, when it took long to build, on disk in the user cache directory (``$CTRPLAN_CACHE_DIR``, else
@@ -35,7 +38,7 @@ from numba import njit
 from ctrplan.scene import Obstacle
 
 #: Bump when the grid's content or file layout changes (old cache files are then ignored).
-GRID_VERSION = 2
+GRID_VERSION = 3
 #: Default cell edge (mm) and distance cap (mm).
 CELL_MM = 0.5
 BAND_MM = 4.0
@@ -130,9 +133,11 @@ def _point_segment_distance(px, py, pz, a, b):
 
 
 @njit(cache=True)
-def _rasterise_triangles(V, F, lo, cell, band, step, values):
-    """Lower ``values`` (uint8 cells) to floor(min(d, band) / step) of the cell centres' distance d
-    (mm) to the triangles F (T, 3) of vertices V (n, 3), for centres within ``band`` of a triangle."""
+def _rasterise_triangles(V, F, lo, cell, band, step, values, margin):
+    """Lower ``values`` (uint8 cells) to floor(clip(d - margin, 0, band) / step) of the cell centres'
+    distance d (mm) to the triangles F (T, 3) of vertices V (n, 3), for centres within ``band +
+    margin`` of a triangle."""
+    reach = band + margin
     nx, ny, nz = values.shape
     for t in range(F.shape[0]):
         a, b, c = V[F[t, 0]], V[F[t, 1]], V[F[t, 2]]
@@ -145,8 +150,8 @@ def _rasterise_triangles(V, F, lo, cell, band, step, values):
         i0 = np.empty(3, dtype=np.int64)
         i1 = np.empty(3, dtype=np.int64)
         for k in range(3):
-            tmin = min(a[k], b[k], c[k]) - band
-            tmax = max(a[k], b[k], c[k]) + band
+            tmin = min(a[k], b[k], c[k]) - reach
+            tmax = max(a[k], b[k], c[k]) + reach
             i0[k] = max(0, int(math.floor((tmin - lo[k]) / cell - 0.5)))
             i1[k] = min(values.shape[k] - 1, int(math.ceil((tmax - lo[k]) / cell - 0.5)))
         for ix in range(i0[0], i1[0] + 1):
@@ -158,14 +163,14 @@ def _rasterise_triangles(V, F, lo, cell, band, step, values):
                     if flat:
                         d = min(_point_segment_distance(x, y, z, a, b),
                                 _point_segment_distance(x, y, z, b, c),
-                                _point_segment_distance(x, y, z, a, c))
+                                _point_segment_distance(x, y, z, a, c)) - margin
                     else:  # the plane distance bounds the triangle distance from below
-                        pd = abs((x - a[0]) * nrm[0] + (y - a[1]) * nrm[1] + (z - a[2]) * nrm[2])
-                        if pd >= band or int(pd / step) >= values[ix, iy, iz]:
+                        pd = abs((x - a[0]) * nrm[0] + (y - a[1]) * nrm[1] + (z - a[2]) * nrm[2]) - margin
+                        if pd >= band or int(max(pd, 0.0) / step) >= values[ix, iy, iz]:
                             continue
-                        d = _point_triangle_distance(x, y, z, a, b, c)
+                        d = _point_triangle_distance(x, y, z, a, b, c) - margin
                     if d < band:
-                        q = int(d / step)
+                        q = int(max(d, 0.0) / step)
                         if q < values[ix, iy, iz]:
                             values[ix, iy, iz] = q
     return nx * ny * nz
@@ -232,9 +237,9 @@ def _solid_distance(o: Obstacle, x: np.ndarray) -> np.ndarray:
 # ---- the grid ------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class DistanceGrid:
-    """Capped, rounded-down distances (uint8, unit ``band_mm / 255``) from cell centres to the
-    obstacles. ``lo`` (3,) is the grid's lower corner (mm, scene frame); cell (i, j, k) has its centre
-    at ``lo + (i + 0.5, j + 0.5, k + 0.5) * cell_mm``."""
+    """Capped, rounded-down margin-reduced distances (uint8, unit ``band_mm / 255``) from cell centres
+    to the obstacles (see the module docstring). ``lo`` (3,) is the grid's lower corner (mm, scene
+    frame); cell (i, j, k) has its centre at ``lo + (i + 0.5, j + 0.5, k + 0.5) * cell_mm``."""
 
     lo: np.ndarray
     cell_mm: float
@@ -254,10 +259,12 @@ class DistanceGrid:
     @classmethod
     def build(cls, obstacles: Sequence[Obstacle], cell_mm: float = CELL_MM,
               band_mm: float = BAND_MM) -> DistanceGrid:
-        """Rasterise ``obstacles`` (scene frame, mm): exact distances within ``band_mm``."""
+        """Rasterise ``obstacles`` (scene frame, mm): exact margin-reduced distances within
+        ``band_mm``."""
         bounds = np.stack([obstacle_bounds(o) for o in obstacles])
-        lo = bounds[:, 0].min(axis=0) - band_mm - cell_mm
-        hi = bounds[:, 1].max(axis=0) + band_mm + cell_mm
+        reach = band_mm + max(o.margin_mm for o in obstacles)
+        lo = bounds[:, 0].min(axis=0) - reach - cell_mm
+        hi = bounds[:, 1].max(axis=0) + reach + cell_mm
         extent = hi - lo
         cells = float(np.prod(np.ceil(extent / cell_mm)))
         if cells > MAX_CELLS:
@@ -271,23 +278,26 @@ class DistanceGrid:
             if o.kind == "mesh":
                 _rasterise_triangles(np.ascontiguousarray(o.vertices, dtype=float),
                                      np.ascontiguousarray(o.faces, dtype=np.int64), lo, cell_mm, band_mm,
-                                     step, values)
+                                     step, values, float(o.margin_mm))
                 continue
             b = primitive_bounds(o)
-            i0 = np.maximum(0, np.floor((b[0] - band_mm - lo) / cell_mm).astype(int))
-            i1 = np.minimum(np.array(shape), np.ceil((b[1] + band_mm - lo) / cell_mm).astype(int) + 1)
+            m = band_mm + o.margin_mm
+            i0 = np.maximum(0, np.floor((b[0] - m - lo) / cell_mm).astype(int))
+            i1 = np.minimum(np.array(shape), np.ceil((b[1] + m - lo) / cell_mm).astype(int) + 1)
             axes = [lo[k] + (np.arange(i0[k], i1[k]) + 0.5) * cell_mm for k in range(3)]
             centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
-            q = np.floor(np.minimum(_solid_distance(o, centres), band_mm) / step).astype(np.uint8)
+            d = np.clip(_solid_distance(o, centres) - o.margin_mm, 0.0, band_mm)
+            q = np.floor(d / step).astype(np.uint8)
             sl = tuple(slice(i0[k], i1[k]) for k in range(3))
             values[sl] = np.minimum(values[sl], q)
         return cls(lo, float(cell_mm), float(band_mm), values)
 
     def segment_lower_bounds(self, points: np.ndarray, radii: np.ndarray | None = None) -> np.ndarray:
-        """Lower bounds (B, N-1) of the distance (mm) from each segment of polylines (B, N, 3)
-        (scene frame, mm) to the obstacles; -inf where a point is not finite. With capsule
-        ``radii`` (B, N-1) (mm), a bound that already exceeds the radius is not tightened further
-        (enough to clear the capsule); without, every bound is the tight one."""
+        """Lower bounds (B, N-1) of the margin-reduced distance (mm) from each segment of polylines
+        (B, N, 3) (scene frame, mm) to the obstacles (<= 0 where it may be negative); -inf where a
+        point is not finite. With capsule ``radii`` (B, N-1) (mm), a bound that already exceeds the
+        radius is not tightened further (enough to clear the capsule); without, every bound is the
+        tight one."""
         p = np.ascontiguousarray(points, dtype=float)
         shape = (p.shape[0], p.shape[1] - 1)
         r = np.full(shape, np.inf) if radii is None else np.ascontiguousarray(radii, dtype=float)
@@ -298,11 +308,11 @@ class DistanceGrid:
 
 
 def geometry_key(obstacles: Sequence[Obstacle], cell_mm: float, band_mm: float) -> str:
-    """Hash (hex) of the obstacles' geometry and the grid parameters: the cache key."""
+    """Hash (hex) of the obstacles' geometry, margins and the grid parameters: the cache key."""
     h = hashlib.sha256(f"ctrplan-grid-{GRID_VERSION}-{cell_mm!r}-{band_mm!r}".encode())
     for o in obstacles:
         h.update(o.kind.encode())
-        for a in (o.pose, o.radius, o.length, o.size, o.vertices, o.faces):
+        for a in (o.pose, o.radius, o.length, o.size, o.vertices, o.faces, o.margin_mm):
             if a is not None:
                 arr = np.ascontiguousarray(a, dtype=np.int64 if a is o.faces else float)
                 h.update(str(arr.shape).encode())

@@ -1,7 +1,12 @@
 """Collision checking of a CTR backbone against the scene with FCL.
 
 The robot is a chain of capsules between consecutive backbone points; each capsule's radius is the
-outer radius of the outermost tube present on that segment plus a configurable margin. The scene is
+outer radius of the outermost tube present on that segment plus a configurable margin. Each obstacle
+may carry its own margin (`Obstacle.margin_mm`): every boolean check against that obstacle tests the
+capsule grown by it as well (the broadphase grid and the bounding boxes account for it too), so
+planning, exact validation, repair and design keep that much more clearance from it without code of
+their own. Distances are the raw ones (robot surface to obstacle, no margin);
+`RobotCollisionChecker.structure_clearances` compares them with each structure's margin. The scene is
 built once (meshes as BVHs of compact chunks, primitives as FCL shapes); the capsules are FCL objects
 whose radius, length and pose are updated in place for every configuration (docs/design.md §4: building from
 Python is slow, boolean checks are cheap, distances are for final paths only).
@@ -262,8 +267,11 @@ class CollisionWorld:
         self._objects: list[fcl.CollisionObject] = []
         self._geoms: list = []  # keep FCL geometry alive
         self.names: list[str] = []
+        #: per FCL object: the index of its obstacle in `obstacles`, and that obstacle's margin (mm)
+        self.owner: list[int] = []
+        self.margins: list[float] = []
         lo, hi = [], []
-        for o in self.obstacles:
+        for index, o in enumerate(self.obstacles):
             if o.kind == "mesh":
                 V = np.ascontiguousarray(o.vertices, dtype=float)
                 F = np.ascontiguousarray(o.faces, dtype=np.int64)
@@ -276,7 +284,7 @@ class CollisionWorld:
                     g.beginModel(len(v), len(f))
                     g.addSubModel(v, f)
                     g.endModel()
-                    self._add(g, fcl.Transform(), o.name, v.min(axis=0), v.max(axis=0), lo, hi)
+                    self._add(g, fcl.Transform(), index, v.min(axis=0), v.max(axis=0), lo, hi)
                 continue
             if o.kind == "sphere":
                 g = fcl.Sphere(o.radius)
@@ -289,17 +297,24 @@ class CollisionWorld:
             else:  # pragma: no cover - the loader only makes these kinds
                 raise ValueError(f"unknown obstacle kind {o.kind!r}")
             b = primitive_bounds(o)
-            self._add(g, _fcl_transform(o.pose), o.name, b[0], b[1], lo, hi)
-        self.aabb_lo = np.array(lo).reshape(-1, 3)
-        self.aabb_hi = np.array(hi).reshape(-1, 3)
+            self._add(g, _fcl_transform(o.pose), index, b[0], b[1], lo, hi)
+        #: the objects' bounding boxes (O, 3) (scene frame, mm) and, grown by each object's margin, the
+        #: boxes a capsule must reach to collide (``aabb_lo``, ``aabb_hi``)
+        self.box_lo = np.array(lo).reshape(-1, 3)
+        self.box_hi = np.array(hi).reshape(-1, 3)
+        grow = np.array(self.margins).reshape(-1, 1)
+        self.aabb_lo = self.box_lo - grow
+        self.aabb_hi = self.box_hi + grow
         self._request = fcl.CollisionRequest()
         #: the broadphase grid (None when disabled or without obstacles)
         self.grid: DistanceGrid | None = grid_for(self.obstacles) if self.broadphase else None
 
-    def _add(self, geom, tf, name, lo_, hi_, lo, hi) -> None:
+    def _add(self, geom, tf, index: int, lo_, hi_, lo, hi) -> None:
         self._geoms.append(geom)
         self._objects.append(fcl.CollisionObject(geom, tf))
-        self.names.append(name)
+        self.names.append(self.obstacles[index].name)
+        self.owner.append(index)
+        self.margins.append(float(self.obstacles[index].margin_mm))
         lo.append(lo_)
         hi.append(hi_)
 
@@ -357,6 +372,7 @@ class CapsuleChain:
         self._geoms = [fcl.Capsule(0.5, 1.0) for _ in range(self.n_segments)]
         self._objects = [fcl.CollisionObject(g, fcl.Transform()) for g in self._geoms]
         self._placed = np.zeros(self.n_segments, dtype=bool)
+        self._grown = np.zeros(self.n_segments)  # the obstacle margin each capsule's radius has now
         self._frames = np.zeros((0, 14))
         self.seg_lo = self.seg_hi = np.zeros((0, 3))
         self._result = fcl.CollisionResult()
@@ -380,28 +396,33 @@ class CapsuleChain:
         self._frames = frames
         self._placed[:] = False
 
-    def _object(self, i: int) -> fcl.CollisionObject:
+    def _object(self, i: int, grow_mm: float = 0.0) -> fcl.CollisionObject:
+        """Capsule i's FCL object, placed, with its radius grown by ``grow_mm`` (an obstacle's margin)."""
         o = self._objects[i]
         if not self._placed[i]:
             f = self._frames[i]
             g = self._geoms[i]
-            g.radius = float(f[13])
+            g.radius = float(f[13]) + grow_mm
             g.lz = float(f[12])
             o.setRotation(f[3:12].reshape(3, 3))
             o.setTranslation(f[0:3])
             self._placed[i] = True
+            self._grown[i] = grow_mm
+        elif self._grown[i] != grow_mm:
+            self._geoms[i].radius = float(self._frames[i, 13]) + grow_mm
+            self._grown[i] = grow_mm
         return o
 
     def collides(self, world: CollisionWorld, pairs: np.ndarray | None = None) -> bool:
-        """True if any capsule touches any obstacle (distal capsules are tested first).
-        ``pairs``: precomputed candidate (capsule, object) pairs."""
+        """True if any capsule touches any obstacle, each grown by that obstacle's margin (distal
+        capsules are tested first). ``pairs``: precomputed candidate (capsule, object) pairs."""
         req, res = world._request, self._result
-        objs = world._objects
+        objs, margins = world._objects, world.margins
         if pairs is None:
             pairs = world.candidates(self.seg_lo, self.seg_hi)
         for i, j in pairs:
             self.tests += 1
-            if fcl.collide(self._object(i), objs[j], req, res):  # returns this test's contact count
+            if fcl.collide(self._object(i, margins[j]), objs[j], req, res):  # this test's contact count
                 res.contacts.clear()  # a result only grows on contact: reused, not rebuilt
                 return True
         return False
@@ -416,10 +437,11 @@ class CapsuleChain:
         return self.collides(world, pairs)
 
     def contacts(self, world: CollisionWorld) -> list[tuple[int, str]]:
-        """Every (capsule index, obstacle name) pair in contact."""
+        """Every (capsule index, obstacle name) pair in contact (with the obstacle's margin)."""
         out = set()
         for i, j in world.candidates(self.seg_lo, self.seg_hi):
-            if fcl.collide(self._object(i), world._objects[j], world._request, fcl.CollisionResult()):
+            if fcl.collide(self._object(i, world.margins[j]), world._objects[j], world._request,
+                           fcl.CollisionResult()):
                 out.add((int(i), world.names[j]))
         return sorted(out)
 
@@ -429,9 +451,7 @@ class CapsuleChain:
         out = np.full(len(self._frames), float(cap_mm))
         if len(world) == 0:
             return out
-        gap = np.maximum(0.0, np.maximum(world.aabb_lo[None] - self.seg_hi[:, None],
-                                         self.seg_lo[:, None] - world.aabb_hi[None]))
-        lower = np.linalg.norm(gap, axis=-1)  # (M, O)
+        lower = self._box_gaps(world)
         req = fcl.DistanceRequest()
         for i in range(len(out)):
             for j in np.argsort(lower[i]):
@@ -443,8 +463,19 @@ class CapsuleChain:
                     break
         return out
 
-    def distance(self, world: CollisionWorld) -> Clearance:
-        """Smallest distance between the chain and the obstacles (0 when in contact).
+    def _box_gaps(self, world: CollisionWorld, objects: np.ndarray | None = None) -> np.ndarray:
+        """Gaps (M, O) between the capsules' bounding boxes and the objects' (all, or ``objects``):
+        lower bounds of their distances (mm)."""
+        lo, hi = (world.box_lo, world.box_hi) if objects is None else (world.box_lo[objects],
+                                                                        world.box_hi[objects])
+        gap = np.maximum(0.0, np.maximum(lo[None] - self.seg_hi[:, None], self.seg_lo[:, None] - hi[None]))
+        return np.linalg.norm(gap, axis=-1)
+
+    def distance(self, world: CollisionWorld, objects: np.ndarray | None = None,
+                 below: float = np.inf) -> Clearance:
+        """Smallest distance between the chain and the obstacles (0 when in contact): all objects
+        of ``world`` or the object indices ``objects``; a distance of ``below`` or more is not
+        searched for (the result is then the no-hit `Clearance` with distance inf).
 
         Pairs are visited by increasing bounding-box gap; the search stops when that gap (a lower
         bound of the distance) reaches the best distance found, so the result is exact.
@@ -452,14 +483,13 @@ class CapsuleChain:
         best = Clearance(np.inf, -1, "", np.full(3, np.nan), np.full(3, np.nan))
         if len(world) == 0 or len(self._frames) == 0:
             return best
-        lo, hi = self.seg_lo, self.seg_hi
-        gap = np.maximum(0.0, np.maximum(world.aabb_lo[None] - hi[:, None],
-                                         lo[:, None] - world.aabb_hi[None]))
-        lower = np.linalg.norm(gap, axis=-1)  # (M, O)
+        ids = np.arange(len(world)) if objects is None else np.asarray(objects)
+        lower = self._box_gaps(world, ids)  # (M, O)
         req = fcl.DistanceRequest(enable_nearest_points=True)
         for flat in np.argsort(lower, axis=None):
-            i, j = divmod(int(flat), lower.shape[1])
-            if lower[i, j] >= best.distance_mm:
+            i, k = divmod(int(flat), lower.shape[1])
+            j = int(ids[k])
+            if lower[i, k] >= min(best.distance_mm, below):
                 break
             res = fcl.DistanceResult()
             d = fcl.distance(self._object(i), world._objects[j], req, res)
@@ -467,10 +497,19 @@ class CapsuleChain:
                                                  fcl.CollisionResult())):
                 return Clearance(0.0, i, world.names[j], np.full(3, np.nan), np.full(3, np.nan))
             if d < best.distance_mm:
-                best = Clearance(float(d), i, world.names[j],
-                                 np.array(res.nearest_points[0], dtype=float),
-                                 np.array(res.nearest_points[1], dtype=float))
+                best = Clearance(float(d), i, world.names[j], *self._robot_first(i, res.nearest_points))
         return best
+
+    def _robot_first(self, i: int, points) -> tuple[np.ndarray, np.ndarray]:
+        """FCL's two nearest points of capsule i and an obstacle as (robot point, obstacle point):
+        FCL gives them in either order (primitive against mesh: the mesh's first), so the robot's
+        is the one nearer the capsule's axis."""
+        f = self._frames[i]
+        axis = f[3:12].reshape(3, 3)[:, 2]
+        p = np.array(points, dtype=float)
+        t = np.clip((p - f[0:3]) @ axis, -0.5 * f[12], 0.5 * f[12])
+        off_axis = np.linalg.norm(p - f[0:3] - t[:, None] * axis, axis=1)
+        return (p[0], p[1]) if off_axis[0] <= off_axis[1] else (p[1], p[0])
 
 
 @dataclass(frozen=True)
@@ -484,6 +523,44 @@ class Clearance:
     robot_point: np.ndarray
     obstacle_point: np.ndarray
 
+
+@dataclass(frozen=True)
+class StructureClearance:
+    """The smallest distance (mm; robot surface to the structure, 0 on contact) between the robot
+    along a path and one obstacle, and where: the path state (row of the backbones), the arc length
+    (mm from the front plate) and the robot's and the structure's nearest points (scene frame, mm).
+    ``margin_mm`` is the structure's own margin, ``required_mm`` the clearance the collision checks
+    demand from it (the robot's margin plus the structure's)."""
+
+    name: str
+    margin_mm: float
+    required_mm: float
+    distance_mm: float
+    state: int
+    arc_length_mm: float
+    robot_point: np.ndarray
+    obstacle_point: np.ndarray
+
+    @property
+    def below_margin(self) -> bool:
+        """In contact, or closer than the checks allow (`MARGIN_TOLERANCE_MM` of rounding aside)."""
+        return self.distance_mm <= 0.0 or self.distance_mm < self.required_mm - MARGIN_TOLERANCE_MM
+
+    def to_json(self) -> dict:
+        """The record as ``plan --json`` lists it (non-finite numbers as null)."""
+        def num(x: float) -> float | None:
+            return round(float(x), 4) if np.isfinite(x) else None
+
+        return {"name": self.name, "clearance_mm": num(self.distance_mm), "margin_mm": self.margin_mm,
+                "required_mm": self.required_mm, "below_margin": self.below_margin,
+                "state": self.state, "arc_length_mm": num(self.arc_length_mm),
+                "robot_point_mm": [num(x) for x in self.robot_point],
+                "structure_point_mm": [num(x) for x in self.obstacle_point]}
+
+
+#: Distances within this (mm) of a required clearance are not flagged (FCL's distance and collision
+#: tests round differently).
+MARGIN_TOLERANCE_MM = 1e-6
 
 _WARM = False
 
@@ -620,3 +697,53 @@ class RobotCollisionChecker:
             return Clearance(np.inf, -1, "", np.full(3, np.nan), np.full(3, np.nan))
         self._place(positions, radius, 0.0)
         return self.chain.distance(self.world)
+
+    def structure_clearances(self, positions: np.ndarray, radius: np.ndarray,
+                             s_mm: np.ndarray) -> list[StructureClearance]:
+        """For every obstacle of the world, its `StructureClearance` over the backbones (K, N, 3)
+        (robot frame, mm) with tube radii (K, N) and arc lengths (K, N) (mm): the exact smallest
+        distance (no margins; states whose backbone is not finite are skipped). States are searched
+        by increasing bounding-box gap to the structure and the search stops when the gap reaches the
+        best distance found, so the few states near a structure are the ones measured."""
+        pts = transform_points(self.base_pose, positions)
+        radii = segment_radii(radius)
+        r = radii[..., None]
+        seg_lo, seg_hi = np.minimum(pts[:, :-1], pts[:, 1:]) - r, np.maximum(pts[:, :-1], pts[:, 1:]) + r
+        finite = np.all(np.isfinite(seg_lo) & np.isfinite(seg_hi), axis=(1, 2))
+        owner = np.asarray(self.world.owner)
+        out = []
+        for index, obstacle in enumerate(self.world.obstacles):
+            ids = np.flatnonzero(owner == index)
+            gap = np.maximum(0.0, np.maximum(self.world.box_lo[ids] - seg_hi[:, :, None],
+                                             seg_lo[:, :, None] - self.world.box_hi[ids]))
+            lower = np.where(finite, np.linalg.norm(gap, axis=-1).min(axis=(1, 2)), np.inf)  # (K,)
+            best, state = Clearance(np.inf, -1, "", np.full(3, np.nan), np.full(3, np.nan)), -1
+            for k in np.argsort(lower, kind="stable"):
+                if lower[k] >= best.distance_mm:
+                    break
+                self.chain.set(pts[k], radii[k])
+                c = self.chain.distance(self.world, ids, below=best.distance_mm)
+                if c.distance_mm < best.distance_mm:
+                    best, state = c, int(k)
+                if best.distance_mm == 0.0:
+                    break
+            out.append(self._where(obstacle, best, state, pts, s_mm))
+        return out
+
+    def _where(self, obstacle: Obstacle, c: Clearance, state: int, pts: np.ndarray,
+               s_mm: np.ndarray) -> StructureClearance:
+        """`StructureClearance` of the nearest hit ``c`` at row ``state`` of the scene-frame
+        backbones ``pts`` (K, N, 3) with arc lengths ``s_mm`` (K, N); in contact, the robot point is
+        the middle of the touching capsule's axis."""
+        arc, robot = np.nan, c.robot_point
+        if state >= 0:
+            a, b = pts[state, c.segment], pts[state, c.segment + 1]
+            if not np.all(np.isfinite(robot)):
+                robot = 0.5 * (a + b)
+            d = b - a
+            t = float(np.clip((robot - a) @ d / max(float(d @ d), 1e-300), 0.0, 1.0))
+            s0, s1 = s_mm[state, c.segment], s_mm[state, c.segment + 1]
+            arc = float(s0 + t * (s1 - s0))
+        return StructureClearance(obstacle.name, float(obstacle.margin_mm),
+                                  self.margin_mm + float(obstacle.margin_mm), c.distance_mm, state, arc,
+                                  robot, c.obstacle_point)

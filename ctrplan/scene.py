@@ -18,6 +18,9 @@ file, the key and the line (`ctrplan.yamlio`). Layout::
       - {name: wall, box: {center: [...], size: [a, b, c], rotation: {...}}}
       - {name: rod, cylinder: {center: [...], radius: r, length: l, axis: [...]}}
       - {name: pin, capsule: {center: [...], radius: r, length: l, axis: [...]}}
+      - {name: carotid, mesh: meshes/ica.stl, margin_mm: 2.0}  # any obstacle: its own no-go margin
+                                          # (mm, default 0), on top of planner.margin_mm: the robot
+                                          # must keep this much more clearance from it
     anatomy: {x: left, y: superior, z: posterior}   # optional: the patient direction of each scene
                                           # axis (left/right, anterior/posterior, superior/inferior),
                                           # shown as orientation cues in plan.png and plan.html
@@ -128,7 +131,8 @@ class Obstacle:
 
     ``kind`` is ``mesh`` (``vertices`` (V, 3), ``faces`` (F, 3), already in the scene frame) or a
     primitive: ``sphere`` (radius), ``box`` (size (3,)), ``cylinder``/``capsule`` (radius, length along
-    the local z axis), placed by ``pose`` (4x4, local -> scene).
+    the local z axis), placed by ``pose`` (4x4, local -> scene). ``margin_mm``: the structure's own
+    no-go margin, added to the collision distance for it in every check (`ctrplan.collision`).
     """
 
     name: str
@@ -140,6 +144,7 @@ class Obstacle:
     vertices: np.ndarray | None = None
     faces: np.ndarray | None = None
     source: str | None = None
+    margin_mm: float = 0.0
 
     def to_trimesh(self):
         """Triangle mesh of the obstacle in the scene frame (primitives tessellated)."""
@@ -534,8 +539,13 @@ def _load_mesh(doc: YamlDoc, keys: tuple, rel: Any):
 
 
 def _obstacle(doc: YamlDoc, keys: tuple, raw: Any, index: int) -> Obstacle:
-    allowed = {"name", "mesh", "position", "rotation", "scale"} | set(PRIMITIVES)
+    allowed = {"name", "mesh", "position", "rotation", "scale", "margin_mm"} | set(PRIMITIVES)
     raw = _mapping(doc, keys, raw, allowed)
+    return replace(_obstacle_shape(doc, keys, raw, index), margin_mm=_num(
+        doc, keys + ("margin_mm",), raw["margin_mm"], nonneg=True) if "margin_mm" in raw else 0.0)
+
+
+def _obstacle_shape(doc: YamlDoc, keys: tuple, raw: dict, index: int) -> Obstacle:
     kinds = [k for k in ("mesh", *PRIMITIVES) if k in raw]
     if len(kinds) != 1:
         raise doc.error(keys, f"give exactly one of mesh, {', '.join(PRIMITIVES)}")

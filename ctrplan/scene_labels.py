@@ -3,6 +3,7 @@
     NAMES.yaml                         # label value -> obstacle name
     3: right_internal_carotid
     4: {name: sella_turcica}
+    5: {name: left_internal_carotid, margin_mm: 2.0}   # the obstacle's own no-go margin (mm)
 
 The meshes (`ctrplan.segmentation.label_mesh`, world mm of the volume's affine) are written as
 ``<NEW stem>_meshes/<name>.stl`` beside NEW.yaml; NEW.yaml is the template with only its
@@ -14,6 +15,7 @@ new scene loads; files already written are removed again when a later step fails
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +35,7 @@ class NamedLabel:
 
     value: int
     name: str
+    margin_mm: float | None = None
 
 
 def read_names(path: str | Path) -> tuple[NamedLabel, ...]:
@@ -43,16 +46,21 @@ def read_names(path: str | Path) -> tuple[NamedLabel, ...]:
         keys = (str(key),)
         if isinstance(key, bool) or not isinstance(key, int) or key <= 0:
             raise doc.error(keys, f"expected a positive integer label value, got {key!r}")
+        margin = None
         if isinstance(spec, dict):
-            unknown = set(spec) - {"name"}
+            unknown = set(spec) - {"name", "margin_mm"}
             if unknown:
-                raise doc.error(keys + (sorted(unknown)[0],), "unknown key (allowed: name)")
+                raise doc.error(keys + (sorted(unknown)[0],), "unknown key (allowed: margin_mm, name)")
+            margin = spec.get("margin_mm")
+            if margin is not None and (isinstance(margin, bool) or not isinstance(margin, (int, float))
+                                       or not math.isfinite(margin) or margin < 0):
+                raise doc.error(keys + ("margin_mm",), f"expected a finite number >= 0 (mm), got {margin!r}")
             spec = spec.get("name")
         if not isinstance(spec, str) or not _NAME.match(spec):
             raise doc.error(keys, f"expected an obstacle name (letters, digits, _ . -), got {spec!r}")
         if any(n.name == spec for n in named):
             raise doc.error(keys, f"obstacle name {spec!r} is given to two labels")
-        named.append(NamedLabel(value=key, name=spec))
+        named.append(NamedLabel(value=key, name=spec, margin_mm=None if margin is None else float(margin)))
     if not named:
         raise InputError(f"{path}: names no label")
     return tuple(named)
@@ -74,7 +82,8 @@ def scene_from_labels(labels: str | Path, names: str | Path, template: str | Pat
     check_output_dir(out.parent)
     mesh_dir = out.parent / f"{out.stem}_meshes"
     data = relocated(template_doc, out)
-    data["obstacles"] = [{"name": name, "mesh": f"{mesh_dir.name}/{name}.stl"} for name in meshes]
+    data["obstacles"] = [{"name": n.name, "mesh": f"{mesh_dir.name}/{n.name}.stl"}
+                         | ({} if n.margin_mm is None else {"margin_mm": n.margin_mm}) for n in named]
     created = [p for p in (mesh_dir, *mesh_dir.parents) if not p.exists()]
     written: list[Path] = []
     try:

@@ -33,6 +33,8 @@ SceneArg = Annotated[Path, typer.Argument(metavar="SCENE.yaml", show_default=Fal
 
 
 log = logging.getLogger("ctrplan.ompl")
+#: The summary lists the clearance to this many nearest structures (and every one below its margin).
+SUMMARY_STRUCTURES = 4
 
 
 @contextmanager
@@ -107,6 +109,7 @@ def plan_command(
 
     from ompl import util as ou
 
+    from ctrplan.collision import CollisionWorld
     from ctrplan.planning import plan
     from ctrplan.scene import load_scene
     from ctrplan.viz.plan_outputs import plan_document, write_plan_outputs
@@ -124,10 +127,11 @@ def plan_command(
     if console_state.interrupted():  # Ctrl-C inside an OMPL callback ends the search, not the command
         raise KeyboardInterrupt
     pinn = getattr(be, "pinn", be)  # hybrid keeps its PINN in .pinn
-    doc = plan_document(result, sc, scene, getattr(pinn, "card", {}).get("weights_file"))
+    world = CollisionWorld.from_scene(sc)
+    doc = plan_document(result, sc, scene, getattr(pinn, "card", {}).get("weights_file"), world)
     if out is not None:
-        write_plan_outputs(out, sc, result, doc)
-    _summary(console, sc, result, out)
+        write_plan_outputs(out, sc, result, doc, world)
+    _summary(console, sc, result, doc, out)
     if json_out:
         typer.echo(json.dumps(doc))
     if not result.solved:
@@ -158,8 +162,10 @@ class _Progress(StatusLine):
         self(text)
 
 
-def _summary(console, sc, result, out: Path | None) -> None:
+def _summary(console, sc, result, doc: dict, out: Path | None) -> None:
     from rich.table import Table
+
+    from ctrplan.viz.plan_outputs import listed_structures, structure_line
 
     v = result.validated
     ok = "[bold green]solved[/]" if result.solved else "[bold red]not solved[/]"
@@ -186,6 +192,12 @@ def _summary(console, sc, result, out: Path | None) -> None:
                                + (f" ({dist:.2f} mm outside)" if dist > 0 else ""))
         if v.repaired:
             t.add_row("repair", "the path was repaired with the exact model")
+        listed = listed_structures(doc)
+        shown = [c for i, c in enumerate(listed) if i < SUMMARY_STRUCTURES or c["below_margin"]]
+        for c in shown:
+            t.add_row(f"  {c['name']}", structure_line(c, rich=True))
+        if len(shown) < len(listed):
+            t.add_row("", f"{len(listed) - len(shown)} farther structures: see --json or plan.html")
     t.add_row("message", result.message)
     if out is not None:
         t.add_row("outputs", str(out))

@@ -190,7 +190,9 @@ def start_problem(scene: Scene, checker) -> str | None:
         return f"{where}: the start configuration is elastically unstable (the robot snaps there)"
     contacts = checker.collision.contacts(bb.positions_mm[0], bb.radius_mm[0])
     if contacts:
-        names = ", ".join(sorted({n for _, n in contacts}))
+        own = {o.name: o.margin_mm for o in scene.obstacles}  # per-structure margins, where set
+        names = ", ".join(f"{n} (its own margin {own[n]:g} mm)" if own.get(n) else n
+                          for n in sorted({n for _, n in contacts}))
         return (f"{where}: the start configuration is in collision with {names} "
-                f"(margin {scene.settings.margin_mm:g} mm)")
+                f"(scene margin {scene.settings.margin_mm:g} mm)")
     return None

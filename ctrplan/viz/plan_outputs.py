@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ctrplan.collision import CollisionWorld, RobotCollisionChecker, StructureClearance
 from ctrplan.dataio import atomic_write, format_csv, output_dir
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.planning.trajectory import segment_positions, time_parametrise
@@ -22,28 +23,61 @@ from ctrplan.viz.viewer import viewer_data, write_viewer
 TRAJECTORY_CLEARANCE_CAP_MM = 50.0
 
 
-def plan_document(result, sc, scene_file: Path, model: str | None) -> dict:
+def plan_document(result, sc, scene_file: Path, model: str | None,
+                  world: CollisionWorld | None = None) -> dict:
     """The JSON document of a plan (docs/design.md §3): the result, its scene file and PINN weights file
-    (or None), and the target region."""
+    (or None), the target region and, for a path the exact model checked, ``validated.structures``:
+    the exact model's clearance to every named structure along it (`structure_clearances`).
+    ``world``: the scene's collision world, if built already."""
     doc = result.to_json()
     doc["scene"] = str(scene_file)
     doc["model"] = model
     doc["target"] = sc.target.to_dict()
     if np.ptp(sc.target.semi_axes) > 0:  # one tolerance describes only a sphere; see doc["target"]
         doc["goal_tolerance_mm"] = None
+    if result.dense is not None and doc["validated"] is not None:
+        doc["validated"]["structures"] = [c.to_json() for c in structure_clearances(sc, result.dense.exact,
+                                                                                     world)]
     return doc
 
 
-def write_plan_outputs(out: Path, sc, result, doc: dict) -> None:
+def structure_clearances(sc, exact, world: CollisionWorld | None = None) -> list[StructureClearance]:
+    """`ctrplan.collision.StructureClearance` of every obstacle of ``sc`` along the exact backbones
+    ``exact`` (robot frame) of a path, with the scene's margin and each obstacle's own."""
+    checker = RobotCollisionChecker(world or CollisionWorld.from_scene(sc), sc.base_pose,
+                                    exact.positions_mm.shape[1], sc.settings.margin_mm)
+    return checker.structure_clearances(exact.positions_mm, exact.radius_mm, exact.s_mm)
+
+
+def listed_structures(doc: dict) -> list[dict]:
+    """The per-structure clearances `plan_document` listed (none without a checked path), nearest
+    first."""
+    listed = (doc.get("validated") or {}).get("structures", [])
+    return sorted(listed, key=lambda c: np.inf if c["clearance_mm"] is None else c["clearance_mm"])
+
+
+def structure_line(c: dict, rich: bool = False) -> str:
+    """One structure's clearance as a line: distance, margin, where, and a flag when below it."""
+    where = f"state {c['state']}, {c['arc_length_mm']:.1f} mm along the robot" \
+        if c["arc_length_mm"] is not None else "no state"
+    flag = "BELOW its margin" if c["below_margin"] else ""
+    if flag and rich:
+        flag = f"[bold red]{flag}[/]"
+    clear = "no finite state:" if c["clearance_mm"] is None else f"{c['clearance_mm']:.2f} mm"
+    return (f"{clear} (required {c['required_mm']:g} mm; {where})"
+            + (f" {flag}" if flag else ""))
+
+
+def write_plan_outputs(out: Path, sc, result, doc: dict, world: CollisionWorld | None = None) -> None:
     """path.json, obstacles.ply, plan.png, plan.html and, for a solved plan, trajectory.csv; each file
-    is written completely or not at all."""
+    is written completely or not at all. ``world``: the scene's collision world, if built already."""
     output_dir(out)
     full = dict(doc)
     clearance = None
     if result.dense is not None:
         exact = result.dense.exact
         bbs, radii = sc.to_scene(exact.positions_mm), exact.radius_mm
-        clearance = clearance_along(sc, exact, TRAJECTORY_CLEARANCE_CAP_MM)
+        clearance = clearance_along(sc, exact, TRAJECTORY_CLEARANCE_CAP_MM, world)
         full["dense_path"] = result.dense.dense_q.tolist()
         full["backbones_mm"] = np.round(np.where(np.isfinite(bbs), bbs, np.nan), 4).tolist()
         full["backbone_radius_mm"] = np.round(radii, 4).tolist()
@@ -62,12 +96,13 @@ def write_plan_outputs(out: Path, sc, result, doc: dict) -> None:
     tmp_png = out / ".plan.png.tmp.png"
     plot_plan(sc, bbs, tmp_png, tip_path=bbs[:, -1, :],
               title=f"{sc.name}: {result.planner}/{result.backend}, "
-                    f"{'solved' if result.solved else 'not solved'}")
+                    f"{'solved' if result.solved else 'not solved'}", notes=_figure_notes(result, doc))
     tmp_png.replace(out / "plan.png")
     tmp_html = out / ".plan.html.tmp.html"
     shown = None if clearance is None else np.minimum(clearance, CLEARANCE_CAP_MM)
-    write_viewer(tmp_html, viewer_data(sc, bbs, radii, _viewer_info(sc, result), shown),
-                 title=f"ctrplan: {sc.name}")
+    listed = {c["name"]: (structure_line(c), c["below_margin"]) for c in listed_structures(doc)}
+    data = viewer_data(sc, bbs, radii, _viewer_info(sc, result, doc), shown, structures=listed)
+    write_viewer(tmp_html, data, title=f"ctrplan: {sc.name}")
     tmp_html.replace(out / "plan.html")
 
 
@@ -84,7 +119,31 @@ def write_trajectory(path: Path, sc, result, tips_mm: np.ndarray, clearance_mm: 
         fh.write(format_csv(header, rows, ["%.6f"] * rows.shape[1]))
 
 
-def _viewer_info(sc, result) -> dict[str, str]:
+def _figure_notes(result, doc: dict) -> list[tuple[str, bool]]:
+    """plan.png's notes (text, warn): the result or why it failed, the exact model's clearance and
+    the clearance to each structure, nearest first, those below their margin as warnings."""
+    why = result.message if result.message.startswith("not solved") else f"not solved: {result.message}"
+    notes = [("solved" if result.solved else why, not result.solved)]
+    v = result.validated
+    if v is None:
+        return notes + [("no path: no clearance to show (the start is drawn)", False)]
+    notes.append((f"min clearance {v.min_clearance_mm:.2f} mm to {v.nearest_obstacle or 'nothing'} "
+                  f"(exact model, {v.states} states)", not v.collision_free))
+    listed = listed_structures(doc)
+    width = max([len(c["name"]) for c in listed] + [9])
+    key = ("clearance to each structure along the path (exact model, mm; need: the scene's margin plus "
+           "the structure's own; s: arc length from the front plate; !: below it)")
+    header = f"  {'structure':<{width}} clear.   need state  s"
+    notes += [("", False), (key, False), ("", False), (header, False)]
+    for c in listed:
+        clear = "-" if c["clearance_mm"] is None else f"{c['clearance_mm']:.2f}"
+        arc = "-" if c["arc_length_mm"] is None else f"{c['arc_length_mm']:.0f}"
+        row = f"{c['name']:<{width}} {clear:>6} {c['required_mm']:>6.2f} {c['state']:>5} {arc:>4}"
+        notes.append((("! " if c["below_margin"] else "  ") + row, c["below_margin"]))
+    return notes
+
+
+def _viewer_info(sc, result, doc: dict) -> dict[str, str]:
     """The result as labelled lines for plan.html."""
     info = {"result": "solved" if result.solved else result.message,
             "planner / backend": f"{result.planner} / {result.backend}",
@@ -102,6 +161,10 @@ def _viewer_info(sc, result) -> dict[str, str]:
             info[f"{result.backend} vs exact"] = f"backbones differ by {error:.2f} mm at most"
         if v.repaired:
             info["repair"] = "stretches re-planned with the exact model"
+    below = [c["name"] for c in listed_structures(doc) if c["below_margin"]]
+    if listed_structures(doc):
+        info["structures"] = (f"below their margin: {', '.join(below)}" if below else
+                              "every one keeps its margin") + " (hover one for its clearance)"
     return info
 
 

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import textwrap
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ctrplan.dataio import save_figure
 from ctrplan.scene import Scene
 from ctrplan.viz.framing import corridor_bounds, corridor_direction, section
-from ctrplan.viz.style import TARGET_COLOR, axis_labels, obstacle_colors, view_name
+from ctrplan.viz.style import TARGET_COLOR, axis_labels, scene_colors, view_name
 
 #: A projection shows the obstacles within this distance (mm) of the path in its hidden axis.
 SECTION_MM = 4.0
@@ -40,26 +44,61 @@ def triangles_in(scene: Scene, bounds: np.ndarray, max_triangles: int = 6000):
 
 
 def plot_plan(scene: Scene, backbones_scene: np.ndarray, path: str | Path, *, title: str = "",
-              tip_path: np.ndarray | None = None, max_backbones: int = 12) -> Path:
+              tip_path: np.ndarray | None = None, max_backbones: int = 12,
+              notes: Sequence[tuple[str, bool]] = ()) -> Path:
     """Write a PNG of `plan_figure` (arguments as there)."""
     import matplotlib.pyplot as plt
 
     path = Path(path)
-    fig = plan_figure(scene, backbones_scene, title=title, tip_path=tip_path, max_backbones=max_backbones)
+    fig = plan_figure(scene, backbones_scene, title=title, tip_path=tip_path, max_backbones=max_backbones,
+                      notes=notes)
     path.parent.mkdir(parents=True, exist_ok=True)
     save_figure(fig, path)
     plt.close(fig)
     return path
 
 
+@dataclass(frozen=True)
+class _Drawing:
+    """What every panel of `plan_figure` draws: the scene, backbones (K, N, 3) and which of them
+    (``pick``), the tip trace, obstacle colours, the path's colour map and the axis titles."""
+
+    scene: Scene
+    bbs: np.ndarray
+    pick: np.ndarray
+    tip_path: np.ndarray | None
+    colour: dict[str, str]
+    cmap: Any
+
+    def backbone(self, ax, j: int, coords: Sequence[np.ndarray]) -> None:
+        """Backbone ``pick[j]`` over everything (obstacles are translucent and below it), with a
+        white halo so that it reads as in front of them; start and end thick."""
+        import matplotlib.patheffects as pe
+
+        i = self.pick[j]
+        lw = 2.5 if i in (self.pick[0], self.pick[-1]) else 1.0
+        c = self.cmap(j / max(1, len(self.pick) - 1))
+        ax.plot(*coords, color=c, lw=lw, zorder=4 + j / len(self.pick),
+                path_effects=[pe.Stroke(linewidth=lw + 2.0, foreground="white"), pe.Normal()])
+
+    def axis_title(self, a: int) -> str:
+        ax = "xyz"[a]
+        labels = axis_labels(self.scene.anatomy)
+        return f"{ax} (mm): {labels[ax][1]} to {labels[ax][0]}" if self.scene.anatomy else f"{ax} (mm)"
+
+
 def plan_figure(scene: Scene, backbones_scene: np.ndarray, *, title: str = "",
-                tip_path: np.ndarray | None = None, max_backbones: int = 12):
+                tip_path: np.ndarray | None = None, max_backbones: int = 12,
+                notes: Sequence[tuple[str, bool]] = ()):
     """A matplotlib figure: a 3-D overview plus two projections along the corridor (the scene axis
     closest to its direction runs across both) of backbones along the path (start blue -> end red),
-    the tip trace and the target region (`TARGET_COLOR`, outlined and named). A projection shows
-    only the obstacles within `SECTION_MM` of the final backbone in the axis it projects away (a
-    section along the corridor: what lies beside the path is not drawn over it). Axes are named with the
-    scene's patient directions when it gives them; the legend names every obstacle.
+    drawn over the translucent obstacles, the tip trace and the target region (`TARGET_COLOR`,
+    outlined and named), and a column of ``notes`` (text, warn: warnings in red) -- the result,
+    the reason of a failure, the clearances. A projection shows only the obstacles within
+    `SECTION_MM` of the final backbone in the axis it projects away (a section along the corridor:
+    what lies beside the path is not drawn over it). Axes are named with the scene's patient
+    directions when it gives them; the legend names every obstacle; touching obstacles get
+    distinguishable colours (`scene_colors`).
 
     ``backbones_scene`` (K, N, 3): backbones along the path in the scene frame (mm); ``tip_path``
     (M, 3): the tip along the path (mm).
@@ -68,86 +107,106 @@ def plan_figure(scene: Scene, backbones_scene: np.ndarray, *, title: str = "",
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.collections import PolyCollection
-    from matplotlib.patches import Patch
-    from matplotlib.ticker import MaxNLocator
-    from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
     bbs = np.asarray(backbones_scene, dtype=float)
     k = bbs.shape[0]
     pick = np.unique(np.linspace(0, k - 1, min(k, max_backbones)).round().astype(int))
-    bounds = _view_bounds(bbs, scene)
-    tris = triangles_in(scene, bounds)
-    cmap = plt.get_cmap("coolwarm")
+    d = _Drawing(scene, bbs, pick, tip_path, scene_colors(scene.obstacles), plt.get_cmap("coolwarm"))
     names = [o.name for o in scene.obstacles]
-    colour = obstacle_colors(names)
-    labels = axis_labels(scene.anatomy)
-
-    def axis_title(a: int) -> str:
-        ax = "xyz"[a]
-        return f"{ax} (mm): {labels[ax][1]} to {labels[ax][0]}" if scene.anatomy else f"{ax} (mm)"
-
     ncol = 8
     legend_rows = -(-(len(names) + 4) // ncol)
     bottom = 0.08 + 0.025 * legend_rows
-    fig = plt.figure(figsize=(15, 8.0 + 0.2 * legend_rows), dpi=100)
-    grid = fig.add_gridspec(2, 3, hspace=0.35, wspace=0.25, left=0.02, right=0.98, top=0.92, bottom=bottom)
-    ax3 = fig.add_subplot(grid[:, 0], projection="3d")
-    for n, t in tris:
+    fig = plt.figure(figsize=(18, 8.0 + 0.2 * legend_rows), dpi=100)
+    grid = fig.add_gridspec(2, 4, width_ratios=(1.0, 1.0, 1.0, 0.85), hspace=0.35, wspace=0.25, left=0.02,
+                            right=0.99, top=0.92, bottom=bottom)
+    _overview(fig.add_subplot(grid[:, 0], projection="3d"), d)
+    _projections(fig, grid, d)
+    _notes(fig.add_subplot(grid[:, 3]), notes)
+    _legend(fig, d, names, ncol)
+    fig.suptitle(title or f"{scene.name}: planned path ({k} states)", fontsize=11)
+    return fig
+
+
+def _overview(ax3, d: _Drawing) -> None:
+    """The 3-D overview: obstacles near the path (a face plate faint), backbones on top."""
+    from matplotlib.ticker import MaxNLocator
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
+
+    bounds = _view_bounds(d.bbs, d.scene)
+    ax3.computed_zorder = False  # drawn in zorder: the backbones over the translucent obstacles
+    for n, t in triangles_in(d.scene, bounds):
         backdrop = np.ptp(t.reshape(-1, 3), axis=0).max() > 0.8 * np.ptp(bounds, axis=0).max()  # a face plate
-        pc = Poly3DCollection(t, facecolor=colour[n], edgecolor="none", alpha=0.04 if backdrop else 0.15)
-        ax3.add_collection3d(pc)
-    for j, i in enumerate(pick):
-        c = cmap(j / max(1, len(pick) - 1))
-        ax3.plot(*bbs[i].T, color=c, lw=2.5 if i in (pick[0], pick[-1]) else 1.0)
-    if tip_path is not None:
-        ax3.add_collection3d(Line3DCollection([tip_path], colors="k", linewidths=0.6))
-    _target_3d(ax3, scene)
+        ax3.add_collection3d(Poly3DCollection(t, facecolor=d.colour[n], edgecolor="none",
+                                              alpha=0.04 if backdrop else 0.13, zorder=1))
+    for j in range(len(d.pick)):
+        d.backbone(ax3, j, d.bbs[d.pick[j]].T)
+    if d.tip_path is not None:
+        ax3.add_collection3d(Line3DCollection([d.tip_path], colors="k", linewidths=0.6, zorder=6))
+    _target_3d(ax3, d.scene)
     ax3.set_xlim(bounds[:, 0])
     ax3.set_ylim(bounds[:, 1])
     ax3.set_zlim(bounds[:, 2])
     for axis in (ax3.xaxis, ax3.yaxis, ax3.zaxis):  # few, small ticks: labels must not overlap
         axis.set_major_locator(MaxNLocator(4))
     ax3.tick_params(labelsize=7, pad=1)
-    ax3.set_xlabel(axis_title(0), fontsize=8, labelpad=2)
-    ax3.set_ylabel(axis_title(1), fontsize=8, labelpad=2)
-    ax3.set_zlabel(axis_title(2), fontsize=8, labelpad=2)
+    for a, set_label in enumerate((ax3.set_xlabel, ax3.set_ylabel, ax3.set_zlabel)):
+        set_label(d.axis_title(a), fontsize=8, labelpad=2)
     ax3.view_init(elev=18, azim=-60)
     ax3.set_box_aspect(np.maximum(np.ptp(bounds, axis=0), 0.25 * np.ptp(bounds, axis=0).max()))
     ax3.set_title("overview", fontsize=10)
 
-    zoom = corridor_bounds(bbs, scene)
-    along = int(np.argmax(np.abs(corridor_direction(bbs, zoom))))
+
+def _projections(fig, grid, d: _Drawing) -> None:
+    """Two projections along the corridor, each with the obstacles of its section."""
+    from matplotlib.collections import PolyCollection
+
+    zoom = corridor_bounds(d.bbs, d.scene)
+    along = int(np.argmax(np.abs(corridor_direction(d.bbs, zoom))))
     across = [a for a in range(3) if a != along]
-    tris = triangles_in(scene, zoom, max_triangles=12000)
+    tris = triangles_in(d.scene, zoom, max_triangles=12000)
+    a = along
     for row, (b, away) in enumerate(((across[1], across[0]), (across[0], across[1]))):
-        a = along
-        ax = fig.add_subplot(grid[row, 1:])
+        ax = fig.add_subplot(grid[row, 1:3])
         for n, t in tris:
-            t = t[section(t, bbs[-1:], along, away, SECTION_MM)]
-            ax.add_collection(PolyCollection(t[:, :, [a, b]], facecolor=colour[n], edgecolor="none",
-                                             alpha=0.25))
-        for j, i in enumerate(pick):
-            c = cmap(j / max(1, len(pick) - 1))
-            ax.plot(bbs[i, :, a], bbs[i, :, b], color=c, lw=2.5 if i in (pick[0], pick[-1]) else 1.0)
-        if tip_path is not None:
-            ax.plot(tip_path[:, a], tip_path[:, b], "k-", lw=0.6)
-        _target_2d(ax, scene, a, b)
+            t = t[section(t, d.bbs[-1:], along, away, SECTION_MM)]
+            ax.add_collection(PolyCollection(t[:, :, [a, b]], facecolor=d.colour[n], edgecolor="none",
+                                             alpha=0.3, zorder=1))
+        for j in range(len(d.pick)):
+            d.backbone(ax, j, (d.bbs[d.pick[j], :, a], d.bbs[d.pick[j], :, b]))
+        if d.tip_path is not None:
+            ax.plot(d.tip_path[:, a], d.tip_path[:, b], "k-", lw=0.6, zorder=6)
+        _target_2d(ax, d.scene, a, b)
         ax.set_xlim(zoom[:, a])
         ax.set_ylim(zoom[:, b])
         ax.set_aspect("equal")
-        ax.set_xlabel(axis_title(a))
-        ax.set_ylabel(axis_title(b))
-        ax.set_title(f"{view_name(scene.anatomy, 'xyz'[away])} ({'xyz'[a]}-{'xyz'[b]}): obstacles within "
-                     f"{SECTION_MM:g} mm of the final path in {'xyz'[away]}", fontsize=10)
-    handles = [Patch(color=colour[n], alpha=0.5) for n in names]
+        ax.set_xlabel(d.axis_title(a))
+        ax.set_ylabel(d.axis_title(b))
+        ax.set_title(f"{view_name(d.scene.anatomy, 'xyz'[away])} ({'xyz'[a]}-{'xyz'[b]}): obstacles "
+                     f"within {SECTION_MM:g} mm of the final path in {'xyz'[away]}", fontsize=10)
+
+
+def _notes(ax, notes: Sequence[tuple[str, bool]], width: int = 52) -> None:
+    """The notes as wrapped lines (fixed width: tables stay aligned) from the top of an empty panel;
+    warnings in red."""
+    ax.axis("off")
+    y = 1.0
+    for text, warn in notes:
+        for line in textwrap.wrap(text, width, subsequent_indent="  ") or [""]:
+            ax.text(0.0, y, line, transform=ax.transAxes, va="top", fontsize=7, family="monospace",
+                    color="#c0001a" if warn else "#222", fontweight="bold" if warn else "normal")
+            y -= 0.024
+
+
+def _legend(fig, d: _Drawing, names: list[str], ncol: int) -> None:
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    handles = [Patch(color=d.colour[n], alpha=0.6) for n in names]
     handles += [Patch(facecolor=TARGET_COLOR, edgecolor="k", alpha=0.8),
-                plt.Line2D([], [], color="k", lw=0.8), plt.Line2D([], [], color=cmap(0.0), lw=2.5),
-                plt.Line2D([], [], color=cmap(1.0), lw=2.5)]
-    labels_ = [*names, "target", "tip trace", "start", "end"]
-    fig.legend(handles, labels_, loc="lower center", ncol=min(ncol, len(labels_)), fontsize=7, frameon=False)
-    fig.suptitle(title or f"{scene.name}: planned path ({k} states)", fontsize=11)
-    return fig
+                plt.Line2D([], [], color="k", lw=0.8), plt.Line2D([], [], color=d.cmap(0.0), lw=2.5),
+                plt.Line2D([], [], color=d.cmap(1.0), lw=2.5)]
+    labels = [*names, "target", "tip trace", "start", "end"]
+    fig.legend(handles, labels, loc="lower center", ncol=min(ncol, len(labels)), fontsize=7, frameon=False)
 
 
 def _ellipsoid_points(scene: Scene, n: int = 24) -> np.ndarray:
@@ -158,7 +217,7 @@ def _ellipsoid_points(scene: Scene, n: int = 24) -> np.ndarray:
 
 def _target_3d(ax, scene: Scene) -> None:
     p = _ellipsoid_points(scene)
-    ax.plot_surface(p[..., 0], p[..., 1], p[..., 2], color=TARGET_COLOR, alpha=0.7, lw=0)
+    ax.plot_surface(p[..., 0], p[..., 1], p[..., 2], color=TARGET_COLOR, alpha=0.7, lw=0, zorder=3)
     c = scene.target.center
     ax.text(c[0], c[1], c[2] + 1.5 * scene.target.semi_axes.max(), "target", color="k", fontsize=8)
 

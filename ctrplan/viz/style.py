@@ -1,17 +1,21 @@
 """Colours and orientation labels shared by plan.png and plan.html.
 
 Obstacles are coloured by what their name says they are, as an anatomy atlas would: vessels red,
-nerves yellow, mucosa pinks, bone ivory, skin faint; within a class each obstacle gets its own
-shade, so the legend still tells them apart. Other names take distinct hues (no greys). The target
+nerves yellow, mucosa pinks, bone ivory to brown, skin faint; within a class each obstacle gets its
+own shade, so the legend still tells them apart, and given which obstacles touch (`neighbours`), each
+takes the shade of its class that differs most from its neighbours' colours. Other names take
+distinct hues (no greys). The target
 has a colour no obstacle gets, and the clearance along the backbone runs from red (touching) through
 orange and yellow to green (`CLEARANCE_CAP_MM` and more).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
-from ctrplan.scene import opposite
+import numpy as np
+
+from ctrplan.scene import Obstacle, opposite
 
 #: The target region: a colour no obstacle gets.
 TARGET_COLOR = "#00b4f0"
@@ -24,10 +28,10 @@ CLEARANCE_STOPS = ((0.0, "#d7191c"), (0.33, "#fd8d3c"), (0.66, "#fee08b"), (1.0,
 ANATOMY_CLASSES = (
     (("carotid", "arter", "vessel", "vein"), ("#b2182b", "#d6604d", "#8c0c25")),
     (("chiasm", "optic", "nerve"), ("#e6b400", "#f6d743", "#c79800")),
-    (("septum",), ("#c9778f",)),
-    (("turbinate", "mucosa", "vestibule", "valve"), ("#f4a6a6", "#e98989", "#f7c6c0", "#ec9c8c")),
+    (("septum",), ("#b0608c",)),
+    (("turbinate", "mucosa", "vestibule", "valve"), ("#f29b9b", "#e0784e", "#c98bbd", "#f6c39a", "#d9607e")),
     (("sella", "sphenoid", "clivus", "bone", "floor", "roof", "wall", "cavity"),
-     ("#d8c8a0", "#c9b27c", "#e7dcc0", "#b89f6b", "#efe6cf", "#a8926a", "#dccfae", "#c2ad86")),
+     ("#e3cf94", "#a07a4a", "#f2ead3", "#c49a5c", "#8a7f5a", "#d9b36c", "#b9a98a", "#7a5c3a")),
     (("face", "skin"), ("#f0c9a8",)),
 )
 #: Hues for obstacles no class names (distinct, no greys, none near the target's).
@@ -35,18 +39,45 @@ OTHER_COLORS = ("#4e79a7", "#f28e2b", "#59a14f", "#e15759", "#b07aa1", "#edc948"
                 "#ff9da7", "#8cd17d", "#d37295")
 
 
-def obstacle_colors(names: Sequence[str]) -> dict[str, str]:
-    """A colour (``#rrggbb``) for every obstacle name."""
-    used: dict[int, int] = {}
-    out = {}
-    for name in names:
+def _rgb(colour: str) -> np.ndarray:
+    return np.array([int(colour[i:i + 2], 16) for i in (1, 3, 5)], dtype=float)
+
+
+def obstacle_colors(names: Sequence[str],
+                    neighbours: Mapping[str, set[str]] | None = None) -> dict[str, str]:
+    """A colour (``#rrggbb``) for every obstacle name: of the shades of its class (`ANATOMY_CLASSES`,
+    else `OTHER_COLORS`) not taken yet (all of them once every one is), the one farthest (RGB) from
+    the colours of its ``neighbours`` coloured before it (without: the first). Names with the most
+    neighbours choose first."""
+    taken: dict[int | None, list[str]] = {}
+    out: dict[str, str] = {}
+    for name in sorted(names, key=lambda n: -len((neighbours or {}).get(n, ()))):
         low = name.lower()
         k = next((i for i, (words, _) in enumerate(ANATOMY_CLASSES) if any(w in low for w in words)), None)
         shades = OTHER_COLORS if k is None else ANATOMY_CLASSES[k][1]
-        n = used.get(k, 0)
-        used[k] = n + 1
-        out[name] = shades[n % len(shades)]
-    return out
+        used = taken.setdefault(k, [])
+        free = [c for c in shades if c not in used] or list(shades)
+        near = [_rgb(out[n]) for n in (neighbours or {}).get(name, ()) if n in out]
+        if near:
+            free.sort(key=lambda c: -min(np.linalg.norm(_rgb(c) - q) for q in near))
+        out[name] = free[0]
+        used.append(free[0])
+    return {name: out[name] for name in names}
+
+
+def touching(obstacles: Sequence[Obstacle], gap_mm: float = 2.0) -> dict[str, set[str]]:
+    """For each obstacle, the names of those whose bounding boxes come within ``gap_mm`` of its own
+    (mm): the neighbours `obstacle_colors` keeps apart."""
+    bounds = np.array([o.bounds for o in obstacles]).reshape(-1, 2, 3)
+    lo, hi = bounds[:, 0] - gap_mm / 2, bounds[:, 1] + gap_mm / 2
+    meet = np.all((lo[:, None] <= hi[None]) & (hi[:, None] >= lo[None]), axis=-1)
+    return {o.name: {obstacles[j].name for j in np.flatnonzero(meet[i]) if j != i}
+            for i, o in enumerate(obstacles)}
+
+
+def scene_colors(obstacles: Sequence[Obstacle]) -> dict[str, str]:
+    """`obstacle_colors` of a scene's obstacles with their `touching` neighbours."""
+    return obstacle_colors([o.name for o in obstacles], touching(obstacles))
 
 
 def axis_labels(anatomy: dict[str, str] | None) -> dict[str, tuple[str, str]]:

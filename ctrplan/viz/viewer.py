@@ -3,8 +3,10 @@
 
 No CDN, no external script: the data is embedded as JSON and drawn by a small canvas-2D renderer
 written here (depth-sorted, flat-shaded triangles; the robot's tubes as thick segments). Drag to
-rotate, shift-drag (or right-drag) to pan, wheel to zoom; a slider and a play button step along the
-path; obstacle names in the legend toggle their visibility; a scale bar gives lengths in mm.
+rotate, shift-drag (or right-drag) to pan, wheel to zoom (a hint line says so); a slider and a play
+button step along the path; obstacle names in the legend toggle their visibility; hovering an
+obstacle (in the view or the legend) names it with the exact model's clearance to it along the path
+and its margin; a scale bar gives lengths in mm.
 
 What a surgeon looks for is marked: the target in a colour no obstacle has (outlined and named
 on top of everything), the tip, the exact model's clearance as a colour along the backbone (with
@@ -29,20 +31,22 @@ from ctrplan.viz.style import (
     CLEARANCE_STOPS,
     TARGET_COLOR,
     axis_labels,
-    obstacle_colors,
+    scene_colors,
 )
 
 
 def viewer_data(scene: Scene, backbones_scene: np.ndarray, radii: np.ndarray,
                 info: dict[str, str] | None = None, clearance_mm: np.ndarray | None = None,
-                max_triangles: int = 40000) -> dict:
+                max_triangles: int = 40000,
+                structures: dict[str, tuple[str, bool]] | None = None) -> dict:
     """The JSON document the viewer draws: obstacles, backbones (K, N, 3) with radii (K, N) and the
     clearance of each segment (K, N-1) (mm, surface to nearest obstacle, capped at
-    `CLEARANCE_CAP_MM`; None: not shown), the target, the first view, the axis names and ``info``
-    (label -> text, shown as labelled lines)."""
+    `CLEARANCE_CAP_MM`; None: not shown), the target, the first view, the axis names, ``info``
+    (label -> text, shown as labelled lines) and ``structures`` (obstacle name -> (its clearance
+    as text, whether it is below its margin): shown on hover, warnings in red)."""
     bounds = corridor_bounds(backbones_scene, scene)
     size = float(np.ptp(bounds, axis=0).max())
-    colours = obstacle_colors([o.name for o in scene.obstacles])
+    colours = scene_colors(scene.obstacles)
     obstacles = []
     total = 0
     for o in scene.obstacles:
@@ -51,8 +55,10 @@ def viewer_data(scene: Scene, backbones_scene: np.ndarray, radii: np.ndarray,
         f = np.asarray(m.faces, dtype=int)
         total += len(f)
         backdrop = float(np.ptp(v, axis=0).max()) > 1.5 * size
+        note, warn = (structures or {}).get(o.name, ("", False))
         obstacles.append({"name": o.name, "color": colours[o.name], "vertices": v.ravel().tolist(),
-                          "faces": f.ravel().tolist(), "alpha": 0.05 if backdrop else 0.35})
+                          "faces": f.ravel().tolist(), "alpha": 0.05 if backdrop else 0.35,
+                          "note": note, "warn": bool(warn)})
     if total > max_triangles:
         step = int(np.ceil(total / max_triangles))
         for o in obstacles:
@@ -122,10 +128,16 @@ _TEMPLATE = r"""<!DOCTYPE html>
  #info td{padding:1px 0}
  #info .title{font-weight:bold;font-size:14px;margin-bottom:3px}
  #state{min-width:260px}
+ #hint{top:auto;bottom:44px;left:8px;font-size:12px;color:#444;background:#fffc}
+ #tip{position:absolute;display:none;pointer-events:none;background:#222e;color:#fff;padding:4px 8px;border-radius:3px;font-size:12px;white-space:nowrap}
+ #tip.warn{background:#b0001ae8}
+ #legend .warn{color:#b0001a;font-weight:bold}
  canvas{display:block}
 </style></head><body>
 <canvas id="c"></canvas>
 <div id="legend" class="panel"><b>__TITLE__</b></div><div id="info" class="panel"></div>
+<div id="hint" class="panel">drag: rotate &middot; shift-drag or right-drag: pan &middot; wheel: zoom &middot; hover a structure: its clearance &middot; click a legend name: hide it</div>
+<div id="tip"></div>
 <div id="bar"><button id="play">&#9654;</button><span id="state">state 0</span>
 <input id="slider" type="range" min="0" max="0" value="0"><label><input id="ghost" type="checkbox" checked> path</label>
 <button id="reset">reset view</button></div>
@@ -138,7 +150,7 @@ const K = D.backbones.length;
 const slider = document.getElementById("slider"); slider.max = Math.max(0, K - 1); slider.value = Math.max(0, K - 1);
 const esc = s => String(s).replace(/&/g,"&amp;").replace(/</g,"&lt;").replace(/>/g,"&gt;");
 // ---- geometry -------------------------------------------------------------------------------
-const obs = D.obstacles.map(o => ({name: o.name, color: o.color, v: o.vertices, f: o.faces, on: true, alpha: o.alpha}));
+const obs = D.obstacles.map(o => ({name: o.name, color: o.color, v: o.vertices, f: o.faces, on: true, alpha: o.alpha, note: o.note, warn: o.warn}));
 function hex(c){return [parseInt(c.slice(1,3),16),parseInt(c.slice(3,5),16),parseInt(c.slice(5,7),16)];}
 obs.forEach(o => o.rgb = hex(o.color));
 // target ellipsoid as a triangle mesh
@@ -157,7 +169,8 @@ obs.forEach(o => o.rgb = hex(o.color));
 // legend
 const lg = document.getElementById("legend");
 obs.forEach(o => { const d = document.createElement("div"); d.innerHTML = '<span style="background:'+o.color+'"></span>'+esc(o.name);
-  if (o.target) d.className = "target";
+  if (o.target) d.className = "target"; else if (o.warn) d.className = "warn";
+  d.onmouseenter = e => showTip(o, e.clientX + 14, e.clientY); d.onmouseleave = hideTip;
   d.onclick = () => { o.on = !o.on; d.style.opacity = o.on ? 1 : 0.35; draw(); }; lg.appendChild(d); });
 // result: labelled lines
 document.getElementById("info").innerHTML = '<div class="title">' + esc(D.scene) + '</div><table>' +
@@ -209,7 +222,7 @@ function draw(){
       const ux=v[3*b]-v[3*a], uy=v[3*b+1]-v[3*a+1], uz=v[3*b+2]-v[3*a+2], wx=v[3*c]-v[3*a], wy=v[3*c+1]-v[3*a+1], wz=v[3*c+2]-v[3*a+2];
       let nx=uy*wz-uz*wy, ny=uz*wx-ux*wz, nz=ux*wy-uy*wx; const nn=Math.hypot(nx,ny,nz)||1;
       const sh = 0.45 + 0.55*Math.abs((nx*L[0]+ny*L[1]+nz*L[2])/nn);
-      items.push({z:(A[2]+B[2]+Cc[2])/3, tri:[A,B,Cc], rgb:o.rgb, sh:sh, al:o.alpha||0.35});
+      items.push({z:(A[2]+B[2]+Cc[2])/3, tri:[A,B,Cc], rgb:o.rgb, sh:sh, al:o.alpha||0.35, o:o});
     }
   }
   const k = +slider.value;
@@ -226,6 +239,7 @@ function draw(){
   const cl = D.clearance ? D.clearance[k] : null;
   if (K) seg(D.backbones[k], D.radii[k], cl ? (i => clearColor(cl[i])) : "#333", 4, true);
   items.sort((a,b) => b.z - a.z);
+  drawn = items;
   for (const it of items) {
     if (it.tri) { const [A,B,Cc] = it.tri; ctx.beginPath(); ctx.moveTo(A[0],A[1]); ctx.lineTo(B[0],B[1]); ctx.lineTo(Cc[0],Cc[1]); ctx.closePath();
       ctx.fillStyle = "rgba("+Math.round(it.rgb[0]*it.sh)+","+Math.round(it.rgb[1]*it.sh)+","+Math.round(it.rgb[2]*it.sh)+","+it.al+")"; ctx.fill(); }
@@ -277,7 +291,7 @@ function triad(){
   });
 }
 function clearanceBar(){
-  const x0 = 20, y0 = H - 112, w = 190, h = 10, g = ctx.createLinearGradient(x0, 0, x0 + w, 0);
+  const x0 = 20, y0 = H - 138, w = 190, h = 10, g = ctx.createLinearGradient(x0, 0, x0 + w, 0);
   stops.forEach(([f, c]) => g.addColorStop(f, "rgb(" + c.join(",") + ")"));
   ctx.fillStyle = "#fffc"; ctx.fillRect(x0 - 6, y0 - 20, w + 80, 42);
   ctx.fillStyle = g; ctx.fillRect(x0, y0, w, h); ctx.strokeStyle = "#333"; ctx.lineWidth = 1; ctx.strokeRect(x0, y0, w, h);
@@ -288,17 +302,39 @@ function clearanceBar(){
 // scale bar: a round length in mm, true at the depth of the view centre
 function scaleBar(){
   const pxmm = F/dist, want = 140/pxmm, e = Math.pow(10, Math.floor(Math.log10(want)));
-  const mm = [1,2,5,10].map(m => m*e).filter(m => m <= want).pop(), len = mm*pxmm, x0 = 20, y0 = H - 56;
+  const mm = [1,2,5,10].map(m => m*e).filter(m => m <= want).pop(), len = mm*pxmm, x0 = 20, y0 = H - 82;
   ctx.strokeStyle = "#222"; ctx.lineWidth = 2; ctx.beginPath();
   ctx.moveTo(x0,y0); ctx.lineTo(x0+len,y0); ctx.moveTo(x0,y0-5); ctx.lineTo(x0,y0+5); ctx.moveTo(x0+len,y0-5); ctx.lineTo(x0+len,y0+5); ctx.stroke();
   ctx.fillStyle = "#222"; ctx.font = "12px system-ui,sans-serif"; ctx.fillText(+mm.toPrecision(3) + " mm (at the view centre)", x0, y0-9);
+}
+// ---- hover: the structure under the pointer (nearest drawn triangle) with its clearance ------------
+let drawn = [];
+const tipEl = document.getElementById("tip");
+function showTip(o, x, y){
+  tipEl.textContent = o.name + (o.target ? "" : " \u00b7 nearest along the path: " + (o.note || "not computed (no checked path)"));
+  tipEl.className = o.warn ? "warn" : ""; tipEl.style.display = "block";
+  tipEl.style.left = Math.min(x, W - tipEl.offsetWidth - 8) + "px"; tipEl.style.top = (y + 16) + "px";
+}
+function hideTip(){ tipEl.style.display = "none"; }
+function inside(p, [A, B, C]){
+  const s = (P, Q, R) => (Q[0]-P[0])*(R[1]-P[1]) - (Q[1]-P[1])*(R[0]-P[0]);
+  const a = s(A, B, p), b = s(B, C, p), c = s(C, A, p);
+  return (a >= 0 && b >= 0 && c >= 0) || (a <= 0 && b <= 0 && c <= 0);
+}
+function hover(e){
+  const p = [e.clientX, e.clientY];
+  for (let i = drawn.length - 1; i >= 0; i--) { const it = drawn[i];
+    if (it.tri && it.o.alpha >= 0.1 && inside(p, it.tri)) { showTip(it.o, p[0] + 14, p[1]); return; } }
+  hideTip();
 }
 // ---- interaction ----------------------------------------------------------------------------
 let drag = null;
 cv.addEventListener("mousedown", e => { drag = {x:e.clientX, y:e.clientY, pan: e.shiftKey || e.button === 2}; });
 addEventListener("mouseup", () => drag = null);
 cv.addEventListener("contextmenu", e => e.preventDefault());
-addEventListener("mousemove", e => { if (!drag) return; const dx = e.clientX-drag.x, dy = e.clientY-drag.y; drag.x = e.clientX; drag.y = e.clientY;
+cv.addEventListener("mousemove", e => { if (!drag) hover(e); });
+cv.addEventListener("mouseleave", hideTip);
+addEventListener("mousemove", e => { if (!drag) return; hideTip(); const dx = e.clientX-drag.x, dy = e.clientY-drag.y; drag.x = e.clientX; drag.y = e.clientY;
   if (drag.pan) { const s = dist/F; for (let a=0;a<3;a++) ctr[a] -= (cam.rt[a]*dx - cam.up[a]*dy)*s; }
   else { yaw -= dx*0.008; pitch = Math.max(-1.5, Math.min(1.5, pitch + dy*0.008)); }
   draw(); });

@@ -71,7 +71,7 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
     image = nib.Nifti1Image(label_volume(), affine())
     image.header.set_xyzt_units("mm")
     nib.save(image, folder / "labels.nii.gz")
-    (folder / "names.yaml").write_text("3: pituitary_phantom\n5: {name: carotid_phantom}\n")
+    (folder / "names.yaml").write_text("3: pituitary_phantom\n5: {name: carotid_phantom, margin_mm: 1.5}\n")
     template = folder / "template.yaml"
     template.write_text(
         "name: phantom\nrobot: nominal\nbase_pose:\n  position: [-10.0, 30.0, 0.0]\n"
@@ -117,6 +117,7 @@ def test_the_template_is_kept_but_its_obstacles(made, inputs):
     np.testing.assert_array_equal(new.target.center, old.target.center)
     assert new.settings == old.settings
     assert all((made.parent / "phantom_meshes" / f"{o.name}.stl").is_file() for o in new.obstacles)
+    assert [o.margin_mm for o in new.obstacles] == [0.0, 1.5]  # NAMES.yaml's margin_mm is kept
 
 
 def test_a_robot_file_of_the_template_is_found_from_the_new_scene(inputs, tmp_path):
@@ -154,7 +155,7 @@ def test_a_transposed_rotation_would_miss_the_shape(inputs):
     assert sphere_gap(np.asarray(mesh.vertices)).max() > 3 * SPACING.max()
 
 
-@pytest.mark.parametrize("case", ["missing_label", "no_affine", "missing_file", "bad_names"])
+@pytest.mark.parametrize("case", ["missing_label", "no_affine", "missing_file", "bad_names", "bad_margin"])
 def test_bad_input_is_one_line_and_writes_nothing(inputs, tmp_path, capsys, case):
     labels, names = inputs["labels"], inputs["names"]
     if case == "missing_label":
@@ -171,10 +172,14 @@ def test_bad_input_is_one_line_and_writes_nothing(inputs, tmp_path, capsys, case
     elif case == "missing_file":
         labels = tmp_path / "nothing.nii.gz"
         expect = "file not found"
-    else:
+    elif case == "bad_names":
         names = tmp_path / "names.yaml"
         names.write_text("three: carotid\n")
         expect = "positive integer label"
+    else:
+        names = tmp_path / "names.yaml"
+        names.write_text("3: {name: carotid, margin_mm: -1}\n")
+        expect = "3.margin_mm: expected a finite number >= 0 (mm)"
     out = tmp_path / "sub" / "new.yaml"
     capsys.readouterr()
     assert run(inputs, labels, out, names) == 2

@@ -214,6 +214,30 @@ def test_cli_plan_end_to_end(tmp_path, capsys):
     assert len(json.loads(data)["backbones"]) == len(full["dense_path"])
     assert not [p for p in out_dir.iterdir() if p.name.startswith(".")]  # no temporary leftovers
     assert_trajectory_within_limits(out_dir / "trajectory.csv", full, load_scene(SCENES / "open.yaml"))
+    assert_structure_clearances(v["structures"], full)
+
+
+def assert_structure_clearances(listed: list[dict], full: dict) -> None:
+    """``validated.structures`` of open.yaml: the ball and the block, none below its 0.2 mm, the ball's
+    clearance the closed-form capsule-chain distance (segment to sphere centre, minus the radii)
+    over path.json's exact backbones, on the state where it is smallest; the overall minimum is
+    ``min_clearance_mm``."""
+    by_name = {c["name"]: c for c in listed}
+    assert set(by_name) == {"ball", "block"}
+    assert not any(c["below_margin"] for c in listed)
+    assert all(c["required_mm"] == 0.2 and c["margin_mm"] == 0.0 for c in listed)
+    p = np.array(full["backbones_mm"])                 # (K, N, 3), scene frame = robot frame here
+    r = np.array(full["backbone_radius_mm"])
+    a, d = p[:, :-1], p[:, 1:] - p[:, :-1]
+    c = np.array([43.0, -47.0, 150.0])
+    t = np.clip(np.einsum("kmi,kmi->km", c - a, d) / np.einsum("kmi,kmi->km", d, d), 0.0, 1.0)
+    gap = np.linalg.norm(a + t[..., None] * d - c, axis=-1) - 7.0 - np.maximum(r[:, :-1], r[:, 1:])
+    ball = by_name["ball"]
+    assert ball["clearance_mm"] == pytest.approx(gap.min(), abs=1e-3)
+    assert gap[ball["state"]].min() == pytest.approx(gap.min(), abs=1e-3)
+    assert np.linalg.norm(np.subtract(ball["structure_point_mm"], c)) == pytest.approx(7.0, abs=1e-3)
+    assert min(x["clearance_mm"] for x in listed) == pytest.approx(full["validated"]["min_clearance_mm"],
+                                                                  abs=1e-4)
 
 
 def assert_trajectory_within_limits(path, full: dict, scene) -> None:

@@ -16,7 +16,7 @@ from ctrplan.scene import load_scene
 from ctrplan.viz import viewer_data, write_viewer
 from ctrplan.viz.framing import section
 from ctrplan.viz.plan_plot import plan_figure
-from ctrplan.viz.style import TARGET_COLOR, obstacle_colors
+from ctrplan.viz.style import TARGET_COLOR, obstacle_colors, scene_colors
 from tests.paths import REPO, SCENES
 
 OPEN = (SCENES / "open.yaml").read_text()
@@ -73,7 +73,7 @@ def test_projections_do_not_draw_the_carotids_over_a_midline_path(skullbase):
     """The carotids lie 7-11 mm lateral of the sella: the sagittal projection (hiding x) leaves them
     out, the axial one (hiding y) shows them beside the path."""
     fig = plan_figure(skullbase, midline_path(skullbase))
-    colours = obstacle_colors([o.name for o in skullbase.obstacles])
+    colours = scene_colors(skullbase.obstacles)
     carotids = {c for n, c in colours.items() if "carotid" in n}
     views = {ax.get_title().split(" ")[0]: ax for ax in fig.axes if ax.name != "3d" and ax.get_title()}
     drawn = {v: {to_hex(c.get_facecolor()[0], keep_alpha=False) for c in ax.collections
