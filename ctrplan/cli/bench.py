@@ -19,11 +19,22 @@ from ctrplan.bench import planning as planning_bench
 from ctrplan.bench.fanout import check_workers, run_jobs
 from ctrplan.bench.plots import planning_plots, timing_boxplot
 from ctrplan.cli import HELP_SETTINGS, app
-from ctrplan.cli.kinematics import RobotOpt, as_option, load_backend
-from ctrplan.cli.options import parse_duration
+from ctrplan.cli.options import (
+    JsonSummaryOpt,
+    RobotOpt,
+    as_option,
+    check_max_states,
+    load_backend,
+    max_states_option,
+    parse_duration,
+    ray_option,
+    seed_option,
+    time_limit_option,
+    workers_option,
+)
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
-from ctrplan.kinematics import BACKENDS
+from ctrplan.kinematics import BACKENDS, PLANNING_ORDER
 from ctrplan.memory import check_backbones, check_fits
 from ctrplan.robot import Robot
 
@@ -89,21 +100,24 @@ def result_table(title: str, columns: list[tuple[str, bool]]) -> Table:
     return table
 
 
+#: Defaults of ``--backend`` (`bench kinematics`: every backend; `bench plan`: the planning default
+#: first) and ``--planner``, from the registries.
+ALL_BACKENDS, PLAN_BACKENDS = ",".join(BACKENDS), ",".join(PLANNING_ORDER)
+PLAN_PLANNERS = ",".join(planning_bench.DEFAULT_PLANNERS)
+KinBackendsOpt = Annotated[str, typer.Option("--backend", help="Comma-separated backends to time.")]
+ConfigurationsOpt = Annotated[int, typer.Option("--n", help="Configurations per case (random, snap-free).")]
+PointsListOpt = Annotated[str, typer.Option("--points", help="Comma-separated numbers of backbone points.")]
+KinSeedOpt = seed_option("Seed of the random configurations.")
+KinOutOpt = Annotated[Path, typer.Option("--out", help="Directory for results.json and the plot.")]
+BatchOpt = Annotated[int, typer.Option(
+    "--batch", help="Also time batched calls of this many configurations, all cores (0: skip).")]
+
+
 @bench_app.command("kinematics")
-def kinematics(
-    backend: Annotated[str, typer.Option(
-        "--backend", help="Comma-separated backends to time.")] = ",".join(BACKENDS),
-    n: Annotated[int, typer.Option("--n", help="Configurations per case (random, snap-free).")] = 5000,
-    points: Annotated[str, typer.Option(
-        "--points", help="Comma-separated numbers of backbone points.")] = "30,60,90,150",
-    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the random configurations.")] = 0,
-    robot: RobotOpt = None,
-    out: Annotated[Path, typer.Option(
-        "--out", help="Directory for results.json and the plot.")] = Path("runs/bench_kinematics"),
-    as_json: Annotated[bool, typer.Option("--json", help="Print the JSON summary on stdout.")] = False,
-    batch: Annotated[int, typer.Option(
-        "--batch", help="Also time batched calls of this many configurations, all cores (0: skip).")] = 5000,
-) -> None:
+def kinematics(backend: KinBackendsOpt = ALL_BACKENDS, n: ConfigurationsOpt = 5000,
+               points: PointsListOpt = "30,60,90,150", seed: KinSeedOpt = 0, robot: RobotOpt = None,
+               out: KinOutOpt = Path("runs/bench_kinematics"), as_json: JsonSummaryOpt = False,
+               batch: BatchOpt = 5000) -> None:
     """Single-query forward-kinematics runtime on one core (paper's runtime experiment), and the
     batched rate (backbones per second) on all cores.
 
@@ -160,35 +174,31 @@ def kinematics(
     typer.echo(f"wrote {out / 'results.json'} and {out / 'kinematics_times.png'}", err=True)
 
 
+ScenesArg = Annotated[list[Path], typer.Argument(metavar="SCENE.yaml", help="Scene files (YAML).",
+                                                  show_default=False)]
+PlanBackendsOpt = Annotated[str, typer.Option("--backend", help="Comma-separated kinematics backends.")]
+PlannersOpt = Annotated[str, typer.Option(
+    "--planner", help="Comma-separated planners (rrtconnect, rrt, rrtstar, bitstar, kpiece).")]
+RunsOpt = Annotated[int, typer.Option("--runs", help="Seeded runs per scene x backend x planner.")]
+PlanTimeLimitOpt = time_limit_option(
+    "Time budget per run, e.g. 10s; a bare number is seconds (default: each scene's setting): the default "
+    "work budget and the wall-clock guard, as for `ctrplan plan`.")
+MaxStatesOpt = max_states_option(
+    "Work budget per run: states the backend evaluates (default: each scene's max_states, else what the "
+    "time budget buys with the backend on the reference machine).")
+PlanSeedOpt = seed_option("First seed; runs use seed, seed+1, ...")
+PlanOutOpt = Annotated[Path, typer.Option(
+    "--out", help="Directory for results.json, the OMPL logs, benchmark.db and plots.")]
+WorkersOpt = workers_option("Local worker processes, one per core (1: in this process).")
+RayOpt = ray_option("Run on a Ray cluster at this address ('local' starts one here; needs the 'ray' extra).")
+
+
 @bench_app.command("plan")
-def plan(
-    scenes: Annotated[list[Path], typer.Argument(metavar="SCENE.yaml", help="Scene files (YAML).",
-                                                 show_default=False)],
-    backend: Annotated[str, typer.Option(
-        "--backend", help="Comma-separated kinematics backends.")] = "pinn,cosserat,hybrid",
-    planner: Annotated[str, typer.Option(
-        "--planner", help="Comma-separated planners (rrtconnect, rrt, rrtstar, bitstar, kpiece).")
-    ] = ",".join(planning_bench.DEFAULT_PLANNERS),
-    runs: Annotated[int, typer.Option("--runs", help="Seeded runs per scene x backend x planner.")] = 20,
-    time_limit: Annotated[str | None, typer.Option(
-        "--time-limit", metavar="DURATION",
-        help="Time budget per run, e.g. 10s; a bare number is seconds (default: each scene's setting): the "
-                             "default work budget and the wall-clock guard, as for `ctrplan plan`.")] = None,
-    max_states: Annotated[int | None, typer.Option(
-        "--max-states", metavar="N", show_default=False,
-        help="Work budget per run: states the backend evaluates (default: each scene's max_states, else "
-             "what the time budget buys with the backend on the reference machine).")] = None,
-    seed: Annotated[int, typer.Option("--seed", min=0, help="First seed; runs use seed, seed+1, ...")] = 0,
-    out: Annotated[Path, typer.Option(
-        "--out", help="Directory for results.json, the OMPL logs, benchmark.db and plots.")
-    ] = Path("runs/bench_plan"),
-    as_json: Annotated[bool, typer.Option("--json", help="Print the JSON summary on stdout.")] = False,
-    workers: Annotated[int, typer.Option(
-        "--workers", help="Local worker processes, one per core (1: in this process).")] = 1,
-    ray: Annotated[str | None, typer.Option(
-        "--ray", help="Run on a Ray cluster at this address ('local' starts one here; needs the "
-                      "'ray' extra).")] = None,
-) -> None:
+def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
+         planner: PlannersOpt = PLAN_PLANNERS, runs: RunsOpt = 20,
+         time_limit: PlanTimeLimitOpt = None, max_states: MaxStatesOpt = None, seed: PlanSeedOpt = 0,
+         out: PlanOutOpt = Path("runs/bench_plan"), as_json: JsonSummaryOpt = False, workers: WorkersOpt = 1,
+         ray: RayOpt = None) -> None:
     """Planning benchmark: every backend x planner on each scene, N seeded runs each.
 
     Reports success (confirmed by the exact model), the planning-time distribution, the time split
@@ -213,8 +223,7 @@ def plan(
     if runs < 1:
         raise InputError(f"--runs: need at least 1 run, got {runs}")
     time_limit = parse_duration(time_limit, "s")
-    if max_states is not None and max_states < 1:
-        raise InputError(f"--max-states: must be an integer >= 1 (states), got {max_states}")
+    check_max_states(max_states)
     try:
         check_workers(workers, ray)
     except InputError as exc:
