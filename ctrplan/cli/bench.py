@@ -17,7 +17,7 @@ from ctrplan.bench import kinematics as kinematics_bench
 from ctrplan.bench import machine_info, single_core
 from ctrplan.bench import planning as planning_bench
 from ctrplan.bench.fanout import check_workers, run_jobs
-from ctrplan.bench.plots import planning_plots, timing_boxplot
+from ctrplan.bench.plots import timing_boxplot
 from ctrplan.cli import HELP_SETTINGS, app
 from ctrplan.cli.options import (
     JsonSummaryOpt,
@@ -206,7 +206,7 @@ def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
     and the exact-model validation outcome. Writes an OMPL benchmark log per scene and the Planner
     Arena database (benchmark.db), plots and results.json.
     """
-    from ctrplan.bench.ompl_log import write_database, write_logs
+    from ctrplan.bench.plan_results import write_plan_results
     from ctrplan.scene import planner_spec
 
     backends = parse_list(backend, "--backend")
@@ -243,24 +243,25 @@ def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
             records = run_jobs(planning_bench.run_one, specs, workers=workers, ray_address=ray, tick=tick)
         except InputError as exc:
             raise as_option(exc, flags) from None
-    summary = planning_bench.summarize(records)
     out = output_dir(out)
-    machine = machine_info()
-    settings = {"backends": backends, "planners": planners, "runs": runs, "first_seed": seed,
-                "time_limit_s": {Path(f).name: limit for f, limit in limits}, "max_states": max_states,
-                "executor": f"ray {ray}" if ray else f"{workers} local worker(s), one core each",
-                "wall_time_s": round(time.perf_counter() - t0, 1), "out": str(out)}
-    logs = write_logs(records, out, machine, settings)
-    write_database(logs, out / "benchmark.db")
-    plots = planning_plots(summary, records, out)
-    doc = {"machine": machine, "settings": settings, "summary": summary, "runs": records}
+    executor = f"ray {ray}" if ray else f"{workers} local worker(s), one core each"
+    doc, logs, plots = write_plan_results(records, out, limits, {
+        "backends": backends, "planners": planners, "runs": runs, "first_seed": seed,
+        "max_states": max_states, "executor": executor, "wall_time_s": round(time.perf_counter() - t0, 1)})
     if publish(doc, out, as_json):
         return
-    table = result_table(f"bench plan: {runs} runs each, one core of {machine['cpu']} per run",
+    _plan_table(doc, runs)
+    typer.echo(f"wrote {out / 'results.json'}, {len(logs)} OMPL log(s), {out / 'benchmark.db'} and "
+               f"{', '.join(p.name for p in plots)}", err=True)
+
+
+def _plan_table(doc: dict, runs: int) -> None:
+    """The terminal table of `bench plan`: one row per scene x planner x backend."""
+    table = result_table(f"bench plan: {runs} runs each, one core of {doc['machine']['cpu']} per run",
                          [(h, h in ("scene", "planner", "backend")) for h in (
                              "scene", "planner", "backend", "solved", "median s", "p90 s", "max s",
                              "kin %", "coll %", "plan %", "checks/s", "repaired", "unsafe")])
-    for s in summary:
+    for s in doc["summary"]:
         t, share = s["planning_time_s"], s["time_share"]
         table.add_row(s["scene"], s["planner"], s["backend"], f"{s['solved']}/{s['runs']}",
                       f"{t['median']:.2f}", f"{t['p90']:.2f}", f"{t['max']:.2f}",
@@ -268,5 +269,3 @@ def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
                       f"{100 * share['planner']:.0f}", f"{s['checks_per_s']['median']:.0f}",
                       str(s["repaired"]), str(s["unsafe"]))
     Console().print(table)
-    typer.echo(f"wrote {out / 'results.json'}, {len(logs)} OMPL log(s), {out / 'benchmark.db'} and "
-               f"{', '.join(p.name for p in plots)}", err=True)

@@ -21,10 +21,9 @@ import typer
 
 from ctrplan import console as console_state
 from ctrplan.cli import app
-from ctrplan.cli.options import ModelOpt, load_backend, parse_duration
+from ctrplan.cli.options import ModelOpt, check_max_states, load_backend, parse_duration
 from ctrplan.cli.progress import StatusLine
 from ctrplan.dataio import check_output_dir, output_dir
-from ctrplan.errors import InputError
 from ctrplan.kinematics import DEFAULT_PLANNING_BACKEND, PLANNING_ORDER
 from ctrplan.robot import Robot
 from ctrplan.scene import PLANNERS
@@ -103,8 +102,7 @@ def plan_command(
     from rich.console import Console
 
     time_limit = parse_duration(time_limit, "s")
-    if max_states is not None and max_states < 1:
-        raise InputError(f"--max-states: must be an integer >= 1 (states), got {max_states}")
+    check_max_states(max_states)
     if out is not None:
         check_output_dir(out)  # created when the outputs are written
 
