@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from ctrplan.calibration.effects import CAUSES
+from ctrplan.calibration import CAUSES
 from ctrplan.cli import app
 from ctrplan.cli.options import heldout_split
 from ctrplan.cli.progress import StatusLine
