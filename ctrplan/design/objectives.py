@@ -29,14 +29,13 @@ def _count_reached(record: dict) -> int:
     return len(record["reached"])
 
 
-def _record_key(key: str, missing: float | None = None
-                ) -> tuple[Callable[[dict], float], Callable[[dict], Any]]:
-    """(value, column) of a record key: the number (``missing`` where the record has None), and the
-    raw entry."""
+def _record_key(key: str) -> tuple[Callable[[dict], float], Callable[[dict], Any]]:
+    """(value, column) of a record key: the number (0 where the record has None: a clearance without
+    any reached target), and the raw entry."""
 
     def value(record: dict) -> float:
         v = record[key]
-        return float(missing if v is None else v)
+        return 0.0 if v is None else float(v)
 
     return value, lambda record: record[key]
 
@@ -48,10 +47,9 @@ OBJECTIVES: dict[str, Criterion] = {c.name: c for c in (
     Criterion("max_strain", "largest pre-curvature strain of a tube, kappa * OD / 2",
               *_record_key("max_strain")),
     Criterion("total_length_mm", "sum of the tube lengths (mm)", *_record_key("total_length_mm")),
-    # a clearance without any reached target counts as 0
     Criterion("min_clearance_mm",
               "smallest clearance to the anatomy along the paths to the reached targets (mm)",
-              *_record_key("min_clearance_mm", missing=0.0)),
+              *_record_key("min_clearance_mm")),
 )}
 
 
