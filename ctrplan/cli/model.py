@@ -45,6 +45,7 @@ from ctrplan.training.trainer import (
     check_checkpoint,
     checkpoint_meta,
     get_recipe,
+    pool_size,
     remove_checkpoint,
 )
 from ctrplan.training.trainer import train as run_training
@@ -153,7 +154,7 @@ def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None
     start = PinnBackend.load(init, model_robot) if init else None
     if name is None:
         name = check_model_name(f"{model_robot.name}_{rec.name}", "the robot's name (give --name)")
-    check_fits("--set dense_configs", max(rec.dense_configs, rec.observations, 2000),
+    check_fits("--set dense_configs", pool_size(rec),
                POOL_COPIES * backbone_bytes(model_robot.n_tubes, rec.dense_points), "exact solutions")
     out = check_output_dir(out_dir, "--out-dir") / name  # made on save
     console = Console(stderr=True)
