@@ -16,24 +16,11 @@ An effect acts on one side of the model (``Effect.side``), in the order a predic
 The measurement-side effects (joints, tip, frame: `MeasurementEffect`) live in the robot's
 `ctrplan.measurement.Calibration`, under the robot file's ``calibration`` key.
 
-=================  =========  =====================================================================
-cause              side       parameters (plausible range: see each `Param`)
-=================  =========  =====================================================================
-curvature          mechanics  pre-curvature kappa_i of each tube (1/m)
-stiffness_ratio    mechanics  Poisson's ratio nu; G_i = E_i / (2 (1 + nu)) (torsion vs bending)
-bending_stiffness  mechanics  E*I and G*J of tube i relative to tube 1, i = 2..N (in free space only
-                              stiffness ratios shape the robot)
-transmission       mechanics  extra length d_i (mm) over which tube i twists behind the plate: the
-                              drive's torsional compliance, or a clamp nearer the plate (d_i < 0)
-joint_offset       mechanics  zero offsets of beta_i (mm) and alpha_i (rad), added to q
-gravity            mechanics  gravity vector (m/s^2) with the file's density and E: only rho*g/E matters
-tip_force          mechanics  point force at the tip of tube 1 (N), robot frame
-backlash           joints     lag of alpha_i (rad) in the direction of its latest motion
-torsional_windup   joints     friction twists tube i behind the plate: a lag of alpha_i growing with
-                              -beta_i, windup_i (rad/mm) = friction torque / (G J_i)
-sensor_offset      tip        tracked point relative to the tip of tube 1, in its tip frame R(l1) (mm)
-registration       frame      rotation vector (rad) and translation (mm), robot -> tracker frame
-=================  =========  =====================================================================
+The table of causes (cause, side, parameters) follows, rendered from the registered classes
+(`cause_table`). Adding a cause is one `Effect` subclass here: the command line, the library, the
+reports and the tests read `EFFECTS` (a mechanics-side cause sets `Robot` fields; a new physical
+parameter is also a field of the robot file and of the solver).
+
 """
 
 from __future__ import annotations
@@ -260,7 +247,7 @@ class Effect(ABC):
 class Curvature(Effect):
     name = "curvature"
     key = "tubes[i].curvature_1_per_m"
-    description = "pre-curvature of each tube"
+    description = "pre-curvature kappa_i of each tube (1/m)"
     #: Largest bending strain kappa * OD / 2 superelastic NiTi recovers.
     MAX_STRAIN = 0.08
     SOURCE = ("heat-set curvature of nitinol tubes is reproduced within tens of per cent (springback "
@@ -297,7 +284,7 @@ class Curvature(Effect):
 class StiffnessRatio(Effect):
     name = "stiffness_ratio"
     key = "tubes[i].shear_modulus_gpa"
-    description = "torsional vs bending stiffness (Poisson's ratio, G = E / (2 (1 + nu)))"
+    description = "Poisson's ratio nu; G_i = E_i / (2 (1 + nu)) (torsion vs bending)"
     SOURCE = ("isotropic metals have 0 <= nu <= 0.5 (0.5: incompressible); superelastic NiTi "
               "nu = 0.3-0.33 (Johnson Matthey 'Nitinol technical properties'); nu = E / (2 G) - 1 as in "
               "Dupont, Lock, Itkowitz & Butler 2010")
@@ -328,7 +315,8 @@ class StiffnessRatio(Effect):
 class BendingStiffness(Effect):
     name = "bending_stiffness"
     key = "tubes[i].youngs_modulus_gpa, shear_modulus_gpa"
-    description = "stiffness of each tube relative to tube 1 (E*I and G*J: wall thickness, heat treatment)"
+    description = ("E*I and G*J of tube i relative to tube 1, i = 2..N (in free space only stiffness ratios "
+                   "shape the robot)")
 
     def params(self, robot):
         lo, hi = NITI_E_GPA
@@ -354,8 +342,8 @@ class BendingStiffness(Effect):
 class Transmission(Effect):
     name = "transmission"
     key = "tubes[i].transmission_length_mm"
-    description = ("extra length over which each tube twists behind the plate (a compliant drive; "
-                   "negative: clamped nearer the plate)")
+    description = ("extra length d_i (mm) over which tube i twists behind the plate: the drive's torsional "
+                   "compliance, or a clamp nearer the plate (d_i < 0)")
     SOURCE = ("the straight tube behind the plate twists ('transmissional torsion', Webster, Romano & "
               "Cowan 2009); a drive of gears and collets adds at most the tube's own length of torsional "
               "compliance, a clamp nearer the plate removes at most all of it")
@@ -393,7 +381,7 @@ class Transmission(Effect):
 class JointOffset(Effect):
     name = "joint_offset"
     key = "joint_offset"
-    description = "zero offsets of the joints (beta mm, alpha rad)"
+    description = "zero offsets of beta_i (mm) and alpha_i (rad), added to q"
     BETA_SOURCE = ("the zero of a translation (tube tip flush with the front plate) is set by eye or a "
                    "homing switch: a few mm off at most; 10 mm ceiling")
     ALPHA_SOURCE = "the zero of a rotation may be any angle"
@@ -425,7 +413,7 @@ class JointOffset(Effect):
 class Gravity(Effect):
     name = "gravity"
     key = "loads.gravity_m_s2"
-    description = "distributed weight of the tubes (direction and rho*g/E scale)"
+    description = "gravity vector (m/s^2) with the file's density and E: only rho*g/E matters"
 
     SOURCE = (f"only rho*g/E matters: |g| <= 9.81 m/s^2 x the file's E / the lowest E of NiTi "
               f"({NITI_E_SOURCE})")
@@ -471,7 +459,7 @@ class Gravity(Effect):
 class TipForce(Effect):
     name = "tip_force"
     key = "loads.tip_force_n"
-    description = "constant point force at the tip of tube 1 (e.g. a sensor cable)"
+    description = "point force at the tip of tube 1 (N), robot frame"
     MAX_N = 0.02
     SOURCE = "a sensor cable or tether on the tip of a robot in free space pulls a few mN; 20 mN ceiling"
 
@@ -543,7 +531,7 @@ class Backlash(MeasurementEffect):
     name = "backlash"
     side = "joints"
     key = "backlash_rad"
-    description = "direction-dependent lag of the rotation joints alpha_i"
+    description = "lag of alpha_i (rad) in the direction of its latest motion"
     SOURCE = ("gear, belt and collet transmissions of rotary stages: a fraction of a degree to a few "
               "degrees; 0.1 rad (5.7 deg) ceiling")
 
@@ -571,8 +559,8 @@ class TorsionalWindup(MeasurementEffect):
     name = "torsional_windup"
     side = "joints"
     key = "windup_rad_per_mm"
-    description = ("friction torque twisting each tube behind the plate: a lag of alpha_i in the "
-                   "direction of motion growing with -beta_i")
+    description = ("friction twists tube i behind the plate: a lag of alpha_i growing with -beta_i, windup_i"
+                   " (rad/mm) = friction torque / (G J_i)")
     MAX_TORQUE_NMM = 5.0
     SOURCE = ("friction between nested tubes (mu ~ 0.1-0.3, Lock & Dupont 2011) and seals on a lever of "
               "the tube radius: at most a few N mm; friction torque ceiling 5 N mm")
@@ -612,7 +600,7 @@ class SensorOffset(MeasurementEffect):
     name = "sensor_offset"
     side = "tip"
     key = "sensor_offset_mm"
-    description = "tracked point offset from the tip of tube 1, fixed in its tip frame"
+    description = "tracked point relative to the tip of tube 1, in its tip frame R(l1) (mm)"
     #: A coil sensor (NDI Aurora: 0.3-0.8 mm diameter, 8-13 mm long) inside or on the tip of tube 1.
     SENSOR_DIAMETER_MM, MAX_ALONG_MM = 1.0, 15.0
     SOURCE = ("a coil sensor (NDI Aurora: 0.3-0.8 mm diameter, 8-13 mm long) inside or on the tip of "
@@ -653,7 +641,7 @@ class Registration(MeasurementEffect):
     name = "registration"
     side = "frame"
     key = "registration"
-    description = "rigid transform between the robot frame and the tracker frame"
+    description = "rotation vector (rad) and translation (mm), robot -> tracker frame"
     KEYS = ("rotation_vector_rad", "translation_mm")
     SOURCE = ("the tracker frame may have any orientation; it lies within the tracking volume (NDI Aurora "
               "planar field generator: a 500 mm cube)")
@@ -698,6 +686,25 @@ class Registration(MeasurementEffect):
 
 #: Every cause name, in definition order.
 CAUSES = tuple(EFFECTS)
+
+
+def cause_table(width: int = 100) -> str:
+    """The registered causes as a reStructuredText table: cause, side, parameters (``description``)."""
+    import textwrap
+
+    name_w, side_w = max(map(len, ("cause", *CAUSES))) + 2, max(map(len, SIDES)) + 2
+    rule = f"{'=' * (name_w - 2)}  {'=' * (side_w - 2)}  {'=' * (width - name_w - side_w)}"
+    lines = [rule, f"{'cause':<{name_w}}{'side':<{side_w}}parameters (plausible range: see each `Param`)",
+             rule]
+    for name, cls in EFFECTS.items():
+        text = textwrap.wrap(cls.description, width - name_w - side_w)
+        lines.append(f"{name:<{name_w}}{cls.side:<{side_w}}{text[0]}")
+        lines += [" " * (name_w + side_w) + more for more in text[1:]]
+    return "\n".join([*lines, rule, ""])
+
+
+if __doc__ is not None:  # the module's table of causes (absent under python -OO)
+    __doc__ += cause_table()
 
 
 # ---- several causes at once -----------------------------------------------------------------------

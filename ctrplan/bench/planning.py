@@ -65,7 +65,7 @@ def _context(scene_file: str, backend: str):
             scene = load_scene(scene_file)
             _CACHE["exact", scene_file] = (scene, CosseratBackend(scene.robot))
         scene, exact = _CACHE["exact", scene_file]
-        planning = exact if backend == "cosserat" else make_backend(backend, scene.robot)
+        planning = exact if backend == exact.name else make_backend(backend, scene.robot)
         _CACHE[key] = (scene, planning, exact)
     return _CACHE[key]
 

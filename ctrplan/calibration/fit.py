@@ -232,60 +232,77 @@ def fit_effect(effect: Effect, base_robot: Robot, ev: Evaluator,
     # free parameters start strictly inside their bounds (trf does not leave a bound it starts on);
     # fixed ones stay at their base value
     start = np.where(free, np.clip(start, lower + 1e-3 * scale, upper - 1e-3 * scale), x0)
-    state = {"guess": nominal.initial_state.copy(), "fallback": nominal.tips_mm.copy()}
-    cache: dict[bytes, tuple[np.ndarray, Prediction]] = {}
-    idx = np.flatnonzero(free)
-
-    def phys(z):
-        x = start.copy()
-        x[idx] += scale[idx] * z
-        return x
-
-    def evaluate(z):
-        key = np.asarray(z, dtype=float).tobytes()
-        hit = cache.get(key)
-        if hit is None:
-            pred = ev.predict([effect.with_values(base_robot, phys(z))], guess=state["guess"])[0]
-            ok = pred.converged
-            state["guess"][ok] = pred.initial_state[ok]
-            r = residual_vector(measured, pred, tubes, state["fallback"])
-            state["fallback"][ok] = pred.tips_mm[ok]
-            if len(cache) > 8:
-                cache.pop(next(iter(cache)))
-            hit = cache[key] = (r, pred)
-        return hit
-
-    def fun(z):
-        return evaluate(z)[0]
-
-    def jac(z):
-        near = state.get("jac")
-        if near is not None and np.max(np.abs(np.asarray(z) - near[0]), initial=0.0) < JAC_REUSE:
-            return near[1]
-        r, pred = evaluate(z)
-        guess = np.where(pred.converged[:, None], pred.initial_state, state["guess"])
-        fallback = np.where(pred.converged[:, None, None], pred.tips_mm, state["fallback"])
-        models = []
-        for j in range(len(idx)):
-            zj = np.array(z, dtype=float)
-            zj[j] += FD_STEP
-            models.append(effect.with_values(base_robot, phys(zj)))
-        preds = ev.predict(models, guess=guess)
-        J = np.empty((r.size, len(idx)))
-        for j, pj in enumerate(preds):
-            J[:, j] = (residual_vector(measured, pj, tubes, fallback) - r) / FD_STEP
-        state["jac"] = (np.array(z, dtype=float), J)
-        return J
-
+    problem = _Problem(effect, base_robot, ev, measured, tubes, nominal, start, np.flatnonzero(free), scale)
+    idx = problem.idx
     bounds = (((lower - start) / scale)[idx], ((upper - start) / scale)[idx])
-    res = least_squares(fun, np.zeros(len(idx)), jac=jac, bounds=bounds, method="trf",
+    res = least_squares(problem.fun, np.zeros(len(idx)), jac=problem.jac, bounds=bounds, method="trf",
                         x_scale=1.0, ftol=FIT_TOL, xtol=FIT_TOL, gtol=1e-10, max_nfev=max_nfev)
-    r, _ = evaluate(res.x)
-    fit = _result(effect, base_robot, params, phys(res.x), r, res, idx, scale)
+    r, _ = problem.evaluate(res.x)
+    fit = _result(effect, base_robot, params, problem.phys(res.x), r, res, idx, scale)
     fit.lower, fit.upper, fit.x0, fit.fixed = lower, upper, x0, fixed
     fit.seconds = time.perf_counter() - t0
     fit.pushed = _pushed(fit, res.jac, r, idx, scale)
     return fit
+
+
+class _Problem:
+    """The least-squares problem of `fit_effect` in scaled coordinates ``z`` of the free parameters
+    ``idx`` (``x = start + scale * z``): residuals and finite-difference Jacobians, each solve
+    warm-started from the last converged one (rows that fail take the last converged prediction),
+    recent residuals cached, a Jacobian reused while ``z`` stays within `JAC_REUSE`."""
+
+    def __init__(self, effect: Effect, base_robot: Robot, ev: Evaluator, measured: np.ndarray,
+                 tubes: Sequence[int], nominal: Prediction, start: np.ndarray, idx: np.ndarray,
+                 scale: np.ndarray):
+        self.effect, self.base_robot, self.ev = effect, base_robot, ev
+        self.measured, self.tubes, self.start, self.idx, self.scale = measured, tubes, start, idx, scale
+        self.guess = nominal.initial_state.copy()
+        self.fallback = nominal.tips_mm.copy()
+        self.cache: dict[bytes, tuple[np.ndarray, Prediction]] = {}
+        self.near_jac: tuple[np.ndarray, np.ndarray] | None = None
+
+    def phys(self, z: np.ndarray) -> np.ndarray:
+        """Parameters (file units) at scaled free coordinates ``z``."""
+        x = self.start.copy()
+        x[self.idx] += self.scale[self.idx] * z
+        return x
+
+    def evaluate(self, z: np.ndarray) -> tuple[np.ndarray, Prediction]:
+        key = np.asarray(z, dtype=float).tobytes()
+        hit = self.cache.get(key)
+        if hit is None:
+            model = self.effect.with_values(self.base_robot, self.phys(z))
+            pred = self.ev.predict([model], guess=self.guess)[0]
+            ok = pred.converged
+            self.guess[ok] = pred.initial_state[ok]
+            r = residual_vector(self.measured, pred, self.tubes, self.fallback)
+            self.fallback[ok] = pred.tips_mm[ok]
+            if len(self.cache) > 8:
+                self.cache.pop(next(iter(self.cache)))
+            hit = self.cache[key] = (r, pred)
+        return hit
+
+    def fun(self, z: np.ndarray) -> np.ndarray:
+        return self.evaluate(z)[0]
+
+    def jac(self, z: np.ndarray) -> np.ndarray:
+        near = self.near_jac
+        if near is not None and np.max(np.abs(np.asarray(z) - near[0]), initial=0.0) < JAC_REUSE:
+            return near[1]
+        r, pred = self.evaluate(z)
+        guess = np.where(pred.converged[:, None], pred.initial_state, self.guess)
+        fallback = np.where(pred.converged[:, None, None], pred.tips_mm, self.fallback)
+        models = []
+        for j in range(len(self.idx)):
+            zj = np.array(z, dtype=float)
+            zj[j] += FD_STEP
+            models.append(self.effect.with_values(self.base_robot, self.phys(zj)))
+        preds = self.ev.predict(models, guess=guess)
+        J = np.empty((r.size, len(self.idx)))
+        for j, pj in enumerate(preds):
+            J[:, j] = (residual_vector(self.measured, pj, self.tubes, fallback) - r) / FD_STEP
+        self.near_jac = (np.array(z, dtype=float), J)
+        return J
 
 
 def _result(effect: Effect, base_robot: Robot, params: list[Param], x: np.ndarray, r: np.ndarray, res,

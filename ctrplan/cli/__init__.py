@@ -6,6 +6,7 @@ traceback, nothing half-written; ``--json`` prints one JSON document on stdout a
 
 from __future__ import annotations
 
+import importlib
 import inspect
 import sys
 import warnings
@@ -44,19 +45,14 @@ def _root(
     """ctrplan: plan motions for concentric-tube robots through anatomy."""
 
 
+#: The command modules, in the order `ctrplan --help` lists their commands (groups come last).
+COMMAND_MODULES = ("kinematics", "design", "diagnose", "model", "plan", "stability", "bench", "scene")
+
+
 def _register() -> None:
     # Command modules attach themselves to `app` on import.
-    from ctrplan.cli import (  # noqa: F401
-        bench,
-        design,
-        diagnose,
-        kinematics,
-        model,
-        plan,
-        scene,
-        stability,
-    )
-
+    for module in COMMAND_MODULES:
+        importlib.import_module(f"ctrplan.cli.{module}")
     _full_short_help(app)
 
 

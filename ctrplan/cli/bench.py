@@ -15,14 +15,25 @@ from rich.table import Table
 
 from ctrplan.bench import kinematics as kinematics_bench
 from ctrplan.bench import planning as planning_bench
-from ctrplan.bench.plots import planning_plots, timing_boxplot
+from ctrplan.bench.plots import timing_boxplot
 from ctrplan.cli import HELP_SETTINGS, app
-from ctrplan.cli.kinematics import RobotOpt, as_option, load_backend
-from ctrplan.cli.options import parse_duration
+from ctrplan.cli.options import (
+    JsonSummaryOpt,
+    RobotOpt,
+    as_option,
+    check_max_states,
+    load_backend,
+    max_states_option,
+    parse_duration,
+    ray_option,
+    seed_option,
+    time_limit_option,
+    workers_option,
+)
 from ctrplan.cli.progress import CountProgress
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
-from ctrplan.kinematics import BACKENDS
+from ctrplan.kinematics import BACKENDS, PLANNING_ORDER
 from ctrplan.machine import machine_info, single_core
 from ctrplan.memory import check_backbones, check_fits
 from ctrplan.parallel import check_workers, run_jobs
@@ -90,21 +101,24 @@ def result_table(title: str, columns: list[tuple[str, bool]]) -> Table:
     return table
 
 
+#: Defaults of ``--backend`` (`bench kinematics`: every backend; `bench plan`: the planning default
+#: first) and ``--planner``, from the registries.
+ALL_BACKENDS, PLAN_BACKENDS = ",".join(BACKENDS), ",".join(PLANNING_ORDER)
+PLAN_PLANNERS = ",".join(planning_bench.DEFAULT_PLANNERS)
+KinBackendsOpt = Annotated[str, typer.Option("--backend", help="Comma-separated backends to time.")]
+ConfigurationsOpt = Annotated[int, typer.Option("--n", help="Configurations per case (random, snap-free).")]
+PointsListOpt = Annotated[str, typer.Option("--points", help="Comma-separated numbers of backbone points.")]
+KinSeedOpt = seed_option("Seed of the random configurations.")
+KinOutOpt = Annotated[Path, typer.Option("--out", help="Directory for results.json and the plot.")]
+BatchOpt = Annotated[int, typer.Option(
+    "--batch", help="Also time batched calls of this many configurations, all cores (0: skip).")]
+
+
 @bench_app.command("kinematics")
-def kinematics(
-    backend: Annotated[str, typer.Option(
-        "--backend", help="Comma-separated backends to time.")] = ",".join(BACKENDS),
-    n: Annotated[int, typer.Option("--n", help="Configurations per case (random, snap-free).")] = 5000,
-    points: Annotated[str, typer.Option(
-        "--points", help="Comma-separated numbers of backbone points.")] = "30,60,90,150",
-    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the random configurations.")] = 0,
-    robot: RobotOpt = None,
-    out: Annotated[Path, typer.Option(
-        "--out", help="Directory for results.json and the plot.")] = Path("runs/bench_kinematics"),
-    as_json: Annotated[bool, typer.Option("--json", help="Print the JSON summary on stdout.")] = False,
-    batch: Annotated[int, typer.Option(
-        "--batch", help="Also time batched calls of this many configurations, all cores (0: skip).")] = 5000,
-) -> None:
+def kinematics(backend: KinBackendsOpt = ALL_BACKENDS, n: ConfigurationsOpt = 5000,
+               points: PointsListOpt = "30,60,90,150", seed: KinSeedOpt = 0, robot: RobotOpt = None,
+               out: KinOutOpt = Path("runs/bench_kinematics"), as_json: JsonSummaryOpt = False,
+               batch: BatchOpt = 5000) -> None:
     """Single-query forward-kinematics runtime on one core (paper's runtime experiment), and the
     batched rate (backbones per second) on all cores.
 
@@ -161,35 +175,31 @@ def kinematics(
     typer.echo(f"wrote {out / 'results.json'} and {out / 'kinematics_times.png'}", err=True)
 
 
+ScenesArg = Annotated[list[Path], typer.Argument(metavar="SCENE.yaml", help="Scene files (YAML).",
+                                                  show_default=False)]
+PlanBackendsOpt = Annotated[str, typer.Option("--backend", help="Comma-separated kinematics backends.")]
+PlannersOpt = Annotated[str, typer.Option(
+    "--planner", help="Comma-separated planners (rrtconnect, rrt, rrtstar, bitstar, kpiece).")]
+RunsOpt = Annotated[int, typer.Option("--runs", help="Seeded runs per scene x backend x planner.")]
+PlanTimeLimitOpt = time_limit_option(
+    "Time budget per run, e.g. 10s; a bare number is seconds (default: each scene's setting): the default "
+    "work budget and the wall-clock guard, as for `ctrplan plan`.")
+MaxStatesOpt = max_states_option(
+    "Work budget per run: states the backend evaluates (default: each scene's max_states, else what the "
+    "time budget buys with the backend on the reference machine).")
+PlanSeedOpt = seed_option("First seed; runs use seed, seed+1, ...")
+PlanOutOpt = Annotated[Path, typer.Option(
+    "--out", help="Directory for results.json, the OMPL logs, benchmark.db and plots.")]
+WorkersOpt = workers_option("Local worker processes, one per core (1: in this process).")
+RayOpt = ray_option("Run on a Ray cluster at this address ('local' starts one here; needs the 'ray' extra).")
+
+
 @bench_app.command("plan")
-def plan(
-    scenes: Annotated[list[Path], typer.Argument(metavar="SCENE.yaml", help="Scene files (YAML).",
-                                                 show_default=False)],
-    backend: Annotated[str, typer.Option(
-        "--backend", help="Comma-separated kinematics backends.")] = "pinn,cosserat,hybrid",
-    planner: Annotated[str, typer.Option(
-        "--planner", help="Comma-separated planners (rrtconnect, rrt, rrtstar, bitstar, kpiece).")
-    ] = ",".join(planning_bench.DEFAULT_PLANNERS),
-    runs: Annotated[int, typer.Option("--runs", help="Seeded runs per scene x backend x planner.")] = 20,
-    time_limit: Annotated[str | None, typer.Option(
-        "--time-limit", metavar="DURATION",
-        help="Time budget per run, e.g. 10s; a bare number is seconds (default: each scene's setting): the "
-                             "default work budget and the wall-clock guard, as for `ctrplan plan`.")] = None,
-    max_states: Annotated[int | None, typer.Option(
-        "--max-states", metavar="N", show_default=False,
-        help="Work budget per run: states the backend evaluates (default: each scene's max_states, else "
-             "what the time budget buys with the backend on the reference machine).")] = None,
-    seed: Annotated[int, typer.Option("--seed", min=0, help="First seed; runs use seed, seed+1, ...")] = 0,
-    out: Annotated[Path, typer.Option(
-        "--out", help="Directory for results.json, the OMPL logs, benchmark.db and plots.")
-    ] = Path("runs/bench_plan"),
-    as_json: Annotated[bool, typer.Option("--json", help="Print the JSON summary on stdout.")] = False,
-    workers: Annotated[int, typer.Option(
-        "--workers", help="Local worker processes, one per core (1: in this process).")] = 1,
-    ray: Annotated[str | None, typer.Option(
-        "--ray", help="Run on a Ray cluster at this address ('local' starts one here; needs the "
-                      "'ray' extra).")] = None,
-) -> None:
+def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
+         planner: PlannersOpt = PLAN_PLANNERS, runs: RunsOpt = 20,
+         time_limit: PlanTimeLimitOpt = None, max_states: MaxStatesOpt = None, seed: PlanSeedOpt = 0,
+         out: PlanOutOpt = Path("runs/bench_plan"), as_json: JsonSummaryOpt = False, workers: WorkersOpt = 1,
+         ray: RayOpt = None) -> None:
     """Planning benchmark: every backend x planner on each scene, N seeded runs each.
 
     Reports success (confirmed by the exact model), the planning-time distribution, the time split
@@ -197,7 +207,7 @@ def plan(
     and the exact-model validation outcome. Writes an OMPL benchmark log per scene and the Planner
     Arena database (benchmark.db), plots and results.json.
     """
-    from ctrplan.bench.ompl_log import write_database, write_logs
+    from ctrplan.bench.plan_results import write_plan_results
     from ctrplan.scene import planner_spec
 
     backends = parse_list(backend, "--backend")
@@ -214,8 +224,7 @@ def plan(
     if runs < 1:
         raise InputError(f"--runs: need at least 1 run, got {runs}")
     time_limit = parse_duration(time_limit, "s")
-    if max_states is not None and max_states < 1:
-        raise InputError(f"--max-states: must be an integer >= 1 (states), got {max_states}")
+    check_max_states(max_states)
     try:
         check_workers(workers, ray)
     except InputError as exc:
@@ -235,24 +244,25 @@ def plan(
             records = run_jobs(planning_bench.run_one, specs, workers=workers, ray_address=ray, tick=tick)
         except InputError as exc:
             raise as_option(exc, flags) from None
-    summary = planning_bench.summarize(records)
     out = output_dir(out)
-    machine = machine_info()
-    settings = {"backends": backends, "planners": planners, "runs": runs, "first_seed": seed,
-                "time_limit_s": {Path(f).name: limit for f, limit in limits}, "max_states": max_states,
-                "executor": f"ray {ray}" if ray else f"{workers} local worker(s), one core each",
-                "wall_time_s": round(time.perf_counter() - t0, 1), "out": str(out)}
-    logs = write_logs(records, out, machine, settings)
-    write_database(logs, out / "benchmark.db")
-    plots = planning_plots(summary, records, out)
-    doc = {"machine": machine, "settings": settings, "summary": summary, "runs": records}
+    executor = f"ray {ray}" if ray else f"{workers} local worker(s), one core each"
+    doc, logs, plots = write_plan_results(records, out, limits, {
+        "backends": backends, "planners": planners, "runs": runs, "first_seed": seed,
+        "max_states": max_states, "executor": executor, "wall_time_s": round(time.perf_counter() - t0, 1)})
     if publish(doc, out, as_json):
         return
-    table = result_table(f"bench plan: {runs} runs each, one core of {machine['cpu']} per run",
+    _plan_table(doc, runs)
+    typer.echo(f"wrote {out / 'results.json'}, {len(logs)} OMPL log(s), {out / 'benchmark.db'} and "
+               f"{', '.join(p.name for p in plots)}", err=True)
+
+
+def _plan_table(doc: dict, runs: int) -> None:
+    """The terminal table of `bench plan`: one row per scene x planner x backend."""
+    table = result_table(f"bench plan: {runs} runs each, one core of {doc['machine']['cpu']} per run",
                          [(h, h in ("scene", "planner", "backend")) for h in (
                              "scene", "planner", "backend", "solved", "median s", "p90 s", "max s",
                              "kin %", "coll %", "plan %", "checks/s", "repaired", "unsafe")])
-    for s in summary:
+    for s in doc["summary"]:
         t, share = s["planning_time_s"], s["time_share"]
         table.add_row(s["scene"], s["planner"], s["backend"], f"{s['solved']}/{s['runs']}",
                       f"{t['median']:.2f}", f"{t['p90']:.2f}", f"{t['max']:.2f}",
@@ -260,5 +270,3 @@ def plan(
                       f"{100 * share['planner']:.0f}", f"{s['checks_per_s']['median']:.0f}",
                       str(s["repaired"]), str(s["unsafe"]))
     Console().print(table)
-    typer.echo(f"wrote {out / 'results.json'}, {len(logs)} OMPL log(s), {out / 'benchmark.db'} and "
-               f"{', '.join(p.name for p in plots)}", err=True)

@@ -12,51 +12,54 @@ from typing import Annotated
 import typer
 
 from ctrplan.cli import app
-from ctrplan.cli.kinematics import as_option
-from ctrplan.cli.options import parse_duration
+from ctrplan.cli.options import (
+    as_option,
+    json_option,
+    parse_duration,
+    ray_option,
+    time_limit_option,
+    workers_option,
+)
 from ctrplan.cli.progress import PlainProgress
 from ctrplan.errors import InputError
 
 OPTIONS = {"workers": "--workers", "ray": "--ray", "storage": "--storage", "study": "--study"}
 
 
+TaskArg = Annotated[Path, typer.Argument(
+    metavar="TASK.yaml", show_default=False,
+    help="Design task: scene, named targets, base robot, what may vary, catalogue, constraints, "
+         "objectives, budget (README: ctrplan design).")]
+TrialsOpt = Annotated[int | None, typer.Option(
+    "--trials", metavar="N", show_default=False,
+    help="Finished trials the study should have (default: the task's budget); a continued study "
+         "runs only the missing ones.")]
+TimeLimitOpt = time_limit_option(
+    "Wall-clock guard, e.g. 30m or 1.5h; a bare number is minutes: start no trial after it "
+    "(trials in flight finish); the outputs say when it stopped the study short of its trials. "
+    "Each trial's own planning is budgeted in work (the task's plan_states), not time.", show_default=False)
+WorkersOpt = workers_option("Trials at a time: local worker processes, one per core (1: in this process), "
+                            "or Ray tasks with --ray.", metavar="W")
+RayOpt = ray_option("Run trials as Ray tasks on this cluster ('local' starts one here; needs the 'ray' "
+                    "extra).", metavar="ADDRESS")
+StorageOpt = Annotated[str | None, typer.Option(
+    "--storage", metavar="URL", show_default=False,
+    help="Optuna storage, any SQLAlchemy URL (default: sqlite:///OUT/study.db).")]
+StudyOpt = Annotated[str | None, typer.Option(
+    "--study", metavar="NAME", show_default=False,
+    help="Study name (default: the task file's name); an existing study of the same task and seed "
+         "is continued.")]
+SeedOpt = Annotated[int, typer.Option("--seed", metavar="S", help="Seed of the sampler and of every "
+                                                                  "trial's planning.")]
+OutOpt = Annotated[Path | None, typer.Option(
+    "--out", metavar="DIR", show_default=False, help="Output folder (default: runs/design/TASK).")]
+JsonOpt = json_option("Print the JSON summary on stdout (progress goes to stderr).")
+
+
 @app.command("design")
-def design(
-    task_file: Annotated[Path, typer.Argument(
-        metavar="TASK.yaml", show_default=False,
-        help="Design task: scene, named targets, base robot, what may vary, catalogue, constraints, "
-             "objectives, budget (README: ctrplan design).")],
-    trials: Annotated[int | None, typer.Option(
-        "--trials", metavar="N", show_default=False,
-        help="Finished trials the study should have (default: the task's budget); a continued study "
-             "runs only the missing ones.")] = None,
-    time_limit: Annotated[str | None, typer.Option(
-        "--time-limit", metavar="DURATION", show_default=False,
-        help="Wall-clock guard, e.g. 30m or 1.5h; a bare number is minutes: start no trial after it "
-             "(trials in flight finish); the outputs say when it stopped the study short of its trials. "
-             "Each trial's own planning is budgeted in work (the task's plan_states), not time.")] = None,
-    workers: Annotated[int, typer.Option(
-        "--workers", metavar="W", help="Trials at a time: local worker processes, one per core "
-                                       "(1: in this process), or Ray tasks with --ray.")] = 1,
-    ray: Annotated[str | None, typer.Option(
-        "--ray", metavar="ADDRESS", show_default=False,
-        help="Run trials as Ray tasks on this cluster ('local' starts one here; needs the 'ray' "
-             "extra).")] = None,
-    storage: Annotated[str | None, typer.Option(
-        "--storage", metavar="URL", show_default=False,
-        help="Optuna storage, any SQLAlchemy URL (default: sqlite:///OUT/study.db).")] = None,
-    study: Annotated[str | None, typer.Option(
-        "--study", metavar="NAME", show_default=False,
-        help="Study name (default: the task file's name); an existing study of the same task and seed "
-             "is continued.")] = None,
-    seed: Annotated[int, typer.Option("--seed", metavar="S", help="Seed of the sampler and of every "
-                                                                  "trial's planning.")] = 0,
-    out: Annotated[Path | None, typer.Option(
-        "--out", metavar="DIR", show_default=False,
-        help="Output folder (default: runs/design/TASK).")] = None,
-    as_json: Annotated[bool, typer.Option(
-        "--json", help="Print the JSON summary on stdout (progress goes to stderr).")] = False,
-) -> None:
+def design(task_file: TaskArg, trials: TrialsOpt = None, time_limit: TimeLimitOpt = None,
+           workers: WorkersOpt = 1, ray: RayOpt = None, storage: StorageOpt = None, study: StudyOpt = None,
+           seed: SeedOpt = 0, out: OutOpt = None, as_json: JsonOpt = False) -> None:
     """Search the tube set that reaches the most targets of a procedure, stable and collision-free.
 
     Optuna (multi-objective TPE) proposes designs within the task's ranges and stock sizes; each is

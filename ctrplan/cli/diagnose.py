@@ -9,7 +9,9 @@ from typing import Annotated
 
 import typer
 
+from ctrplan.calibration import CAUSES
 from ctrplan.cli import app
+from ctrplan.cli.options import heldout_split
 from ctrplan.cli.progress import StatusLine
 from ctrplan.dataio import check_output_dir
 from ctrplan.errors import InputError
@@ -29,9 +31,8 @@ OutOpt = Annotated[Path | None, typer.Option(
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON document on stdout, nothing else.")]
 CandidatesOpt = Annotated[str | None, typer.Option(
     "--candidates", show_default=False,
-    help="Comma-separated candidate causes to try (default: every cause of the library: "
-         "curvature, stiffness_ratio, bending_stiffness, transmission, joint_offset, gravity, tip_force, "
-         "backlash, torsional_windup, sensor_offset, registration).")]
+    help=f"Comma-separated candidate causes to try (default: every cause of the library: "
+         f"{', '.join(CAUSES)}).")]
 HeldoutOpt = Annotated[float | None, typer.Option(
     "--heldout", metavar="FRACTION", show_default=False,
     help="Hold out this fraction of the rows in contiguous blocks drawn with --seed (default 0.25).")]
@@ -50,19 +51,6 @@ ExperimentOpt = Annotated[int, typer.Option(
     help="When explanations tie: write N configurations (in the domain, stable) where their predicted "
          "tips differ most to DIR/experiment.csv; measure them, append them, diagnose again.")]
 
-def heldout_split(heldout: float | None, heldout_last: float | None) -> tuple[float, bool]:
-    """The held-out fraction and whether it is the last rows, from ``--heldout``/``--heldout-last``
-    (one of them, default ``--heldout 0.25``); `InputError` naming the option."""
-    if heldout is not None and heldout_last is not None:
-        raise InputError("--heldout and --heldout-last: give one of them")
-    last = heldout_last is not None
-    option = "--heldout-last" if last else "--heldout"
-    fraction = heldout_last if last else (0.25 if heldout is None else heldout)
-    if not 0.0 < fraction < 1.0:
-        raise InputError(f"{option}: must be in (0, 1), got {fraction}")
-    return fraction, last
-
-
 @app.command()
 def diagnose(data: Data, robot: RobotOpt = None, out: OutOpt = None, json_: JsonOpt = False,
              candidates: CandidatesOpt = None, heldout: HeldoutOpt = None,
@@ -76,7 +64,7 @@ def diagnose(data: Data, robot: RobotOpt = None, out: OutOpt = None, json_: Json
     data). `none` only when the nominal model already matches to the noise; `undetermined` when the
     rows cannot identify a cause (nothing named, no extended robot); `unexplained` when no cause helps.
     """
-    from ctrplan.calibration import CAUSES, DiagnoseOptions, make_effect, read_measured, write_outputs
+    from ctrplan.calibration import DiagnoseOptions, make_effect, read_measured, write_outputs
     from ctrplan.calibration import diagnose as run_diagnosis
     from ctrplan.robot import Robot
 

@@ -18,9 +18,10 @@ import numpy as np
 import typer
 
 from ctrplan.cli import app
+from ctrplan.cli.options import BackendOpt, ModelOpt, RobotOpt, load_backend
 from ctrplan.dataio import atomic_write, format_csv, tip_names
 from ctrplan.errors import InputError
-from ctrplan.kinematics import BACKENDS, Backbone, Backend, make_backend
+from ctrplan.kinematics import Backbone
 from ctrplan.kinematics.base import DEFAULT_POINTS
 from ctrplan.memory import backbone_bytes, check_fits
 from ctrplan.robot import Robot, read_joints
@@ -35,16 +36,6 @@ Configs = Annotated[Path, typer.Argument(
     metavar="CONFIGS.csv", show_default=False,
     help="Joint configurations: header beta1..betaN,alpha1..alphaN for the robot's N tubes (three "
          "tubes: beta1,beta2,beta3,alpha1,alpha2,alpha3), mm and rad; other columns are ignored.")]
-BackendOpt = Annotated[str, typer.Option(
-    "--backend", metavar="NAME", help=f"Kinematics backend: {' | '.join(BACKENDS)}.")]
-RobotOpt = Annotated[str | None, typer.Option(
-    "--robot", metavar="R.yaml", show_default=False,
-    help="Robot file, or a built-in robot name (nominal); default: nominal.")]
-ModelOpt = Annotated[str | None, typer.Option(
-    "--model", metavar="NAME|PATH", show_default=False,
-    help="PINN for the pinn and hybrid backends: a name (looked up in models/, then among the shipped "
-         "models pinn_nominal, pinn_nominal_h100, pinn_two_tube) or a .safetensors path; default: the "
-         "model trained for the robot in use (pinn_nominal for the nominal robot).")]
 OutputOpt = Annotated[Path | None, typer.Option(
     "-o", "--output", metavar="OUT.csv", show_default=False,
     help="Output CSV, written only when every row is done (through a symbolic link to its target; "
@@ -52,28 +43,6 @@ OutputOpt = Annotated[Path | None, typer.Option(
 OutsideOpt = Annotated[bool, typer.Option(
     "--allow-outside-domain",
     help="Only warn for configurations outside the snap-free domain (impossible ones stay errors).")]
-
-
-def load_backend(backend: str, robot: Robot, model: str | None) -> Backend:
-    """The backend named ``backend`` for ``robot`` with PINN weights ``model``.
-
-    Raises `InputError` naming the option when it cannot be used: never a silent fallback.
-    """
-    if backend not in BACKENDS:
-        raise InputError(f"--backend: unknown backend {backend!r} (available: {', '.join(BACKENDS)})")
-    if model is not None and backend == "cosserat":
-        raise InputError("--model: only the pinn and hybrid backends use a model, not cosserat")
-    try:
-        return make_backend(backend, robot, model)
-    except InputError as exc:
-        raise InputError(f"--backend {backend}: {exc}") from None
-
-
-def as_option(exc: InputError, options: dict[str, str]) -> InputError:
-    """A library error about a parameter (``"shots: ..."``) as one about its command-line option
-    (``"--shots: ..."``); library code names its parameters, the CLI maps them to its flags."""
-    name, sep, rest = str(exc).partition(": ")
-    return InputError(f"{options[name]}: {rest}" if sep and name in options else str(exc))
 
 
 @contextmanager

@@ -16,8 +16,17 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ctrplan.cli import app
-from ctrplan.cli.kinematics import ModelOpt, RobotOpt, as_option
-from ctrplan.cli.options import parse_duration
+from ctrplan.cli.options import (
+    ModelOpt,
+    RobotOpt,
+    as_option,
+    heldout_options,
+    heldout_split,
+    json_option,
+    parse_duration,
+    seed_option,
+    time_limit_option,
+)
 from ctrplan.cli.progress import PlainProgress
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
@@ -37,6 +46,7 @@ from ctrplan.training.trainer import (
     check_checkpoint,
     checkpoint_meta,
     get_recipe,
+    pool_size,
     remove_checkpoint,
 )
 from ctrplan.training.trainer import train as run_training
@@ -57,52 +67,51 @@ OVERRUN = 1.05
 CARD_EVAL_CONFIGURATIONS = 2000
 
 
+NameOpt = Annotated[str | None, typer.Option(
+    "--name", help="Model name (letters, digits, _ and -): writes models/NAME.safetensors and "
+                   "models/NAME.json (default: ROBOT_RECIPE).")]
+RecipeOpt = Annotated[str | None, typer.Option(
+    "--recipe", help=f"Recipe: {' | '.join(RECIPES)} (default: {DEFAULT_RECIPE}, "
+                     f"{RECIPES[DEFAULT_RECIPE].minutes:g} min; finetune with --measured).")]
+StepsOpt = Annotated[int | None, typer.Option("--steps", min=1, help="Optimiser steps (recipe default).")]
+TrainTimeLimitOpt = time_limit_option(
+    "Time for the whole command, e.g. 25m or 90s; a bare number is minutes: exact data, training, "
+    "evaluation and calibration (default: the recipe's budget); what it cuts is reported; the "
+    "learning-rate schedule fits it.")
+SeedOpt = seed_option()
+DeviceOpt = Annotated[str, typer.Option("--device", help="cpu | cuda | cuda:N")]
+ThreadsOpt = Annotated[int | None, typer.Option("--threads", min=1, help="CPU threads for torch.")]
+ResumeOpt = Annotated[bool, typer.Option("--resume", help="Continue from the last checkpoint of NAME.")]
+InitOpt = Annotated[str | None, typer.Option(
+    "--init", help=f"Start from a model's weights (e.g. `--recipe polish --init NAME`; with "
+                   f"--measured the default is {DEFAULT_MODEL}).")]
+MeasuredOpt = Annotated[Path | None, typer.Option(
+    "--measured", metavar="DATA.csv", show_default=False,
+    help="Fine-tune on measured tips (paper stage b): a measured-data CSV or CRL file, split into "
+         "training and held-out rows as `ctrplan diagnose` splits it.")]
+ShotsOpt = Annotated[int | None, typer.Option(
+    "--shots", help="With --measured: training rows used (default: all training rows).")]
+HeldoutOpt, HeldoutLastOpt = heldout_options(
+    "With --measured: fraction of the rows held out in contiguous blocks (default 0.25).",
+    "With --measured: hold out the last FRACTION of the rows in acquisition order instead.")
+AdaptOpt = Annotated[float, typer.Option(
+    "--adapt-minutes", min=0.0,
+    help="With --measured: minutes to adapt the PINN to the extended mechanics diagnose finds "
+         "(0: fine-tune the PINN as it is).")]
+OutDirOpt = Annotated[Path, typer.Option("--out-dir", help="Where models are written.")]
+SetOpt = Annotated[list[str] | None, typer.Option(
+    "--set", metavar="FIELD=VALUE",
+    help="Override a recipe field, e.g. --set dense_batch=16384 (value as JSON; repeatable).")]
+CardJsonOpt = json_option("Print the model card as JSON on stdout.")
+
+
 @app.command()
-def train(
-    name: Annotated[str | None, typer.Option(
-        "--name", help="Model name (letters, digits, _ and -): writes models/NAME.safetensors and "
-                       "models/NAME.json (default: ROBOT_RECIPE).")] = None,
-    robot: RobotOpt = None,
-    recipe: Annotated[str | None, typer.Option(
-        "--recipe", help=f"Recipe: {' | '.join(RECIPES)} (default: {DEFAULT_RECIPE}, "
-                         f"{RECIPES[DEFAULT_RECIPE].minutes:g} min; finetune with --measured).")] = None,
-    steps: Annotated[int | None, typer.Option(
-        "--steps", min=1, help="Optimiser steps (recipe default).")] = None,
-    time_limit: Annotated[str | None, typer.Option(
-        "--time-limit", metavar="DURATION",
-        help="Time for the whole command, e.g. 25m or 90s; a bare number is minutes: exact data, "
-             "training, evaluation and calibration (default: the recipe's budget); what it cuts is reported; "
-             "the learning-rate schedule fits it.")] = None,
-    seed: Annotated[int, typer.Option("--seed", min=0)] = 0,
-    device: Annotated[str, typer.Option("--device", help="cpu | cuda | cuda:N")] = "cpu",
-    threads: Annotated[int | None, typer.Option("--threads", min=1, help="CPU threads for torch.")] = None,
-    resume: Annotated[bool, typer.Option(
-        "--resume", help="Continue from the last checkpoint of NAME.")] = False,
-    init: Annotated[str | None, typer.Option(
-        "--init", help=f"Start from a model's weights (e.g. `--recipe polish --init NAME`; with "
-                       f"--measured the default is {DEFAULT_MODEL}).")] = None,
-    measured: Annotated[Path | None, typer.Option(
-        "--measured", metavar="DATA.csv", show_default=False,
-        help="Fine-tune on measured tips (paper stage b): a measured-data CSV or CRL file, split into "
-             "training and held-out rows as `ctrplan diagnose` splits it.")] = None,
-    shots: Annotated[int | None, typer.Option(
-        "--shots", help="With --measured: training rows used (default: all training rows).")] = None,
-    heldout: Annotated[float | None, typer.Option(
-        "--heldout", metavar="FRACTION", show_default=False,
-        help="With --measured: fraction of the rows held out in contiguous blocks (default 0.25).")] = None,
-    heldout_last: Annotated[float | None, typer.Option(
-        "--heldout-last", metavar="FRACTION", show_default=False,
-        help="With --measured: hold out the last FRACTION of the rows in acquisition order instead.")] = None,
-    adapt_minutes: Annotated[float, typer.Option(
-        "--adapt-minutes", min=0.0,
-        help="With --measured: minutes to adapt the PINN to the extended mechanics diagnose finds "
-             "(0: fine-tune the PINN as it is).")] = 4.0,
-    out_dir: Annotated[Path, typer.Option("--out-dir", help="Where models are written.")] = MODELS_DIR,
-    settings: Annotated[list[str] | None, typer.Option(
-        "--set", metavar="FIELD=VALUE",
-        help="Override a recipe field, e.g. --set dense_batch=16384 (value as JSON; repeatable).")] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the model card as JSON on stdout.")] = False,
-) -> None:
+def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None, steps: StepsOpt = None,
+          time_limit: TrainTimeLimitOpt = None, seed: SeedOpt = 0, device: DeviceOpt = "cpu",
+          threads: ThreadsOpt = None, resume: ResumeOpt = False, init: InitOpt = None,
+          measured: MeasuredOpt = None, shots: ShotsOpt = None, heldout: HeldoutOpt = None,
+          heldout_last: HeldoutLastOpt = None, adapt_minutes: AdaptOpt = 4.0, out_dir: OutDirOpt = MODELS_DIR,
+          settings: SetOpt = None, as_json: CardJsonOpt = False) -> None:
     """Train a PINN on the Cosserat-rod equations (paper III) and write it with its model card.
 
     The default recipe solves an exact pool, then trains with hard-example mining for its time
@@ -138,16 +147,7 @@ def train(
     model_robot = Robot.load(robot)
     if measured is None:
         model_robot.calibration.refuse(model_robot.name, "train")
-    recipe = recipe or (DEFAULT_RECIPE if measured is None else "finetune")
-    try:
-        overrides = _parse_settings(settings or [])
-        if steps is not None:
-            if "steps" in overrides:
-                raise InputError("--set: steps is given twice (also as --steps); give it once")
-            overrides["steps"] = steps
-        rec = get_recipe(recipe, **overrides)
-    except InputError as exc:
-        raise as_option(exc, {"recipe": "--recipe", "overrides": "--set"}) from None
+    rec = _recipe(recipe or (DEFAULT_RECIPE if measured is None else "finetune"), settings or [], steps)
     fewshot = None
     if measured is not None:
         init = init or DEFAULT_MODEL
@@ -155,7 +155,7 @@ def train(
     start = PinnBackend.load(init, model_robot) if init else None
     if name is None:
         name = check_model_name(f"{model_robot.name}_{rec.name}", "the robot's name (give --name)")
-    check_fits("--set dense_configs", max(rec.dense_configs, rec.observations, 2000),
+    check_fits("--set dense_configs", pool_size(rec),
                POOL_COPIES * backbone_bytes(model_robot.n_tubes, rec.dense_points), "exact solutions")
     out = check_output_dir(out_dir, "--out-dir") / name  # made on save
     console = Console(stderr=True)
@@ -175,17 +175,37 @@ def train(
     card = result.card
     _report(console, out, result, budget)
     if fewshot is not None:
-        from ctrplan.training.finetune import kept_text, table_text
-
-        stages = card["finetuned_on"]["stage_seconds"]
-        console.print("stages: " + ", ".join(f"{k[:-2]} {v:.0f} s" for k, v in stages.items())
-                      + f"; its robot in {out.with_suffix('.robot.yaml')} (with the calibration: `fk`, "
-                        f"`shape`), its mechanics in {out.with_suffix('.mechanics.robot.yaml')} (`plan`); "
-                        f"the adapted model in {out.name}_adapted.safetensors")
-        console.print(table_text(card["metrics"]["measured_heldout"]))
-        console.print(kept_text(card["finetuned_on"]["kept"]))
+        _report_finetune(console, out, card)
     if as_json:
         typer.echo(out.with_suffix(".json").read_text())  # the card as written, with robot and hash
+
+
+def _recipe(name: str, settings: list[str], steps: int | None) -> Recipe:
+    """The recipe ``name`` with the ``--set FIELD=VALUE`` overrides and ``--steps``; `InputError`
+    naming the option."""
+    try:
+        overrides = _parse_settings(settings)
+        if steps is not None:
+            if "steps" in overrides:
+                raise InputError("--set: steps is given twice (also as --steps); give it once")
+            overrides["steps"] = steps
+        return get_recipe(name, **overrides)
+    except InputError as exc:
+        raise as_option(exc, {"recipe": "--recipe", "overrides": "--set"}) from None
+
+
+def _report_finetune(console: Console, out: Path, card: dict) -> None:
+    """After fine-tuning on measured tips: the stages' times, the files written, the held-out table
+    and the stage kept."""
+    from ctrplan.training.finetune import kept_text, table_text
+
+    stages = card["finetuned_on"]["stage_seconds"]
+    console.print("stages: " + ", ".join(f"{k[:-2]} {v:.0f} s" for k, v in stages.items())
+                  + f"; its robot in {out.with_suffix('.robot.yaml')} (with the calibration: `fk`, "
+                    f"`shape`), its mechanics in {out.with_suffix('.mechanics.robot.yaml')} (`plan`); "
+                    f"the adapted model in {out.name}_adapted.safetensors")
+    console.print(table_text(card["metrics"]["measured_heldout"]))
+    console.print(kept_text(card["finetuned_on"]["kept"]))
 
 
 def _run(robot: Robot, rec: Recipe, out: Path, start: PinnBackend | None, fewshot: FewShot | None,
@@ -350,7 +370,6 @@ def _measured_split(path: Path, robot: Robot, shots: int | None, heldout: float 
     """Read ``path`` and take the fine-tuning shots (all training rows if ``shots`` is None), with
     the held-out rows of `ctrplan diagnose` (its options and default seed)."""
     from ctrplan.calibration.data import read_measured
-    from ctrplan.cli.diagnose import heldout_split
     from ctrplan.training.fewshot import split_shots
 
     if shots is not None and shots < 1:

@@ -20,11 +20,10 @@ import typer
 
 from ctrplan import console as console_state
 from ctrplan.cli import app
-from ctrplan.cli.kinematics import ModelOpt, load_backend
-from ctrplan.cli.options import parse_duration
+from ctrplan.cli.options import ModelOpt, check_max_states, load_backend, parse_duration
 from ctrplan.cli.progress import StatusLine
 from ctrplan.dataio import check_output_dir
-from ctrplan.errors import InputError
+from ctrplan.kinematics import DEFAULT_PLANNING_BACKEND, PLANNING_ORDER
 from ctrplan.robot import Robot
 from ctrplan.scene import PLANNERS
 
@@ -62,9 +61,9 @@ def plan_command(
     scene: SceneArg,
     backend: Annotated[str, typer.Option(
         "--backend", metavar="NAME",
-        help="Kinematics backend for planning: pinn | cosserat | hybrid (default: pinn; an error, not a "
-             "fallback, if the PINN cannot be used). The path is always re-validated with the exact "
-             "Cosserat model.")] = "pinn",
+        help=f"Kinematics backend for planning: {' | '.join(PLANNING_ORDER)} (default: "
+             f"{DEFAULT_PLANNING_BACKEND}; an error, not a fallback, if the PINN cannot be used). The path "
+             "is always re-validated with the exact Cosserat model.")] = DEFAULT_PLANNING_BACKEND,
     model: ModelOpt = None,
     robot: Annotated[str | None, typer.Option(
         "--robot", metavar="R.yaml", show_default=False,
@@ -102,8 +101,7 @@ def plan_command(
     from rich.console import Console
 
     time_limit = parse_duration(time_limit, "s")
-    if max_states is not None and max_states < 1:
-        raise InputError(f"--max-states: must be an integer >= 1 (states), got {max_states}")
+    check_max_states(max_states)
     if out is not None:
         check_output_dir(out)  # created when the outputs are written
 

@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 
 from ctrplan.cli import HELP_SETTINGS, app
-from ctrplan.cli.kinematics import RobotOpt
+from ctrplan.cli.options import RobotOpt
 
 SCENE_HELP = "Make and check planning scenes."
 scene_app = typer.Typer(help=SCENE_HELP, short_help=SCENE_HELP, no_args_is_help=True,

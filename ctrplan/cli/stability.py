@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ctrplan.cli import app
-from ctrplan.cli.kinematics import RobotOpt
+from ctrplan.cli.options import RobotOpt
 from ctrplan.cli.progress import PlainProgress
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError

@@ -32,10 +32,11 @@ import numpy as np
 import optuna
 
 from ctrplan.dataio import atomic_write
+from ctrplan.design.objectives import OBJECTIVES
 from ctrplan.design.ranking import Design, best_design, designs_of, nominal_of, pareto_front, ranked
 from ctrplan.design.report import pareto_figure, write_report
 from ctrplan.design.space import build_robot
-from ctrplan.design.study import finished_trials, objective_value
+from ctrplan.design.study import finished_trials
 from ctrplan.design.task import DesignTask
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.machine import machine_info
@@ -51,7 +52,7 @@ def targets_of(record: dict) -> dict[str, dict]:
 
 def objectives_of(record: dict, task: DesignTask) -> dict[str, float | int]:
     """The record's objectives by name (targets reached as a count)."""
-    values = {o.name: objective_value(record, o.name) for o in task.objectives}
+    values = {o.name: o.value(record) for o in task.objectives}
     return {**values, "targets_reached": len(record["reached"])}
 
 
@@ -202,15 +203,15 @@ def csv_rows(task: DesignTask, designs: list[Design]) -> tuple[list[str], list[l
     was far slower than the reference: only then does a row depend on the machine)."""
     params = sorted({k for d in designs for k in d.record["parameters"]})
     names = [t.name for t in task.targets]
-    header = (["trial", "feasible", "infeasible", "targets_reached", "max_strain", "total_length_mm",
-               "min_clearance_mm", *params, "reached", *[f"reached_{n}" for n in names], "time_s",
+    header = (["trial", "feasible", "infeasible", *OBJECTIVES, *params, "reached",
+               *[f"reached_{n}" for n in names], "time_s",
                "stability_s", "plan_s", "fingerprint", "message", "cut_short"])
     rows = []
     for d in designs:
         r = d.record
         why = r["infeasible"] or {}
-        rows.append([d.trial, int(r["feasible"]), why.get("constraint", ""), len(r["reached"]),
-                     r["max_strain"], r["total_length_mm"], r["min_clearance_mm"],
+        rows.append([d.trial, int(r["feasible"]), why.get("constraint", ""),
+                     *[c.column(r) for c in OBJECTIVES.values()],
                      *[r["parameters"].get(p, "") for p in params], ";".join(r["reached"]),
                      *[int(n in r["reached"]) for n in names], round(r["time_s"], 3),
                      round(r["timings"].get("stability_s", 0.0), 3),

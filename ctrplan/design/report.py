@@ -12,6 +12,7 @@ from __future__ import annotations
 import base64
 import html
 import io
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -19,8 +20,7 @@ import numpy as np
 
 from ctrplan.dataio import save_figure
 from ctrplan.design.ranking import Design, ranked
-from ctrplan.design.study import objective_value
-from ctrplan.design.task import OBJECTIVES, DesignTask
+from ctrplan.design.task import DesignTask
 
 
 def _pyplot():
@@ -60,8 +60,8 @@ def pareto_figure(task: DesignTask, designs: list[Design], front: list[Design], 
     ax.set_title("search progress", fontsize=10)
     rng = np.random.default_rng(0)  # a little vertical spread: many designs share a count
     for ax, objective in zip(axes[1:], others, strict=True):
-        def x(ds: list[Design], name: str = objective.name) -> list[float]:
-            return [objective_value(d.record, name) for d in ds]
+        def x(ds: list[Design], value: Callable[[dict], float] = objective.value) -> list[float]:
+            return [value(d.record) for d in ds]
 
         jitter = rng.uniform(-0.12, 0.12, len(feasible))
         ax.plot(x(feasible), reached(feasible) + jitter, "o", color="0.55", ms=4, label="feasible design")
@@ -71,9 +71,9 @@ def pareto_figure(task: DesignTask, designs: list[Design], front: list[Design], 
         if best is not None:
             ax.plot(x([best]), reached([best]), "*", color="gold", mec="k", ms=16,
                     label="best: the base design" if best.trial is None else "best")
-        ax.set_xlabel(f"{objective.name} ({'max' if objective.maximize else 'min'}imised)")
+        ax.set_xlabel(objective.axis_label)
         ax.set_ylabel(f"targets reached (of {n_targets})")
-        ax.set_title(OBJECTIVES[objective.name], fontsize=9)
+        ax.set_title(objective.criterion.description, fontsize=9)
     for ax in axes:
         ax.set_ylim(-0.5, n_targets + 0.5)
         ax.set_yticks(range(n_targets + 1))
@@ -261,9 +261,8 @@ def _parameter_table(task: DesignTask, best: Design, nominal: Design | None) -> 
             changed = abs(b[key] - m[key]) > 1e-9
             value = f"<b>{m[key]:.4g}</b>" if changed else f"{m[key]:.4g}"
             rows.append([f"tube {i + 1}", key, f"{b[key]:.4g}", value])
-    objectives = [[f"{o.name} ({'max' if o.maximize else 'min'}imised)",
-                   _fmt(None if nominal is None else objective_value(nominal.record, o.name)),
-                   _fmt(objective_value(best.record, o.name))] for o in task.objectives]
+    objectives = [[o.axis_label, _fmt(None if nominal is None else o.value(nominal.record)),
+                   _fmt(o.value(best.record))] for o in task.objectives]
     return (_table(["tube", "field", "base design", "best design"], rows)
             + "<p>Objectives:</p>" + _table(["objective", "base design", "best design"], objectives))
 
@@ -276,7 +275,7 @@ def _designs_table(task: DesignTask, designs: list[Design]) -> str:
         r = d.record
         status = "yes" if r["feasible"] else f"no: {html.escape(r['infeasible']['constraint'])}"
         rows.append([d.trial, status, html.escape(", ".join(r["reached"]) or "–"),
-                     *[_fmt(objective_value(r, o.name)) for o in task.objectives[1:]],
+                     *[_fmt(o.value(r)) for o in task.objectives[1:]],
                      *[_fmt(r["parameters"].get(p)) for p in params], f"{r['time_s']:.1f}"])
     return _table(header, rows)
 

@@ -38,8 +38,9 @@ import optuna
 from optuna.trial import TrialState
 
 from ctrplan.design.evaluate import DesignContext, DesignJob, evaluate_job
+from ctrplan.design.objectives import Objective
 from ctrplan.design.space import distributions
-from ctrplan.design.task import DesignTask, Objective
+from ctrplan.design.task import DesignTask
 from ctrplan.errors import InputError
 from ctrplan.parallel import open_pool
 
@@ -65,14 +66,6 @@ def default_storage(out: Path) -> str:
     return f"sqlite:///{Path(out) / 'study.db'}"
 
 
-def objective_value(record: dict, name: str) -> float:
-    """An objective's value in a record (a clearance without any reached target counts as 0)."""
-    if name == "targets_reached":
-        return float(len(record["reached"]))
-    value = record[name]
-    return 0.0 if value is None else float(value)
-
-
 def constraint_values(task: DesignTask, record: dict) -> dict[str, float]:
     """Optuna constraints (feasible when all are <= 0): the strain excess over the limit, and 1 for
     any other unmet condition."""
@@ -88,9 +81,11 @@ def open_study(task: DesignTask, storage: str, name: str, seed: int) -> optuna.S
         rdb = optuna.storages.RDBStorage(storage)
     except Exception as exc:  # SQLAlchemy and drivers raise many types for a bad URL
         raise InputError(f"storage: cannot open {storage!r} ({str(exc).splitlines()[0]})") from None
-    directions = ["maximize" if o.maximize else "minimize" for o in task.objectives]
+    directions = [o.direction for o in task.objectives]
+    sampler = _sampler(seed, _trials_in(rdb, name))
     try:
-        study = optuna.create_study(storage=rdb, study_name=name, directions=directions, load_if_exists=True)
+        study = optuna.create_study(storage=rdb, study_name=name, directions=directions, sampler=sampler,
+                                    load_if_exists=True)
     except ValueError as exc:
         raise InputError(f"study: {name!r} in {storage} cannot be continued ({exc})") from None
     attrs = study.user_attrs
@@ -105,8 +100,16 @@ def open_study(task: DesignTask, storage: str, name: str, seed: int) -> optuna.S
     elif attrs[_SEED] != seed:
         raise InputError(f"study: {name!r} in {storage} was started with --seed {attrs[_SEED]}; give that "
                          f"seed, or another --study or --out")
-    study.sampler = _sampler(seed, len(study.trials))
     return study
+
+
+def _trials_in(storage: optuna.storages.BaseStorage, name: str) -> int:
+    """How many trials (any state) the study ``name`` already has in ``storage`` (0: a new study)."""
+    try:
+        study_id = storage.get_study_id_from_name(name)
+    except KeyError:
+        return 0
+    return len(storage.get_all_trials(study_id, deepcopy=False))
 
 
 def _sampler(seed: int, trials_so_far: int) -> optuna.samplers.BaseSampler:
@@ -182,13 +185,12 @@ def _tell(study: optuna.Study, trial: optuna.Trial, task: DesignTask, record: di
     trial.set_user_attr(RECORD, record)
     for key, value in constraint_values(task, record).items():
         trial.set_constraint(key, value)
-    study.tell(trial, [objective_value(record, o.name) for o in task.objectives])
+    study.tell(trial, [o.value(record) for o in task.objectives])
 
 
 def ranking_key(record: dict, objectives: tuple[Objective, ...]) -> tuple[float, ...]:
     """Sort key of a record, best first: the objectives in the task's order (lexicographic)."""
-    return tuple(-objective_value(record, o.name) if o.maximize else objective_value(record, o.name)
-                 for o in objectives)
+    return tuple(o.rank(record) for o in objectives)
 
 
 def dominates(a: dict, b: dict, objectives: tuple[Objective, ...]) -> bool:

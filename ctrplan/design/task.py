@@ -37,6 +37,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
+from ctrplan.design.objectives import OBJECTIVES, Objective
 from ctrplan.errors import InputError
 from ctrplan.robot import BUILTIN_ROBOTS, MAX_PRECURVE_STRAIN, TUBE_LIMITS, Robot
 from ctrplan.scene import Scene, TargetRegion, load_scene, target_from_yaml
@@ -44,13 +45,6 @@ from ctrplan.yamlio import YamlDoc, load_yaml
 
 #: Robot-file tube fields a task may vary (file units: 1/m, mm).
 VARY_FIELDS = ("curvature_1_per_m", "curved_length_mm", "straight_length_mm")
-#: What a design is judged by (record keys); ``targets_reached`` always comes first.
-OBJECTIVES = {
-    "targets_reached": "targets reached",
-    "max_strain": "largest pre-curvature strain of a tube, kappa * OD / 2",
-    "total_length_mm": "sum of the tube lengths (mm)",
-    "min_clearance_mm": "smallest clearance to the anatomy along the paths to the reached targets (mm)",
-}
 DEFAULT_OBJECTIVES = ("targets_reached", "-max_strain")
 _TOP_KEYS = {"scene", "targets", "robot", "vary", "catalogue", "constraints", "objectives", "budget"}
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -92,18 +86,6 @@ class StockSize:
     @property
     def label(self) -> str:
         return f"{self.inner_diameter_mm:g}/{self.outer_diameter_mm:g}"
-
-
-@dataclass(frozen=True)
-class Objective:
-    """An objective by record key, maximised or (``-`` in the file) minimised."""
-
-    name: str
-    maximize: bool = True
-
-    @property
-    def label(self) -> str:
-        return self.name if self.maximize else f"-{self.name}"
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 ``make_backend(name, robot)`` builds one by name: ``cosserat`` (exact shooting solver), ``pinn``
 (physics-informed surrogate; shipped: ``ctrplan/data/models/pinn_nominal``) or ``hybrid`` (PINN-seeded
-shooting).
+shooting). They are registered once, in `ctrplan.kinematics.registry`.
 """
 
 from __future__ import annotations
@@ -13,26 +13,25 @@ from ctrplan.errors import InputError
 from ctrplan.kinematics.backbone import STATE_NAMES, STATE_UNITS, Backbone
 from ctrplan.kinematics.base import Backend, Body
 from ctrplan.kinematics.cosserat import CosseratBackend, SolverSettings
+from ctrplan.kinematics.registry import (
+    BACKEND_KINDS,
+    BACKENDS,
+    DEFAULT_PLANNING_BACKEND,
+    MODEL_BACKENDS,
+    PLANNING_ORDER,
+    BackendKind,
+)
 from ctrplan.robot import Robot
-
-BACKENDS = ("cosserat", "pinn", "hybrid")
 
 
 def make_backend(name: str, robot: Robot | None = None, model: str | Path | None = None) -> Backend:
-    """Backend by name; ``model`` picks the PINN weights for ``pinn``/``hybrid`` (default: shipped)."""
-    robot = robot or Robot.nominal()
-    if name == "cosserat":
-        return CosseratBackend(robot)
-    if name == "pinn":
-        from ctrplan.kinematics.pinn import PinnBackend
-
-        return PinnBackend.load(model, robot)
-    if name == "hybrid":
-        from ctrplan.kinematics.hybrid import HybridBackend
-
-        return HybridBackend(robot, model)
-    raise InputError(f"backend: unknown backend {name!r} (available: {', '.join(BACKENDS)})")
+    """Backend by name (`BACKEND_KINDS`); ``model`` picks the PINN weights of a backend that uses one
+    (default: shipped)."""
+    if name not in BACKEND_KINDS:
+        raise InputError(f"backend: unknown backend {name!r} (available: {', '.join(BACKENDS)})")
+    return BACKEND_KINDS[name].build(robot or Robot.nominal(), model)
 
 
-__all__ = ["BACKENDS", "STATE_NAMES", "STATE_UNITS", "Backbone", "Backend", "Body", "CosseratBackend",
+__all__ = ["BACKENDS", "BACKEND_KINDS", "DEFAULT_PLANNING_BACKEND", "MODEL_BACKENDS", "PLANNING_ORDER",
+           "STATE_NAMES", "STATE_UNITS", "Backbone", "Backend", "BackendKind", "Body", "CosseratBackend",
            "SolverSettings", "make_backend"]

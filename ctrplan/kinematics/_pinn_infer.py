@@ -61,15 +61,20 @@ def infer(q, frac, box_M, box_lo, box_hi, length1, scales, loaded, equivariant, 
     encoding, ``harmonics`` K its relative-rotation harmonics and ``absolute`` its absolute-angle
     features (see `ctrplan.kinematics.pinn`); a fixed box coordinate (``box_lo == box_hi``) enters as 0.
     """
-    nb, nf = frac.shape
+    zq = np.empty((frac.shape[0], W0.shape[0] - 1), dtype=np.float32)
+    _encode(q, box_M, box_lo, box_hi, equivariant, harmonics, absolute, zq)
+    h = _hidden(zq, frac, W0, b0, Wh, bh)
+    _decode(q, frac, h @ Wo + bo, length1, scales, loaded, equivariant, out)
+
+
+@njit(cache=True, fastmath=True)
+def _encode(q, box_M, box_lo, box_hi, equivariant, harmonics, absolute, zq):
+    """The per-configuration inputs ``zq`` (B, inputs - 1) of the first layer for joints q (B, 2N)
+    (the arc-length input is `_hidden`'s): the box coordinates scaled to [-1, 1], or with
+    ``equivariant`` the betas and the relative-rotation harmonics (and ``absolute`` angles)."""
+    nb = q.shape[0]
     nt = box_lo.shape[0] // 2
-    ns = 2 * nt + 9
-    i_th, i_p = 2 + nt, 2 + 2 * nt
-    nin = W0.shape[0]
-    # the first layer splits into an arc-length column and a per-configuration part: one row each
-    zq = np.empty((nb, nin - 1), dtype=np.float32)
     box = np.empty(2 * nt)
-    x = np.empty(ns)
     for b in range(nb):
         for i in range(2 * nt):  # box = M q (`JointDomain.box_from_joints`)
             v = 0.0
@@ -95,6 +100,14 @@ def infer(q, frac, box_M, box_lo, box_hi, length1, scales, loaded, equivariant, 
         else:
             for i in range(2 * nt):
                 zq[b, i] = box[i]
+
+
+@njit(cache=True, fastmath=True)
+def _hidden(zq, frac, W0, b0, Wh, bh):
+    """The last hidden layer (B * F, width) at arc fractions ``frac`` (B, F) from the per-configuration
+    inputs ``zq``: the first layer splits into an arc-length column and a per-configuration part,
+    computed once per row."""
+    nb, nf = frac.shape
     cq = zq @ W0[1:] + b0
     ws = W0[0]
     h = np.empty((nb * nf, W0.shape[1]), dtype=np.float32)
@@ -108,7 +121,19 @@ def infer(q, frac, box_M, box_lo, box_hi, length1, scales, loaded, equivariant, 
     for k in range(Wh.shape[0]):
         h = h @ Wh[k] + bh[k]
         _tanh_inplace(h)
-    raw = h @ Wo + bo
+    return h
+
+
+@njit(cache=True, fastmath=True)
+def _decode(q, frac, raw, length1, scales, loaded, equivariant, out):
+    """States ``out`` (B, F, 2N + 9) from the raw network outputs (B * F, 2N + 9): scaled, positions
+    built from their boundary condition at s = 0, quaternions normalised, and with ``equivariant``
+    rotated back by the first tube's angle."""
+    nb, nf = frac.shape
+    nt = q.shape[1] // 2
+    ns = 2 * nt + 9
+    i_th, i_p = 2 + nt, 2 + 2 * nt
+    x = np.empty(ns)
     for b in range(nb):
         l1 = q[b, 0] + length1
         a1 = q[b, nt]
@@ -179,60 +204,14 @@ def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends, with_en
     `cosserat.RodArrays`, ``loaded`` whether the robot carries loads.
     """
     lengths, straight, kappa, EI, GJ, force, weight = rod
-    nb, n = q.shape[0], out_frac.shape[0]
-    nt = lengths.shape[0]
-    ns, i_p = 2 * nt + 9, 2 + 2 * nt
     if intervals == 0:
-        extra = nt + 1 if with_ends else 0
-        frac = np.empty((nb, n + extra))
-        for b in range(nb):
-            frac[b, :n] = out_frac
-            if with_ends:
-                for i in range(nt):
-                    frac[b, n + i] = (q[b, i] + lengths[i]) / (q[b, 0] + lengths[0])
-                frac[b, n + nt] = 0.0
-        y = np.empty((nb, n + extra, ns))
-        infer(q, frac, *net, y)
-        states[:] = y[:, :n]
-        if with_ends:
-            at_ends[:] = y[:, n:]
+        _backbones_dense(q, out_frac, net, lengths, states, at_ends, with_ends)
         return
-    # the network only at the nodes the requested points need: those bracketing a point (the node
-    # itself for a point on a node), and with ``with_ends`` the tube ends and s = 0 (`at_ends`)
-    m = intervals
-    need = np.zeros((nb, m + 1), dtype=np.bool_)
-    node_frac = np.empty((nb, m + 1))
-    for b in range(nb):
-        nodes, _, _, _, _, end_node = node_layout(q[b], intervals, lengths, straight, EI)
-        node_frac[b] = nodes / nodes[-1]
-        if with_ends:
-            need[b, 0] = True
-            for i in range(nt):
-                need[b, end_node[i]] = True
-        j = 0
-        for p in range(n):
-            s = out_frac[p] * nodes[-1]
-            while j < m - 1 and s > nodes[j + 1]:
-                j += 1
-            if s <= nodes[j]:
-                need[b, j] = True
-            elif s >= nodes[j + 1]:
-                need[b, j + 1] = True
-            else:
-                need[b, j] = True
-                need[b, j + 1] = True
-    rows = np.flatnonzero(need.ravel())
-    qr = np.empty((rows.size, q.shape[1]))
-    fr = np.empty((rows.size, 1))
-    for r in range(rows.size):
-        b, j = rows[r] // (m + 1), rows[r] % (m + 1)
-        qr[r] = q[b]
-        fr[r, 0] = node_frac[b, j]
-    yr = np.empty((rows.size, 1, ns))
-    infer(qr, fr, *net, yr)
-    y = np.zeros((nb, m + 1, ns))  # nodes not needed stay 0: Hermite weighs them by exactly 0
-    for r in range(rows.size):
-        y[rows[r] // (m + 1), rows[r] % (m + 1)] = yr[r, 0]
+    nb, nt = q.shape[0], lengths.shape[0]
+    ns, i_p = 2 * nt + 9, 2 + 2 * nt
+    # the network only at the nodes the requested points need (and with ``with_ends`` at `at_ends`')
+    need, node_frac = _needed_nodes(q, out_frac, intervals, lengths, straight, EI, with_ends)
+    y = _network_at_nodes(q, need, node_frac, net, ns)
     fl = np.empty((intervals, ns))
     fr_ = np.empty((intervals, ns))
     for b in range(nb):  # the layout again: cheaper than keeping ragged per-segment tables
@@ -257,6 +236,79 @@ def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends, with_en
             for i in range(nt):
                 at_ends[b, i] = yb[end_node[i]]
             at_ends[b, nt] = yb[0]
+
+
+@njit(cache=True)
+def _backbones_dense(q, out_frac, net, lengths, states, at_ends, with_ends):
+    """`backbones` with the network at every requested point (``intervals = 0``)."""
+    nb, n = q.shape[0], out_frac.shape[0]
+    nt = lengths.shape[0]
+    ns = 2 * nt + 9
+    extra = nt + 1 if with_ends else 0
+    frac = np.empty((nb, n + extra))
+    for b in range(nb):
+        frac[b, :n] = out_frac
+        if with_ends:
+            for i in range(nt):
+                frac[b, n + i] = (q[b, i] + lengths[i]) / (q[b, 0] + lengths[0])
+            frac[b, n + nt] = 0.0
+    y = np.empty((nb, n + extra, ns))
+    infer(q, frac, *net, y)
+    states[:] = y[:, :n]
+    if with_ends:
+        at_ends[:] = y[:, n:]
+
+
+@njit(cache=True)
+def _needed_nodes(q, out_frac, intervals, lengths, straight, EI, with_ends):
+    """Which of the ``intervals + 1`` nodes of each configuration the requested points need ``need``
+    (B, intervals + 1): those bracketing a point (the node itself for a point on a node), and with
+    ``with_ends`` the tube ends and s = 0; and the nodes' arc fractions ``node_frac`` (B, intervals + 1)."""
+    nb, n = q.shape[0], out_frac.shape[0]
+    nt = lengths.shape[0]
+    m = intervals
+    need = np.zeros((nb, m + 1), dtype=np.bool_)
+    node_frac = np.empty((nb, m + 1))
+    for b in range(nb):
+        nodes, _, _, _, _, end_node = node_layout(q[b], intervals, lengths, straight, EI)
+        node_frac[b] = nodes / nodes[-1]
+        if with_ends:
+            need[b, 0] = True
+            for i in range(nt):
+                need[b, end_node[i]] = True
+        j = 0
+        for p in range(n):
+            s = out_frac[p] * nodes[-1]
+            while j < m - 1 and s > nodes[j + 1]:
+                j += 1
+            if s <= nodes[j]:
+                need[b, j] = True
+            elif s >= nodes[j + 1]:
+                need[b, j + 1] = True
+            else:
+                need[b, j] = True
+                need[b, j + 1] = True
+    return need, node_frac
+
+
+@njit(cache=True)
+def _network_at_nodes(q, need, node_frac, net, ns):
+    """The network's states (B, intervals + 1, ns) at the needed nodes, in one batched call; nodes
+    not needed stay 0 (Hermite weighs them by exactly 0)."""
+    nb, m = need.shape[0], need.shape[1] - 1
+    rows = np.flatnonzero(need.ravel())
+    qr = np.empty((rows.size, q.shape[1]))
+    fr = np.empty((rows.size, 1))
+    for r in range(rows.size):
+        b, j = rows[r] // (m + 1), rows[r] % (m + 1)
+        qr[r] = q[b]
+        fr[r, 0] = node_frac[b, j]
+    yr = np.empty((rows.size, 1, ns))
+    infer(qr, fr, *net, yr)
+    y = np.zeros((nb, m + 1, ns))
+    for r in range(rows.size):
+        y[rows[r] // (m + 1), rows[r] % (m + 1)] = yr[r, 0]
+    return y
 
 
 @njit(cache=True, parallel=True)

@@ -21,11 +21,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from ctrplan.errors import InputError
+from ctrplan.kinematics.registry import BACKEND_KINDS
 
 #: States per second of search with each backend on the reference machine (AMD EPYC, one of its 2
-#: cores per search): `ctrplan bench plan scenes/skullbase.yaml` (docs/benchmarks.md), searches that use their
-#: whole 10 s (RRT, RRT*: 15,000-17,000 with the PINN, 4,900-5,300 with the exact backends).
-REFERENCE_STATES_PER_S = {"cosserat": 5000.0, "pinn": 16000.0, "hybrid": 5000.0}
+#: cores per search), as each backend registers it (`ctrplan.kinematics.registry`).
+REFERENCE_STATES_PER_S = {name: kind.reference_states_per_s for name, kind in BACKEND_KINDS.items()}
 #: The wall-clock guard of a search, in multiples of its time limit: a machine up to this much slower
 #: than the reference one still reaches the same verdict. The work budget already bounds a search's
 #: time on any machine; the guard only stops one on a pathologically slow or overloaded machine.

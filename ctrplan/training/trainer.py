@@ -41,17 +41,11 @@ from ctrplan.machine import cpu_model
 from ctrplan.robot import Robot
 from ctrplan.training.budget import TimeBudget
 from ctrplan.training.evaluate import accuracy_verdict
-from ctrplan.training.losses import (
-    boundary_residual,
-    observation_residual,
-    ode_residual,
-    supervised_residual,
-)
 from ctrplan.training.mining import HardExamples, Mining
 from ctrplan.training.physics import TubeTensors
 from ctrplan.training.samples import DenseStates, solve_dense, state_scales
+from ctrplan.training.terms import Losses, default_weights
 
-GROUP_WEIGHTS = (1.0, 1.0, 1.0, 1.0, 1.0)
 #: Seconds of training between two checkpoints.
 CHECKPOINT_EVERY_S = 120.0
 
@@ -73,7 +67,7 @@ class Recipe:
     dense_points: int = 65
     dense_batch: int = 0            # supervised (config, s) pairs per step
     resample: bool = False
-    weights: dict = field(default_factory=lambda: {"ode": 1.0, "bc": 1.0, "obs": 1.0, "dense": 0.0})
+    weights: dict = field(default_factory=default_weights)  # loss term -> weight (`LOSS_TERMS`)
     lr_final: float = 1e-5
     warmup_steps: int = 0           # Adam: linear learning-rate ramp (keeps a trained model's state)
     lbfgs_history: int = 50
@@ -259,57 +253,6 @@ def pool_size(recipe: Recipe) -> int:
     """Configurations the exact pool of ``recipe`` solves: the largest of its dense configurations,
     its observations and 2000."""
     return max(recipe.dense_configs, recipe.observations, 2000)
-
-
-class Losses:
-    """The weighted loss terms of a recipe: ODE and boundary residuals (every ``physics_every``
-    steps), tip observations, dense supervision (a ``mining.share`` of it from the hard examples, plus
-    ``tip_rows`` rows at the tip). ``losses(net, step) -> (total, {term: value})``; step ``k`` always
-    draws the same batches from the same data."""
-
-    def __init__(self, recipe: Recipe, data: TrainingData, tubes: TubeTensors):
-        self.recipe, self.data, self.tubes = recipe, data, tubes
-        self.group_weights = torch.tensor(GROUP_WEIGHTS, device=data.dense_q.device)
-
-    def _dense_batch(self, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Arc fractions (R,), joints (R, 2N) and exact states (R, 2N + 9) of one supervised batch."""
-        r, d = self.recipe, self.data
-        dev = d.dense_q.device
-        n_hard = int(r.mining.share * r.dense_batch) if d.hard is not None and len(d.hard) else 0
-        ci = torch.randint(0, d.dense_q.shape[0], (r.dense_batch - n_hard,), generator=g, device=dev)
-        q, x = d.dense_q[ci], d.dense_x[ci]
-        if n_hard:
-            hq, hx = d.hard.draw(n_hard, g)
-            q, x = torch.cat([q, hq]), torch.cat([x, hx])
-        pi = torch.randint(0, d.sigma_grid.shape[0], (len(q),), generator=g, device=dev)
-        rows = torch.arange(len(q), device=dev)
-        sigma, xs = d.sigma_grid[pi], x[rows, pi]
-        n_tip = int(r.tip_rows * len(q))
-        if n_tip:
-            sigma = torch.cat([sigma, torch.ones(n_tip, device=dev)])
-            xs = torch.cat([xs, x[:n_tip, -1]])
-            q = torch.cat([q, q[:n_tip]])
-        return sigma, q, xs
-
-    def __call__(self, net: PinnNet, k: int) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        r, d, gw, w = self.recipe, self.data, self.group_weights, self.recipe.weights
-        terms: dict[str, torch.Tensor] = {}
-        physics = k % max(r.physics_every, 1) == 0
-        if w.get("ode", 0) and physics:
-            sg, qc = d.fixed_colloc or d.sampler.collocation(r.collocation, d.sampler.generator(k, 1))
-            terms["ode"] = (gw * ode_residual(net, sg, qc, self.tubes, r.norm)).sum()
-        if w.get("bc", 0) and physics:
-            qb = d.fixed_bc if d.fixed_bc is not None else d.sampler.joints(r.boundary,
-                                                                            d.sampler.generator(k, 2))
-            terms["bc"] = (gw * boundary_residual(net, qb, self.tubes, r.norm)).sum()
-        if w.get("obs", 0) and len(d.obs_q):
-            terms["obs"] = observation_residual(net, d.obs_q, d.obs_tips, self.tubes, r.norm,
-                                                d.obs_sensor_offset)
-        if w.get("dense", 0) and r.dense_batch:
-            sigma, q, x = self._dense_batch(d.sampler.generator(k if r.resample else 0, 3))
-            terms["dense"] = (gw * supervised_residual(net, sigma, q, x, r.orientation_weight)).sum()
-        total = sum(w[name] * v for name, v in terms.items())
-        return total, {name: v.detach() for name, v in terms.items()}
 
 
 def make_optimizer(recipe: Recipe, params) -> torch.optim.Optimizer:

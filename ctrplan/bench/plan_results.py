@@ -1,0 +1,29 @@
+"""What `ctrplan bench plan` writes from its run records: the summary, the OMPL benchmark logs and
+the Planner Arena database, the plots, and the results document."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from ctrplan.bench.ompl_log import write_database, write_logs
+from ctrplan.bench.planning import summarize
+from ctrplan.bench.plots import planning_plots
+from ctrplan.machine import machine_info
+
+
+def write_plan_results(records: list[dict[str, Any]], out: Path, limits: list[tuple[str, float]],
+                       settings: dict[str, Any]) -> tuple[dict[str, Any], list[Path], list[Path]]:
+    """Summarise ``records`` and write the OMPL logs, ``benchmark.db`` and the plots into ``out``
+    (an existing folder). ``settings`` are the run's (backends, planners, runs, first_seed,
+    max_states, executor, wall_time_s); the scenes' time budgets come from ``limits`` (scene file,
+    s). Returns the results document (machine, settings, summary, runs), the logs and the plots."""
+    summary = summarize(records)
+    machine = machine_info()
+    settings = {**{k: settings[k] for k in ("backends", "planners", "runs", "first_seed")},
+                "time_limit_s": {Path(f).name: limit for f, limit in limits},
+                **{k: settings[k] for k in ("max_states", "executor", "wall_time_s")}, "out": str(out)}
+    logs = write_logs(records, out, machine, settings)
+    write_database(logs, out / "benchmark.db")
+    plots = planning_plots(summary, records, out)
+    return {"machine": machine, "settings": settings, "summary": summary, "runs": records}, logs, plots
