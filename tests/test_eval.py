@@ -11,6 +11,7 @@ import pytest
 
 from ctrplan.errors import InputError
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.kinematics.error_bound import region_bounds_mm
 from ctrplan.kinematics.model_file import read_card, resolve_model
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnBackend
 from ctrplan.planning.planner import RegionMarginBackend, planning_backend
@@ -25,7 +26,6 @@ from ctrplan.training.evaluate import (
     compare,
     conformal_quantile,
     error_bound,
-    region_bounds_mm,
 )
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"

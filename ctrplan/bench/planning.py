@@ -19,8 +19,6 @@ from typing import Any
 
 import numpy as np
 
-#: Planners of `ctrplan bench plan` by default: the feasible ones and one asymptotically optimal one.
-DEFAULT_PLANNERS = ("rrtconnect", "rrt", "rrtstar")
 #: Record fields that depend only on the seed, not on timing: equal for equal seeds on any executor.
 CONTENT_FIELDS = ("scene", "backend", "planner", "seed", "solved", "status", "found", "repaired",
                   "path_states", "path_length_mm", "tip_travel_mm", "max_states", "states")
@@ -50,33 +48,60 @@ def make_specs(scenes: list[tuple[str, float]], backends: list[str], planners: l
             for k, (scene, limit), backend, planner in product(range(runs), scenes, backends, planners)]
 
 
-_CACHE: dict[tuple, Any] = {}
+#: Most runs in one job of `batches` (a job loads its scenes and backends once).
+BATCH_RUNS = 10
 
 
-def _context(scene_file: str, backend: str):
-    """Scene, planning backend and exact backend, built once per process (a PINN warms up its compiled
-    kernels, the scene builds its BVH): later runs in a worker reuse them."""
-    from ctrplan.kinematics import CosseratBackend, make_backend
-    from ctrplan.scene import load_scene
+class RunContext:
+    """Scenes, planning backends and exact backends of a job's runs, each built once (a PINN warms up
+    its compiled kernels, a scene builds its BVH): later runs of the job reuse them."""
 
-    key = (scene_file, backend)
-    if key not in _CACHE:
-        if ("exact", scene_file) not in _CACHE:
+    def __init__(self) -> None:
+        self._exact: dict[str, tuple[Any, Any]] = {}
+        self._planning: dict[tuple[str, str], Any] = {}
+
+    def get(self, scene_file: str, backend: str) -> tuple[Any, Any, Any]:
+        """Scene, planning backend and exact backend of ``scene_file`` and ``backend``."""
+        from ctrplan.kinematics import CosseratBackend, make_backend
+        from ctrplan.scene import load_scene
+
+        if scene_file not in self._exact:
             scene = load_scene(scene_file)
-            _CACHE["exact", scene_file] = (scene, CosseratBackend(scene.robot))
-        scene, exact = _CACHE["exact", scene_file]
-        planning = exact if backend == "cosserat" else make_backend(backend, scene.robot)
-        _CACHE[key] = (scene, planning, exact)
-    return _CACHE[key]
+            self._exact[scene_file] = (scene, CosseratBackend(scene.robot))
+        scene, exact = self._exact[scene_file]
+        key = (scene_file, backend)
+        if key not in self._planning:
+            self._planning[key] = exact if backend == "cosserat" else make_backend(backend, scene.robot)
+        return scene, self._planning[key], exact
 
 
-def run_one(spec: RunSpec) -> dict[str, Any]:
-    """Plan ``spec`` and return its record: outcome, exact validation, time split, work counters."""
+def batches(specs: list[RunSpec], workers: int = 1) -> list[tuple[RunSpec, ...]]:
+    """``specs`` as jobs for `run_batch`: runs of one scene and backend together (they share what
+    `RunContext` loads), at most `BATCH_RUNS` and about an even share of ``workers`` per job."""
+    groups: dict[tuple[str, str], list[RunSpec]] = {}
+    for spec in specs:
+        groups.setdefault((spec.scene, spec.backend), []).append(spec)
+    out = []
+    for group in groups.values():
+        size = max(1, min(BATCH_RUNS, math.ceil(len(group) / max(1, workers))))
+        out += [tuple(group[a:a + size]) for a in range(0, len(group), size)]
+    return out
+
+
+def run_batch(batch: tuple[RunSpec, ...]) -> dict[str, Any]:
+    """`run_one` of every spec of ``batch`` with one `RunContext`: ``{"records": [...]}``."""
+    context = RunContext()
+    return {"records": [run_one(spec, context) for spec in batch]}
+
+
+def run_one(spec: RunSpec, context: RunContext | None = None) -> dict[str, Any]:
+    """Plan ``spec`` and return its record: outcome, exact validation, time split, work counters;
+    scenes and backends from ``context`` (default: a new one)."""
     from ompl import util as ou
 
     from ctrplan.planning import plan
 
-    scene, backend, exact = _context(spec.scene, spec.backend)
+    scene, backend, exact = (context or RunContext()).get(spec.scene, spec.backend)
     ou.setLogLevel(ou.LOG_ERROR)
     result = plan(scene, backend, planner=spec.planner, time_limit_s=spec.time_limit_s,
                   max_states=spec.max_states, seed=spec.seed, exact=exact)

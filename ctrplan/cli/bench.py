@@ -25,6 +25,7 @@ from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS
 from ctrplan.memory import check_backbones, check_fits
+from ctrplan.planning.planners import BENCHMARKED, PLANNERS, planner_spec
 from ctrplan.robot import Robot
 
 BENCH_HELP = "Benchmarks: timings, JSON summaries and plots."
@@ -167,8 +168,8 @@ def plan(
     backend: Annotated[str, typer.Option(
         "--backend", help="Comma-separated kinematics backends.")] = "pinn,cosserat,hybrid",
     planner: Annotated[str, typer.Option(
-        "--planner", help="Comma-separated planners (rrtconnect, rrt, rrtstar, bitstar, kpiece).")
-    ] = ",".join(planning_bench.DEFAULT_PLANNERS),
+        "--planner", help=f"Comma-separated planners ({', '.join(PLANNERS)}).")
+    ] = ",".join(BENCHMARKED),
     runs: Annotated[int, typer.Option("--runs", help="Seeded runs per scene x backend x planner.")] = 20,
     time_limit: Annotated[str | None, typer.Option(
         "--time-limit", metavar="DURATION",
@@ -197,7 +198,6 @@ def plan(
     Arena database (benchmark.db), plots and results.json.
     """
     from ctrplan.bench.ompl_log import write_database, write_logs
-    from ctrplan.scene import planner_spec
 
     backends = parse_list(backend, "--backend")
     planners = parse_list(planner, "--planner")
@@ -221,19 +221,21 @@ def plan(
         raise as_option(exc, flags) from None
     limits = planning_bench.prepare(scenes, backends, time_limit)
     specs = planning_bench.make_specs(limits, backends, planners, runs, seed, max_states)
+    jobs = planning_bench.batches(specs, workers)
     check_output_dir(out)  # created when the results are written
     t0 = time.perf_counter()
     with progress_bar() as bar:
-        task = bar.add_task("bench plan", total=len(specs))
+        task = bar.add_task("bench plan", total=sum(map(len, jobs)))
 
         def tick(done: int, total: int) -> None:
-            bar.update(task, completed=done)
+            bar.update(task, completed=sum(map(len, jobs[:done])))
             bar.refresh()
 
         try:
-            records = run_jobs(planning_bench.run_one, specs, workers=workers, ray_address=ray, tick=tick)
+            done = run_jobs(planning_bench.run_batch, jobs, workers=workers, ray_address=ray, tick=tick)
         except InputError as exc:
             raise as_option(exc, flags) from None
+    records = [r for job in done for r in job["records"]]
     summary = planning_bench.summarize(records)
     out = output_dir(out)
     machine = machine_info()

@@ -26,8 +26,8 @@ from ctrplan.cli.options import parse_duration
 from ctrplan.cli.progress import StatusLine
 from ctrplan.dataio import check_output_dir, output_dir
 from ctrplan.errors import InputError
+from ctrplan.planning.planners import PLANNERS
 from ctrplan.robot import Robot
-from ctrplan.scene import PLANNERS
 
 SceneArg = Annotated[Path, typer.Argument(metavar="SCENE.yaml", show_default=False,
                                           help="Scene file (robot, base pose, obstacles, target, start).")]
