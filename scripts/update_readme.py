@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-#: Planners that run until the time budget is spent (their time says nothing).
-OPTIMIZING = ("rrtstar", "bitstar")
+from ctrplan.planning.planners import OPTIMIZING
+
 README = Path(__file__).resolve().parents[1] / "README.md"
 
 

@@ -14,7 +14,7 @@ from ctrplan.kinematics import CosseratBackend
 from ctrplan.kinematics.error_bound import region_bounds_mm
 from ctrplan.kinematics.model_file import read_card, resolve_model
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnBackend
-from ctrplan.planning.planner import RegionMarginBackend, planning_backend
+from ctrplan.planning.model import RegionMarginBackend, planning_backend
 from ctrplan.robot import Robot
 from ctrplan.scene import load_scene
 from ctrplan.training.evaluate import (

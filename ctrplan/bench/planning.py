@@ -12,6 +12,7 @@ wall-clock guard fired (``cut_short``: counted in the summary).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from itertools import product
 from pathlib import Path
@@ -92,6 +93,25 @@ def run_batch(batch: tuple[RunSpec, ...]) -> dict[str, Any]:
     """`run_one` of every spec of ``batch`` with one `RunContext`: ``{"records": [...]}``."""
     context = RunContext()
     return {"records": [run_one(spec, context) for spec in batch]}
+
+
+def run_all(specs: list[RunSpec], *, workers: int = 1, ray_address: str | None = None,
+            tick: Callable[[int, int], None] | None = None) -> list[dict[str, Any]]:
+    """The records of ``specs`` (in their order), run in `batches` on the executor of
+    `ctrplan.bench.fanout.run_jobs`; ``tick(runs done, runs)`` after every batch (runs done: about,
+    where batches of different sizes finish out of order)."""
+    from ctrplan.bench.fanout import run_jobs
+
+    jobs = batches(specs, workers)
+
+    def jobs_done(done: int, _total: int) -> None:
+        if tick is not None:
+            tick(sum(map(len, jobs[:done])), len(specs))
+
+    results = run_jobs(run_batch, jobs, workers=workers, ray_address=ray_address, tick=jobs_done)
+    by_spec = {spec: record for job, result in zip(jobs, results, strict=True)
+               for spec, record in zip(job, result["records"], strict=True)}
+    return [by_spec[spec] for spec in specs]
 
 
 def run_one(spec: RunSpec, context: RunContext | None = None) -> dict[str, Any]:

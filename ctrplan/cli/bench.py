@@ -16,7 +16,7 @@ from rich.table import Table
 from ctrplan.bench import kinematics as kinematics_bench
 from ctrplan.bench import machine_info, single_core
 from ctrplan.bench import planning as planning_bench
-from ctrplan.bench.fanout import check_workers, run_jobs
+from ctrplan.bench.fanout import check_workers
 from ctrplan.bench.plots import planning_plots, timing_boxplot
 from ctrplan.cli import HELP_SETTINGS, app
 from ctrplan.cli.kinematics import RobotOpt, as_option, load_backend
@@ -221,21 +221,19 @@ def plan(
         raise as_option(exc, flags) from None
     limits = planning_bench.prepare(scenes, backends, time_limit)
     specs = planning_bench.make_specs(limits, backends, planners, runs, seed, max_states)
-    jobs = planning_bench.batches(specs, workers)
     check_output_dir(out)  # created when the results are written
     t0 = time.perf_counter()
     with progress_bar() as bar:
-        task = bar.add_task("bench plan", total=sum(map(len, jobs)))
+        task = bar.add_task("bench plan", total=len(specs))
 
         def tick(done: int, total: int) -> None:
-            bar.update(task, completed=sum(map(len, jobs[:done])))
+            bar.update(task, completed=done)
             bar.refresh()
 
         try:
-            done = run_jobs(planning_bench.run_batch, jobs, workers=workers, ray_address=ray, tick=tick)
+            records = planning_bench.run_all(specs, workers=workers, ray_address=ray, tick=tick)
         except InputError as exc:
             raise as_option(exc, flags) from None
-    records = [r for job in done for r in job["records"]]
     summary = planning_bench.summarize(records)
     out = output_dir(out)
     machine = machine_info()

@@ -35,7 +35,7 @@ _MODULES = {
                 "resolve_backend", "search", "seed_ompl"),
     "planners": ("OMPL_NAMES", "PLANNERS", "PlannerSpec", "make_planner"),
     "space": ("BoxSpace",),
-    "validate": ("ValidatedPath", "Validation", "repair_path", "validate", "validate_path"),
+    "validate": ("ValidatedPath", "Validation", "repair_path", "validate_planned_path", "validate_path"),
     "validity": ("BatchMotionValidator", "ConfigurationChecker", "Counters", "ValidityChecker"),
 }
 _WHERE = {name: module for module, names in _MODULES.items() for name in names}

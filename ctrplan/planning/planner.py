@@ -32,7 +32,7 @@ from ctrplan.planning.ik import backend_tip_jacobian, solve_ik
 from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.planners import PlannerSpec, scene_planner
 from ctrplan.planning.scene_check import check_scene
-from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate
+from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate_planned_path
 from ctrplan.planning.validity import BatchMotionValidator, ConfigurationChecker, ValidityChecker
 from ctrplan.scene import Scene
 
@@ -474,7 +474,7 @@ def _validate_and_repair(model: PlanningModel, path_q: np.ndarray, result: PlanR
     first (exact inverse kinematics from scratch costs most of a repair). Records repair time and
     calls in ``result``; returns the validated path and its joints."""
     progress("validate")
-    vp = validate(model, path_q)
+    vp = validate_planned_path(model, path_q)
     result.details["validation_time_s"] = vp.report.time_s
     if vp.report.ok or not repair:
         return vp, path_q
@@ -495,7 +495,7 @@ def _validate_and_repair(model: PlanningModel, path_q: np.ndarray, result: PlanR
     if fixed is None:
         result.details["repair"] = "re-planning with the exact model failed"
         return vp, path_q
-    vp2 = validate(model, fixed)
+    vp2 = validate_planned_path(model, fixed)
     vp2.report.repaired = True
     if vp2.report.ok:
         return vp2, fixed

@@ -89,17 +89,17 @@ def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | 
                   exact: Backend | None = None, resolution: float | None = None,
                   points: int | None = None, margin_mm: float | None = None,
                   world: CollisionWorld | None = None, clearance_stride: int = 1) -> ValidatedPath:
-    """`validate` on the planning model of ``scene`` with ``planning_backend`` (if given and not
+    """`validate_planned_path` on the planning model of ``scene`` with ``planning_backend`` (if given and not
     exact itself: evaluated on the same states for the position error), ``exact`` (default:
     Cosserat; testing stability unless the robot is certified), ``points`` and a prebuilt ``world``
     (`PlanningModel.of`)."""
     model = PlanningModel.of(scene, planning_backend, exact=exact, points=points, world=world)
-    return validate(model, path_q, resolution=resolution, margin_mm=margin_mm,
-                    clearance_stride=clearance_stride)
+    return validate_planned_path(model, path_q, resolution=resolution, margin_mm=margin_mm,
+                                 clearance_stride=clearance_stride)
 
 
-def validate(model: PlanningModel, path_q: np.ndarray, *, resolution: float | None = None,
-             margin_mm: float | None = None, clearance_stride: int = 1) -> ValidatedPath:
+def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolution: float | None = None,
+                          margin_mm: float | None = None, clearance_stride: int = 1) -> ValidatedPath:
     """Re-validate ``path_q`` (K, 2N) with the model's exact backend at ``resolution`` (planning
     metric, mm; default: the scene's) and capsule margin ``margin_mm`` (default: the scene's, not the
     search's).
