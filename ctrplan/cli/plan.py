@@ -217,7 +217,7 @@ def write_plan_outputs(out: Path, sc, result, doc: dict) -> None:
     if result.dense is not None:
         exact = result.dense.exact
         bbs, radii = sc.to_scene(exact.positions_mm), exact.radius_mm
-        clearance = clearance_along(sc, exact, TRAJECTORY_CLEARANCE_CAP_MM)
+        clearance = clearance_along(sc, exact, TRAJECTORY_CLEARANCE_CAP_MM, result.dense.world)
         full["dense_path"] = result.dense.dense_q.tolist()
         full["backbones_mm"] = np.round(np.where(np.isfinite(bbs), bbs, np.nan), 4).tolist()
         full["backbone_radius_mm"] = np.round(radii, 4).tolist()

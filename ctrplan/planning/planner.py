@@ -24,6 +24,7 @@ from ompl import util as ou
 
 from ctrplan.errors import InputError
 from ctrplan.kinematics import make_backend
+from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.blas import single_threaded_blas
 from ctrplan.planning.budget import GUARD_FACTOR, SearchBudget, check_max_states, states_for
@@ -386,22 +387,26 @@ class PlanResult:
         }
 
 
-def check_start(model: PlanningModel) -> None:
+def check_start(model: PlanningModel, start_backbone: Backbone | None = None) -> None:
     """Raise `InputError` with what `ctrplan.planning.scene_check` finds before a search (obstacles
     of the wrong scale, a target inside an obstacle, a start outside the domain, not converged,
-    unstable or colliding under the model's exact backend -- with the nearest valid start), one line."""
-    report = check_scene(model.scene, reach=False, model=model)
+    unstable or colliding under the model's exact backend -- with the nearest valid start), one line.
+    ``start_backbone``: the exact backbone of the start, if solved already (`compile_kernels`)."""
+    report = check_scene(model.scene, reach=False, model=model, start_backbone=start_backbone)
     if not report.usable:
         raise InputError("; ".join(p.message for p in report.problems))
 
 
-def compile_kernels(model: PlanningModel) -> None:
+def compile_kernels(model: PlanningModel) -> Backbone:
     """Run the model's backends on the start and on it twice, so that numba compiles (first run only)
-    or loads from its cache every kernel a plan uses before the planning clock starts."""
+    or loads from its cache every kernel a plan uses before the planning clock starts. Returns the
+    exact backbone of the start (the start check uses it: the start is solved once)."""
     q = np.asarray(model.scene.start, dtype=float)
+    bb = None
     for be in [model.backend] if model.backend is model.exact else [model.backend, model.exact]:
-        be.forward(q, points=model.points, check=False)                  # single-query kernels
+        bb = be.forward(q, points=model.points, check=False)             # single-query kernels
         be.forward(np.stack([q, q]), points=model.points, check=False)   # batched (parallel) kernels
+    return bb
 
 
 def _time_limit(scene: Scene, time_limit_s: float | None) -> float:
@@ -557,9 +562,9 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     t_compile = time.perf_counter()
     scene.robot.calibration.refuse(scene.robot.name, "plan")
     model = PlanningModel.build(scene, resolve_backend(backend, scene.robot), exact)
-    compile_kernels(model)
+    start_bb = compile_kernels(model)
     compile_s = time.perf_counter() - t_compile
-    check_start(model)  # the start under the exact model, once
+    check_start(model, start_bb)  # the start under the exact model, solved once
     checker = ConfigurationChecker(model)
     result = PlanResult(False, planner, model.backend.name, 0.0, 0, np.zeros((0, len(scene.start))),
                         scene.target.center, scene.target.tolerance_mm, scene.base_pose, seed=seed,

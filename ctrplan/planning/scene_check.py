@@ -24,6 +24,7 @@ import numpy as np
 
 from ctrplan.errors import InputError
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.kinematics.backbone import Backbone
 from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.planners import scene_planner
 from ctrplan.planning.validity import ConfigurationChecker
@@ -66,19 +67,21 @@ class SceneCheck:
 
 
 def check_scene(scene: Scene, *, samples: int = REACH_SAMPLES, seed: int = 0, reach: bool = True,
-                model: PlanningModel | None = None) -> SceneCheck:
+                model: PlanningModel | None = None, start_backbone: Backbone | None = None) -> SceneCheck:
     """Run every check on ``scene`` (its start may lie outside the domain: see
     `ctrplan.scene.load_scene(..., check_start=False)`). ``reach=False`` skips the sampled
     reachability check (seconds; `plan` runs the others, which take milliseconds, before every
     search). ``model``: the plan's `PlanningModel` (its exact backend, with the stability decision,
-    judges the start; its collision world is reused); default: one of the exact model."""
+    judges the start; its collision world is reused); default: one of the exact model.
+    ``start_backbone``: that backend's backbone of the start at the model's points, if solved
+    already (`plan` solves it when it compiles the kernels)."""
     report = SceneCheck()
     robot_mm = float(scene.robot.lengths_mm[0] + scene.robot.domain.box_upper[0])
     _check_scale(scene, robot_mm, report)
     _check_target_inside(scene, report)
     if reach:
         _check_reach(scene, samples, seed, report)
-    _check_start(scene, report, model or PlanningModel.of(scene))
+    _check_start(scene, report, model or PlanningModel.of(scene), start_backbone)
     try:
         scene_planner(scene)
     except InputError as exc:
@@ -153,7 +156,7 @@ def _check_reach(scene: Scene, samples: int, seed: int, report: SceneCheck) -> N
                  f"closest {best:.1f} mm)"))
 
 
-def _check_start(scene: Scene, report: SceneCheck, model: PlanningModel) -> None:
+def _check_start(scene: Scene, report: SceneCheck, model: PlanningModel, bb: Backbone | None) -> None:
     robot = scene.robot
     where = scene.where("start")
     lo, hi = scene.joint_box
@@ -168,7 +171,7 @@ def _check_start(scene: Scene, report: SceneCheck, model: PlanningModel) -> None
     inside = replace(scene, start=robot.domain.from_box(np.clip(box, lo, hi)))
     checker = ConfigurationChecker(model.exact_search().with_scene(inside))
     if problem is None:
-        problem = start_problem(scene, checker)
+        problem = start_problem(scene, checker, bb)
     if problem is None:
         report.facts["start"] = "valid"
         return
@@ -181,10 +184,12 @@ def _check_start(scene: Scene, report: SceneCheck, model: PlanningModel) -> None
         "start", f"{problem}; nearest valid start: {np.round(fixed, 4).tolist()}"))
 
 
-def start_problem(scene: Scene, checker: ConfigurationChecker) -> str | None:
+def start_problem(scene: Scene, checker: ConfigurationChecker, bb: Backbone | None = None) -> str | None:
     """Why the scene's start cannot begin a plan under ``checker``'s exact model: not converged,
-    unstable, or in collision (naming the obstacles, with the scene's margin); None if it can."""
-    bb = checker.backend.forward(scene.start, points=checker.points, check=False)
+    unstable, or in collision (naming the obstacles, with the scene's margin); None if it can.
+    ``bb``: the start's backbone under that model (solved here if not given)."""
+    if bb is None:
+        bb = checker.backend.forward(scene.start, points=checker.points, check=False)
     where = scene.where("start")
     if not bb.converged[0]:
         return f"{where}: the exact model does not converge at the start configuration"

@@ -77,12 +77,14 @@ def _finite(x: float):
 
 @dataclass
 class ValidatedPath:
-    """A dense path (K, 2N) with its exact and planning-backend backbones and the report."""
+    """A dense path (K, 2N) with its exact and planning-backend backbones and the report; ``world``:
+    the collision world it was checked in (the writers' clearances reuse it)."""
 
     dense_q: np.ndarray
     exact: Backbone
     planned: Backbone | None
     report: Validation
+    world: CollisionWorld | None = None
 
 
 def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | None = None, *,
@@ -137,7 +139,7 @@ def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolutio
     report.tip_in_target = bool(ebb.converged[-1] and scene.target.contains(tip)
                                 and angle <= scene.target.angle_tolerance_rad + 1e-12)
     report.time_s = time.perf_counter() - t0
-    return ValidatedPath(dense, ebb, pbb, report)
+    return ValidatedPath(dense, ebb, pbb, report, model.world)
 
 
 def _position_errors(report: Validation, pbb: Backbone, ebb: Backbone) -> None:
