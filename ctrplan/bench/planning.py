@@ -51,6 +51,11 @@ def make_specs(scenes: list[tuple[str, float]], backends: list[str], planners: l
 
 #: Most runs in one job of `batches` (a job loads its scenes and backends once).
 BATCH_RUNS = 10
+#: States, and states per call of the batched form, of `check_rates`.
+RATE_STATES = 1000
+RATE_BATCH = 64
+#: Spread (mm, planning metric) of the states of `check_rates` around the scene's start.
+RATE_SPREAD_MM = 10.0
 
 
 class RunContext:
@@ -168,6 +173,45 @@ def run_one(spec: RunSpec, context: RunContext | None = None) -> dict[str, Any]:
         "tip_travel_mm": None if tip_travel is None else round(tip_travel, 3),
         "message": result.message,
     }
+
+
+def check_rates(scene_file: str, backend: str, *, states: int = RATE_STATES, batch: int = RATE_BATCH,
+                seed: int = 0, context: RunContext | None = None) -> dict[str, Any]:
+    """Validity checks per second on one core, one state per call (`ConfigurationChecker.is_valid`,
+    the planner's state path) against ``batch`` states per call (`ConfigurationChecker.check`: one
+    backend call and one vectorised broadphase call per batch, FCL only on the capsules the broadphase
+    cannot clear), on the same ``states`` seeded states scattered around the scene's start (normal,
+    `RATE_SPREAD_MM` in the planning metric: where a search expands, valid and colliding ones), with
+    the planning model `plan` builds (margins, stability decision). ``agree``: both give the same
+    verdicts. Times depend on the machine and its load."""
+    import time
+
+    from ctrplan.bench import single_core
+    from ctrplan.planning import ConfigurationChecker, PlanningModel, compile_kernels
+
+    scene, be, exact = (context or RunContext()).get(scene_file, backend)
+    model = PlanningModel.build(scene, be, exact)
+    space = model.space
+    y = space.to_coords(scene.start) + np.random.default_rng(seed).normal(
+        scale=RATE_SPREAD_MM, size=(states, space.dimension))
+    q = space.to_joints(space.clip(y))
+    with single_core():
+        compile_kernels(model)
+        warm = ConfigurationChecker(model)  # compiled paths of both forms, before the clocks
+        warm.check(q[-batch:])
+        for x in q[-8:]:
+            warm.is_valid(x)
+        single, batched = ConfigurationChecker(model), ConfigurationChecker(model)
+        t0 = time.perf_counter()
+        one = np.array([single.is_valid(x) for x in q])
+        t1 = time.perf_counter()
+        many = np.concatenate([batched.check(q[a:a + batch]) for a in range(0, states, batch)])
+        t2 = time.perf_counter()
+    return {"scene": scene.name, "backend": backend, "states": states, "batch": batch,
+            "valid_share": round(float(one.mean()), 4), "agree": bool(np.array_equal(one, many)),
+            "single_checks_per_s": _round(states / (t1 - t0), 1),
+            "batched_checks_per_s": _round(states / (t2 - t1), 1),
+            "speedup": _round((t1 - t0) / (t2 - t1), 2)}
 
 
 def _round(x: float | None, digits: int = 5) -> float | None:

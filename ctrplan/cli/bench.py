@@ -235,6 +235,7 @@ def plan(
         except InputError as exc:
             raise as_option(exc, flags) from None
     summary = planning_bench.summarize(records)
+    rates = [planning_bench.check_rates(f, b) for f, _ in limits for b in backends]
     out = output_dir(out)
     machine = machine_info()
     settings = {"backends": backends, "planners": planners, "runs": runs, "first_seed": seed,
@@ -244,7 +245,8 @@ def plan(
     logs = write_logs(records, out, machine, settings)
     write_database(logs, out / "benchmark.db")
     plots = planning_plots(summary, records, out)
-    doc = {"machine": machine, "settings": settings, "summary": summary, "runs": records}
+    doc = {"machine": machine, "settings": settings, "summary": summary, "check_rates": rates,
+           "runs": records}
     if publish(doc, out, as_json):
         return
     table = result_table(f"bench plan: {runs} runs each, one core of {machine['cpu']} per run",
@@ -259,5 +261,9 @@ def plan(
                       f"{100 * share['planner']:.0f}", f"{s['checks_per_s']['median']:.0f}",
                       str(s["repaired"]), str(s["unsafe"]))
     Console().print(table)
+    for r in rates:
+        typer.echo(f"{r['scene']} / {r['backend']}: validity checks/s {r['single_checks_per_s']:.0f} one "
+                   f"state per call, {r['batched_checks_per_s']:.0f} {r['batch']} per call "
+                   f"(x{r['speedup']:.1f})")
     typer.echo(f"wrote {out / 'results.json'}, {len(logs)} OMPL log(s), {out / 'benchmark.db'} and "
                f"{', '.join(p.name for p in plots)}", err=True)

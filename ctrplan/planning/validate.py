@@ -90,27 +90,25 @@ class ValidatedPath:
 def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | None = None, *,
                   exact: Backend | None = None, resolution: float | None = None,
                   points: int | None = None, margin_mm: float | None = None,
-                  world: CollisionWorld | None = None, clearance_stride: int = 1) -> ValidatedPath:
+                  world: CollisionWorld | None = None) -> ValidatedPath:
     """`validate_planned_path` on the planning model of ``scene`` with ``planning_backend`` (if given and not
     exact itself: evaluated on the same states for the position error), ``exact`` (default:
     Cosserat; testing stability unless the robot is certified), ``points`` and a prebuilt ``world``
     (`PlanningModel.of`)."""
     model = PlanningModel.of(scene, planning_backend, exact=exact, points=points, world=world)
-    return validate_planned_path(model, path_q, resolution=resolution, margin_mm=margin_mm,
-                                 clearance_stride=clearance_stride)
+    return validate_planned_path(model, path_q, resolution=resolution, margin_mm=margin_mm)
 
 
 def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolution: float | None = None,
-                          margin_mm: float | None = None, clearance_stride: int = 1) -> ValidatedPath:
+                          margin_mm: float | None = None) -> ValidatedPath:
     """Re-validate ``path_q`` (K, 2N) with the model's exact backend at ``resolution`` (planning
     metric, mm; default: the scene's) and capsule margin ``margin_mm`` (default: the scene's, not the
     search's).
 
     The model's planning backend, unless it is the exact one, is evaluated on the same states for
-    the position error. Collisions and clearance are found in one pass over the states;
-    ``clearance_stride`` > 1 computes distances on every n-th state only (and the last and the first
-    colliding one). The exact backend computes elastic stability unless the robot is certified
-    (`StabilityDecision`): an unstable state fails like a colliding one.
+    the position error. Collisions and clearance are found in one pass over the states. The exact
+    backend computes elastic stability unless the robot is certified (`StabilityDecision`): an
+    unstable state fails like a colliding one.
     """
     t0 = time.perf_counter()
     scene = model.scene
@@ -131,7 +129,7 @@ def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolutio
         pbb = model.backend.forward(dense, points=model.points, check=False)
         _position_errors(report, pbb, ebb)
     checker = RobotCollisionChecker(model.world, scene.base_pose, model.points, margin)
-    _collisions_and_clearance(report, checker, ebb, clearance_stride)
+    _collisions_and_clearance(report, checker, ebb)
     tip = scene.to_scene(ebb.tip_mm[-1])
     report.tip_mm = tip.tolist()
     angle = float(scene.target.angle_rad(tip_tangents(scene, ebb)[-1]))
@@ -153,23 +151,20 @@ def _position_errors(report: Validation, pbb: Backbone, ebb: Backbone) -> None:
         report.max_position_error_mm = np.inf
 
 
-def _collisions_and_clearance(report: Validation, checker: RobotCollisionChecker, ebb: Backbone,
-                              stride: int) -> None:
-    """One pass over the exact backbones: the failing states (colliding, not converged or unstable),
-    the first one's obstacles, and the smallest clearance (mm, every ``stride``-th state, the last
-    and the first failing one) with its obstacle."""
-    k = len(ebb.positions_mm)
-    measured = set(range(0, k, max(1, int(stride)))) | {k - 1}
+def _collisions_and_clearance(report: Validation, checker: RobotCollisionChecker, ebb: Backbone) -> None:
+    """One pass over the exact backbones: the clearance of every state (mm, surface to the nearest
+    obstacle, 0 on contact), which decides its collision too -- a capsule grown by the margin touches
+    an obstacle exactly when the capsule's clearance is at most the margin -- the failing states
+    (colliding, not converged or unstable), the first one's obstacles, and the smallest clearance
+    with its obstacle."""
     bad: list[int] = []
     best, nearest = np.inf, ""
-    for i in range(k):
-        pos, radius = ebb.positions_mm[i], ebb.radius_mm[i]
-        if not ebb.stable[i] or not checker.is_free(pos, radius):
+    for i in range(len(ebb.positions_mm)):
+        c = checker.clearance(ebb.positions_mm[i], ebb.radius_mm[i])
+        if not (ebb.stable[i] and c.distance_mm > checker.margin_mm):
             bad.append(i)  # unstable states fail too: the robot would snap there
-        if i in measured or bad[:1] == [i]:
-            c = checker.clearance(pos, radius)
-            if c.distance_mm < best:
-                best, nearest = c.distance_mm, c.obstacle
+        if c.distance_mm < best:
+            best, nearest = c.distance_mm, c.obstacle
     report.colliding_states = bad
     report.collision_free = not bad and report.converged
     if bad:
