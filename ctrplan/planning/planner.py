@@ -1,10 +1,13 @@
-"""Planning pipeline: scene + backend -> OMPL problem -> path -> exact validation (-> repair).
+"""Planning pipeline: scene + backend -> planning model -> OMPL problem -> path -> exact validation
+(-> repair).
 
-Wiring follows OMPL's ``demos/OptimalPlanning.py``: a `BoxSpace` state space, a `ValidityChecker`,
-a `BatchMotionValidator`, a `TipGoal` (IK-sampled goal region), a planner by name, a solve budgeted
-in work (`ctrplan.planning.budget`), path simplification; then `validate_path` with the exact
-Cosserat model. All OMPL objects live inside function scope (DESIGN §4: module-level OMPL objects
-leak at exit).
+`plan` builds one frozen `PlanningModel` (`ctrplan.planning.model`) and hands it to every step; each
+search keeps its caches and counters in a `ConfigurationChecker`. Wiring follows OMPL's
+``demos/OptimalPlanning.py``: a `BoxSpace` state space, a `ValidityChecker`, a
+`BatchMotionValidator`, a `TipGoal` (IK-sampled goal region), a planner from the table of
+`ctrplan.planning.planners`, a solve budgeted in work (`ctrplan.planning.budget`), path
+simplification; then `validate_planned_path` with the model's exact backend. All OMPL objects
+live inside function scope (DESIGN §4: module-level OMPL objects leak at exit).
 """
 
 from __future__ import annotations
