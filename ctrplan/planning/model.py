@@ -70,7 +70,7 @@ class PlanningModel:
         backend: the backend the search evaluates (for a surrogate: with its capsule margins by
             arc-length region, `RegionMarginBackend`).
         exact: the exact backend of validation and repair.
-        stability: the stability decision, already applied to ``backend`` and ``exact``.
+        stability: the stability decision, applied to ``exact`` (and by `build` to ``backend``).
         world: the scene's collision world (FCL objects and broadphase grid), built once.
         margin_mm: capsule margin (mm) of the search (the scene's, plus a surrogate's flat margin).
         margin_source: where the search's margin comes from (`planning_backend`).
