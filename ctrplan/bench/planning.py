@@ -214,6 +214,13 @@ def check_rates(scene_file: str, backend: str, *, states: int = RATE_STATES, bat
             "speedup": _round((t1 - t0) / (t2 - t1), 2)}
 
 
+def describe_rates(rates: dict[str, Any]) -> str:
+    """One line of `check_rates`: scene, backend, checks per second single and batched."""
+    return (f"{rates['scene']} / {rates['backend']}: validity checks/s {rates['single_checks_per_s']:.0f} "
+            f"one state per call, {rates['batched_checks_per_s']:.0f} {rates['batch']} per call "
+            f"(x{rates['speedup']:.1f})")
+
+
 def _round(x: float | None, digits: int = 5) -> float | None:
     return None if x is None or not math.isfinite(float(x)) else round(float(x), digits)
 

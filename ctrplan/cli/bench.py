@@ -235,7 +235,7 @@ def plan(
         except InputError as exc:
             raise as_option(exc, flags) from None
     summary = planning_bench.summarize(records)
-    rates = [planning_bench.check_rates(f, b) for f, _ in limits for b in backends]
+    rates = [planning_bench.check_rates(f, b) for f, _ in limits for b in backends]  # one state vs a batch
     out = output_dir(out)
     machine = machine_info()
     settings = {"backends": backends, "planners": planners, "runs": runs, "first_seed": seed,
@@ -261,9 +261,6 @@ def plan(
                       f"{100 * share['planner']:.0f}", f"{s['checks_per_s']['median']:.0f}",
                       str(s["repaired"]), str(s["unsafe"]))
     Console().print(table)
-    for r in rates:
-        typer.echo(f"{r['scene']} / {r['backend']}: validity checks/s {r['single_checks_per_s']:.0f} one "
-                   f"state per call, {r['batched_checks_per_s']:.0f} {r['batch']} per call "
-                   f"(x{r['speedup']:.1f})")
+    typer.echo("\n".join(map(planning_bench.describe_rates, rates)))
     typer.echo(f"wrote {out / 'results.json'}, {len(logs)} OMPL log(s), {out / 'benchmark.db'} and "
                f"{', '.join(p.name for p in plots)}", err=True)
