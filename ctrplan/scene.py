@@ -35,7 +35,7 @@ file, the key and the line (`ctrplan.yamlio`). Layout::
       alpha1_deg: [-60, 60]               # keys: beta3_mm, beta3_minus_beta2_mm, beta2_minus_beta1_mm,
                                           #       alpha1_deg, alpha2_deg, alpha3_deg
     planner:                              # defaults, all optional (see `PlannerSettings`)
-      planner: rrtconnect                 # rrtconnect | rrt | rrtstar | bitstar | kpiece
+      planner: rrtconnect                 # one of ctrplan.planning.planners.PLANNERS
       time_limit_s: 10
       seed: null
       margin_mm: 0.2                      # added to the capsule radii (planning and validation)
@@ -254,46 +254,12 @@ class TargetRegion:
 
 
 @dataclass(frozen=True)
-class PlannerSpec:
-    """One OMPL geometric planner (the class ``ompl.geometric.<ompl_name>``) and how ctrplan runs it.
-
-    Attributes:
-        ompl_name: OMPL's class name (also used in logs and benchmark databases).
-        optimizing: asymptotically optimal: gets a path-length objective and uses its whole budget.
-        fixed_goal_set: drains every goal sample whenever it (re)starts a batch (BIT*): give it a
-            fixed set of goal configurations before the search.
-    """
-
-    ompl_name: str
-    optimizing: bool = False
-    fixed_goal_set: bool = False
-
-
-#: The one table of planners by ctrplan name (as OMPL's demos keep theirs).
-PLANNERS: dict[str, PlannerSpec] = {
-    "rrtconnect": PlannerSpec("RRTConnect"),
-    "rrt": PlannerSpec("RRT"),
-    "rrtstar": PlannerSpec("RRTstar", optimizing=True),
-    "bitstar": PlannerSpec("BITstar", optimizing=True, fixed_goal_set=True),
-    "kpiece": PlannerSpec("KPIECE1"),
-}
-
-
-def planner_spec(name: str) -> PlannerSpec:
-    """The `PlannerSpec` of a planner name; `InputError` naming the ``planner`` parameter otherwise."""
-    try:
-        return PLANNERS[name]
-    except (KeyError, TypeError):
-        raise InputError(f"planner: unknown planner {name!r} (choose from {', '.join(PLANNERS)})") \
-            from None
-
-
-@dataclass(frozen=True)
 class PlannerSettings:
     """Planner defaults of a scene; the CLI overrides planner, time limit and seed.
 
     Attributes:
-        planner: one of `PLANNERS`.
+        planner: a planner name; `ctrplan.planning.planners` holds the table of them and checks it
+            where the scene is planned (the model layer knows no planners).
         time_limit_s: the search's time budget (s): it sets the default work budget (what this many
             seconds buy on the reference machine, `ctrplan.planning.budget`) and the wall-clock guard
             (`GUARD_FACTOR` times it) that stops a search on a slow or overloaded machine.
@@ -351,7 +317,8 @@ class Scene:
     anatomy: dict[str, str] | None = None  # scene axis ("x", "y", "z") -> patient direction of +axis
 
     def where(self, key: str) -> str:
-        """``file:line: key`` for messages about a top-level key (as the loader's errors)."""
+        """``file:line: key`` for messages about a key (dotted, e.g. ``planner.planner``), as the
+        loader's errors."""
         loc = str(self.path) if self.path else self.name
         line = self.key_lines.get(key)
         return f"{loc}:{line}: {key}" if line else f"{loc}: {key}"
@@ -641,10 +608,8 @@ def _settings(doc: YamlDoc, raw: Any) -> PlannerSettings:
     for name, value in spec.items():
         k = keys + (name,)
         if name == "planner":
-            try:
-                planner_spec(value)
-            except InputError as exc:
-                raise doc.error(k, str(exc).removeprefix("planner: ")) from None
+            if not isinstance(value, str):
+                raise doc.error(k, f"expected a planner name, got {value!r}")
             kw[name] = value
         elif name in ("simplify", "repair"):
             if not isinstance(value, bool):
@@ -779,7 +744,7 @@ def scene_from_yaml(doc: YamlDoc, *, check_start: bool = True, robot: Robot | No
     return Scene(name=name, robot=robot, base_pose=base_pose, obstacles=obstacles, target=target,
                  start=start, settings=settings, description=desc.strip(), path=doc.path,
                  joint_limits=limits, anatomy=anatomy,
-                 key_lines={k: doc.lines[(k,)] for k in d if (k,) in doc.lines})
+                 key_lines={".".join(map(str, k)): line for k, line in doc.lines.items() if k})
 
 
 def _robot(doc: YamlDoc, spec: Any) -> Robot:

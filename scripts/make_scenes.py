@@ -562,12 +562,12 @@ def check_scene(path: Path, seeds: int = 3, time_limit: float = 10.0) -> None:  
     from ompl import util as ou
 
     from ctrplan.kinematics import CosseratBackend
-    from ctrplan.planning import ConfigurationChecker, plan
+    from ctrplan.planning import ConfigurationChecker, PlanningModel, plan
     from ctrplan.scene import load_scene
 
     ou.setLogLevel(ou.LOG_ERROR)
     scene = load_scene(path)
-    checker = ConfigurationChecker(scene, CosseratBackend(scene.robot))
+    checker = ConfigurationChecker(PlanningModel.of(scene, CosseratBackend(scene.robot)))
     print(f"{path.name}: start valid: {checker.is_valid(scene.start)}, "
           f"start tip {np.round(checker.tip(scene.start), 1)}")
     for seed in range(seeds):

@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-#: Planners that run until the time budget is spent (their time says nothing).
-OPTIMIZING = ("rrtstar", "bitstar")
+from ctrplan.planning.planners import OPTIMIZING
+
 ROOT = Path(__file__).resolve().parents[1]  #: the repository; renderers write links relative to it
 BENCHMARKS = ROOT / "docs" / "benchmarks.md"
 CLI_DOC = ROOT / "docs" / "cli.md"

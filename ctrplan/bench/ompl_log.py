@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from ctrplan.dataio import atomic_write
-from ctrplan.planning.planner import OMPL_NAMES
+from ctrplan.planning.planners import OMPL_NAMES
 
 #: OMPL's PlannerStatus names, in enum order (the ``status`` column is an index into them).
 STATUS = ("Unknown status", "Invalid start", "Invalid goal", "Unrecognized goal type", "Timeout",

@@ -13,11 +13,14 @@ from ctrplan.machine import machine_info
 
 
 def write_plan_results(records: list[dict[str, Any]], out: Path, limits: list[tuple[str, float]],
-                       settings: dict[str, Any]) -> tuple[dict[str, Any], list[Path], list[Path]]:
+                       settings: dict[str, Any], check_rates: list[dict[str, Any]]
+                       ) -> tuple[dict[str, Any], list[Path], list[Path]]:
     """Summarise ``records`` and write the OMPL logs, ``benchmark.db`` and the plots into ``out``
     (an existing folder). ``settings`` are the run's (backends, planners, runs, first_seed,
     max_states, executor, wall_time_s); the scenes' time budgets come from ``limits`` (scene file,
-    s). Returns the results document (machine, settings, summary, runs), the logs and the plots."""
+    s); ``check_rates``: validity checks per second, one state vs a batch per call
+    (`ctrplan.bench.planning.check_rates`). Returns the results document (machine, settings, summary,
+    check_rates, runs), the logs and the plots."""
     summary = summarize(records)
     machine = machine_info()
     settings = {**{k: settings[k] for k in ("backends", "planners", "runs", "first_seed")},
@@ -26,4 +29,6 @@ def write_plan_results(records: list[dict[str, Any]], out: Path, limits: list[tu
     logs = write_logs(records, out, machine, settings)
     write_database(logs, out / "benchmark.db")
     plots = planning_plots(summary, records, out)
-    return {"machine": machine, "settings": settings, "summary": summary, "runs": records}, logs, plots
+    doc = {"machine": machine, "settings": settings, "summary": summary, "check_rates": check_rates,
+           "runs": records}
+    return doc, logs, plots

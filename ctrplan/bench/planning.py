@@ -12,6 +12,7 @@ wall-clock guard fired (``cut_short``: counted in the summary).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from itertools import product
 from pathlib import Path
@@ -19,8 +20,6 @@ from typing import Any
 
 import numpy as np
 
-#: Planners of `ctrplan bench plan` by default: the feasible ones and one asymptotically optimal one.
-DEFAULT_PLANNERS = ("rrtconnect", "rrt", "rrtstar")
 #: Record fields that depend only on the seed, not on timing: equal for equal seeds on any executor.
 CONTENT_FIELDS = ("scene", "backend", "planner", "seed", "solved", "status", "found", "repaired",
                   "path_states", "path_length_mm", "tip_travel_mm", "max_states", "states")
@@ -50,33 +49,84 @@ def make_specs(scenes: list[tuple[str, float]], backends: list[str], planners: l
             for k, (scene, limit), backend, planner in product(range(runs), scenes, backends, planners)]
 
 
-_CACHE: dict[tuple, Any] = {}
+#: Most runs in one job of `batches` (a job loads its scenes and backends once).
+BATCH_RUNS = 10
+#: States, and states per call of the batched form, of `check_rates`.
+RATE_STATES = 1000
+RATE_BATCH = 64
+#: Spread (mm, planning metric) of the states of `check_rates` around the scene's start.
+RATE_SPREAD_MM = 10.0
 
 
-def _context(scene_file: str, backend: str):
-    """Scene, planning backend and exact backend, built once per process (a PINN warms up its compiled
-    kernels, the scene builds its BVH): later runs in a worker reuse them."""
-    from ctrplan.kinematics import CosseratBackend, make_backend
-    from ctrplan.scene import load_scene
+class RunContext:
+    """Scenes, planning backends and exact backends of a job's runs, each built once (a PINN warms up
+    its compiled kernels, a scene builds its BVH): later runs of the job reuse them."""
 
-    key = (scene_file, backend)
-    if key not in _CACHE:
-        if ("exact", scene_file) not in _CACHE:
+    def __init__(self) -> None:
+        self._exact: dict[str, tuple[Any, Any]] = {}
+        self._planning: dict[tuple[str, str], Any] = {}
+
+    def get(self, scene_file: str, backend: str) -> tuple[Any, Any, Any]:
+        """Scene, planning backend and exact backend of ``scene_file`` and ``backend``."""
+        from ctrplan.kinematics import CosseratBackend, make_backend
+        from ctrplan.scene import load_scene
+
+        if scene_file not in self._exact:
             scene = load_scene(scene_file)
-            _CACHE["exact", scene_file] = (scene, CosseratBackend(scene.robot))
-        scene, exact = _CACHE["exact", scene_file]
-        planning = exact if backend == exact.name else make_backend(backend, scene.robot)
-        _CACHE[key] = (scene, planning, exact)
-    return _CACHE[key]
+            self._exact[scene_file] = (scene, CosseratBackend(scene.robot))
+        scene, exact = self._exact[scene_file]
+        key = (scene_file, backend)
+        if key not in self._planning:
+            self._planning[key] = exact if backend == exact.name else make_backend(backend, scene.robot)
+        return scene, self._planning[key], exact
 
 
-def run_one(spec: RunSpec) -> dict[str, Any]:
-    """Plan ``spec`` and return its record: outcome, exact validation, time split, work counters."""
+def batches(specs: list[RunSpec], workers: int = 1) -> list[tuple[RunSpec, ...]]:
+    """``specs`` as jobs for `run_batch`: runs of one scene and backend together (they share what
+    `RunContext` loads), at most `BATCH_RUNS` and about an even share of ``workers`` per job."""
+    groups: dict[tuple[str, str], list[RunSpec]] = {}
+    for spec in specs:
+        groups.setdefault((spec.scene, spec.backend), []).append(spec)
+    out = []
+    for group in groups.values():
+        size = max(1, min(BATCH_RUNS, math.ceil(len(group) / max(1, workers))))
+        out += [tuple(group[a:a + size]) for a in range(0, len(group), size)]
+    return out
+
+
+def run_batch(batch: tuple[RunSpec, ...]) -> dict[str, Any]:
+    """`run_one` of every spec of ``batch`` with one `RunContext`: ``{"records": [...]}``."""
+    context = RunContext()
+    return {"records": [run_one(spec, context) for spec in batch]}
+
+
+def run_all(specs: list[RunSpec], *, workers: int = 1, ray_address: str | None = None,
+            tick: Callable[[int, int], None] | None = None) -> list[dict[str, Any]]:
+    """The records of ``specs`` (in their order), run in `batches` on the executor of
+    `ctrplan.bench.fanout.run_jobs`; ``tick(runs done, runs)`` after every batch (runs done: about,
+    where batches of different sizes finish out of order)."""
+    from ctrplan.bench.fanout import run_jobs
+
+    jobs = batches(specs, workers)
+
+    def jobs_done(done: int, _total: int) -> None:
+        if tick is not None:
+            tick(sum(map(len, jobs[:done])), len(specs))
+
+    results = run_jobs(run_batch, jobs, workers=workers, ray_address=ray_address, tick=jobs_done)
+    by_spec = {spec: record for job, result in zip(jobs, results, strict=True)
+               for spec, record in zip(job, result["records"], strict=True)}
+    return [by_spec[spec] for spec in specs]
+
+
+def run_one(spec: RunSpec, context: RunContext | None = None) -> dict[str, Any]:
+    """Plan ``spec`` and return its record: outcome, exact validation, time split, work counters;
+    scenes and backends from ``context`` (default: a new one)."""
     from ompl import util as ou
 
     from ctrplan.planning import plan
 
-    scene, backend, exact = _context(spec.scene, spec.backend)
+    scene, backend, exact = (context or RunContext()).get(spec.scene, spec.backend)
     ou.setLogLevel(ou.LOG_ERROR)
     result = plan(scene, backend, planner=spec.planner, time_limit_s=spec.time_limit_s,
                   max_states=spec.max_states, seed=spec.seed, exact=exact)
@@ -123,6 +173,52 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
         "tip_travel_mm": None if tip_travel is None else round(tip_travel, 3),
         "message": result.message,
     }
+
+
+def check_rates(scene_file: str, backend: str, *, states: int = RATE_STATES, batch: int = RATE_BATCH,
+                seed: int = 0, context: RunContext | None = None) -> dict[str, Any]:
+    """Validity checks per second on one core, one state per call (`ConfigurationChecker.is_valid`,
+    the planner's state path) against ``batch`` states per call (`ConfigurationChecker.check`: one
+    backend call and one vectorised broadphase call per batch, FCL only on the capsules the broadphase
+    cannot clear), on the same ``states`` seeded states scattered around the scene's start (normal,
+    `RATE_SPREAD_MM` in the planning metric: where a search expands, valid and colliding ones), with
+    the planning model `plan` builds (margins, stability decision). ``agree``: both give the same
+    verdicts. Times depend on the machine and its load."""
+    import time
+
+    from ctrplan.bench import single_core
+    from ctrplan.planning import ConfigurationChecker, PlanningModel, compile_kernels
+
+    scene, be, exact = (context or RunContext()).get(scene_file, backend)
+    model = PlanningModel.build(scene, be, exact)
+    space = model.space
+    y = space.to_coords(scene.start) + np.random.default_rng(seed).normal(
+        scale=RATE_SPREAD_MM, size=(states, space.dimension))
+    q = space.to_joints(space.clip(y))
+    with single_core():
+        compile_kernels(model)
+        warm = ConfigurationChecker(model)  # compiled paths of both forms, before the clocks
+        warm.check(q[-batch:])
+        for x in q[-8:]:
+            warm.is_valid(x)
+        single, batched = ConfigurationChecker(model), ConfigurationChecker(model)
+        t0 = time.perf_counter()
+        one = np.array([single.is_valid(x) for x in q])
+        t1 = time.perf_counter()
+        many = np.concatenate([batched.check(q[a:a + batch]) for a in range(0, states, batch)])
+        t2 = time.perf_counter()
+    return {"scene": scene.name, "backend": backend, "states": states, "batch": batch,
+            "valid_share": round(float(one.mean()), 4), "agree": bool(np.array_equal(one, many)),
+            "single_checks_per_s": _round(states / (t1 - t0), 1),
+            "batched_checks_per_s": _round(states / (t2 - t1), 1),
+            "speedup": _round((t1 - t0) / (t2 - t1), 2)}
+
+
+def describe_rates(rates: dict[str, Any]) -> str:
+    """One line of `check_rates`: scene, backend, checks per second single and batched."""
+    return (f"{rates['scene']} / {rates['backend']}: validity checks/s {rates['single_checks_per_s']:.0f} "
+            f"one state per call, {rates['batched_checks_per_s']:.0f} {rates['batch']} per call "
+            f"(x{rates['speedup']:.1f})")
 
 
 def _round(x: float | None, digits: int = 5) -> float | None:

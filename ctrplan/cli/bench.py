@@ -36,7 +36,8 @@ from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS, PLANNING_ORDER
 from ctrplan.machine import machine_info, single_core
 from ctrplan.memory import check_backbones, check_fits
-from ctrplan.parallel import check_workers, run_jobs
+from ctrplan.parallel import check_workers
+from ctrplan.planning.planners import BENCHMARKED, PLANNERS, planner_spec
 from ctrplan.robot import Robot
 
 BENCH_HELP = "Benchmarks: timings, JSON summaries and plots."
@@ -104,7 +105,7 @@ def result_table(title: str, columns: list[tuple[str, bool]]) -> Table:
 #: Defaults of ``--backend`` (`bench kinematics`: every backend; `bench plan`: the planning default
 #: first) and ``--planner``, from the registries.
 ALL_BACKENDS, PLAN_BACKENDS = ",".join(BACKENDS), ",".join(PLANNING_ORDER)
-PLAN_PLANNERS = ",".join(planning_bench.DEFAULT_PLANNERS)
+PLAN_PLANNERS = ",".join(BENCHMARKED)
 KinBackendsOpt = Annotated[str, typer.Option("--backend", help="Comma-separated backends to time.")]
 ConfigurationsOpt = Annotated[int, typer.Option("--n", help="Configurations per case (random, snap-free).")]
 PointsListOpt = Annotated[str, typer.Option("--points", help="Comma-separated numbers of backbone points.")]
@@ -179,7 +180,7 @@ ScenesArg = Annotated[list[Path], typer.Argument(metavar="SCENE.yaml", help="Sce
                                                   show_default=False)]
 PlanBackendsOpt = Annotated[str, typer.Option("--backend", help="Comma-separated kinematics backends.")]
 PlannersOpt = Annotated[str, typer.Option(
-    "--planner", help="Comma-separated planners (rrtconnect, rrt, rrtstar, bitstar, kpiece).")]
+    "--planner", help=f"Comma-separated planners ({', '.join(PLANNERS)}).")]
 RunsOpt = Annotated[int, typer.Option("--runs", help="Seeded runs per scene x backend x planner.")]
 PlanTimeLimitOpt = time_limit_option(
     "Time budget per run, e.g. 10s; a bare number is seconds (default: each scene's setting): the default "
@@ -208,7 +209,6 @@ def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
     Arena database (benchmark.db), plots and results.json.
     """
     from ctrplan.bench.plan_results import write_plan_results
-    from ctrplan.scene import planner_spec
 
     backends = parse_list(backend, "--backend")
     planners = parse_list(planner, "--planner")
@@ -241,17 +241,20 @@ def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
             bar.refresh()
 
         try:
-            records = run_jobs(planning_bench.run_one, specs, workers=workers, ray_address=ray, tick=tick)
+            records = planning_bench.run_all(specs, workers=workers, ray_address=ray, tick=tick)
         except InputError as exc:
             raise as_option(exc, flags) from None
+    rates = [planning_bench.check_rates(f, b) for f, _ in limits for b in backends]  # one state vs a batch
     out = output_dir(out)
     executor = f"ray {ray}" if ray else f"{workers} local worker(s), one core each"
     doc, logs, plots = write_plan_results(records, out, limits, {
         "backends": backends, "planners": planners, "runs": runs, "first_seed": seed,
-        "max_states": max_states, "executor": executor, "wall_time_s": round(time.perf_counter() - t0, 1)})
+        "max_states": max_states, "executor": executor, "wall_time_s": round(time.perf_counter() - t0, 1)},
+        rates)
     if publish(doc, out, as_json):
         return
     _plan_table(doc, runs)
+    typer.echo("\n".join(map(planning_bench.describe_rates, doc["check_rates"])))
     typer.echo(f"wrote {out / 'results.json'}, {len(logs)} OMPL log(s), {out / 'benchmark.db'} and "
                f"{', '.join(p.name for p in plots)}", err=True)
 

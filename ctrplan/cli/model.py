@@ -286,8 +286,8 @@ def _report(console: Console, out: Path, result: TrainResult, budget: TimeBudget
                   f"max {tip['max']:.3f} % of arc length, backbone error mean "
                   f"{m['backbone_error_pct']['mean']:.3f} %")
     if ERROR_BOUND_KEY in card:
+        from ctrplan.kinematics.error_bound import region_bounds_mm
         from ctrplan.scene import PlannerSettings
-        from ctrplan.training.evaluate import region_bounds_mm
 
         coverage = PlannerSettings.surrogate_coverage
         margins = ", ".join(f"{b:.2f}" for b in region_bounds_mm(card[ERROR_BOUND_KEY], coverage))

@@ -24,8 +24,8 @@ from ctrplan.cli.options import ModelOpt, check_max_states, load_backend, parse_
 from ctrplan.cli.progress import StatusLine
 from ctrplan.dataio import check_output_dir
 from ctrplan.kinematics import DEFAULT_PLANNING_BACKEND, PLANNING_ORDER
+from ctrplan.planning.planners import PLANNERS
 from ctrplan.robot import Robot
-from ctrplan.scene import PLANNERS
 
 SceneArg = Annotated[Path, typer.Argument(metavar="SCENE.yaml", show_default=False,
                                           help="Scene file (robot, base pose, obstacles, target, start).")]
@@ -107,7 +107,6 @@ def plan_command(
 
     from ompl import util as ou
 
-    from ctrplan.collision import CollisionWorld
     from ctrplan.planning import plan
     from ctrplan.scene import load_scene
     from ctrplan.viz.plan_outputs import plan_document, write_plan_outputs
@@ -125,7 +124,7 @@ def plan_command(
     if console_state.interrupted():  # Ctrl-C inside an OMPL callback ends the search, not the command
         raise KeyboardInterrupt
     pinn = getattr(be, "pinn", be)  # hybrid keeps its PINN in .pinn
-    world = CollisionWorld.from_scene(sc)
+    world = None if result.dense is None else result.dense.world  # the validation's collision world
     doc = plan_document(result, sc, scene, getattr(pinn, "card", {}).get("weights_file"), world)
     if out is not None:
         write_plan_outputs(out, sc, result, doc, world)
@@ -200,3 +199,4 @@ def _summary(console, sc, result, doc: dict, out: Path | None) -> None:
     if out is not None:
         t.add_row("outputs", str(out))
     console.print(t)
+

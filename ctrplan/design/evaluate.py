@@ -28,7 +28,6 @@ The record is a JSON-ready dict (see `evaluate`).
 from __future__ import annotations
 
 import hashlib
-import itertools
 import time
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -48,10 +47,6 @@ from ctrplan.stability import certify, is_certified
 #: it gives up after SCREEN_GIVE_UP of them when no IK solution got the tip into the target at all.
 SCREEN_BATCHES = 4
 SCREEN_GIVE_UP = 2
-#: Tube rotations tried for a design's start: multiples of 1/START_TURNS turn.
-START_TURNS = 8
-#: Candidate starts checked per batched call.
-START_CHUNK = 64
 
 
 @dataclass(frozen=True)
@@ -162,9 +157,11 @@ def _feasible(task: DesignTask, record: dict, context: DesignContext):
             return _refuse(record, "snap_free", f"the joint domain is not snap-free "
                                                 f"({verdict['example_reason']} at q = "
                                                 f"{np.round(verdict['example_q'], 3).tolist()})")
+    from ctrplan.planning.scene_check import valid_start
+
     t = time.perf_counter()
     scene, checker = _design_scene(task, robot, context)
-    start = design_start(scene, checker)
+    start = valid_start(scene, checker)
     record["timings"]["start_s"] = time.perf_counter() - t
     if start is None:
         return _refuse(record, "start", "no collision-free stable start configuration")
@@ -195,43 +192,10 @@ def _design_scene(task: DesignTask, robot: Robot, context: DesignContext):
     """The task's scene with the design's robot, and a configuration checker with the exact model
     (testing stability per state unless the robot is certified), on the task's collision world of
     ``context``."""
-    from ctrplan.planning import ConfigurationChecker
+    from ctrplan.planning import ConfigurationChecker, PlanningModel
 
     scene = replace(task.scene, robot=robot)
-    exact = CosseratBackend(robot)
-    if not is_certified(robot):
-        exact = exact.checking_stability()
-    return scene, ConfigurationChecker(scene, exact, world=context.world(task))
-
-
-def design_start(scene: Scene, checker) -> np.ndarray | None:
-    """The start configuration of a design: the scene's start if valid, else the valid candidate
-    nearest it in the planning metric among its translations and the fully retracted ones
-    (``betaN`` lowest, differences largest), each with every rotatable tube turned by multiples of
-    1/`START_TURNS` turn (wrapped into its interval). None when no candidate is valid."""
-    space = checker.space
-    robot = scene.robot
-    n = robot.n_tubes
-    lo, hi = scene.joint_box
-    box0 = robot.domain.to_box(scene.start)
-    retracted = np.concatenate([[lo[0]], hi[1:n]])
-    angles = []
-    for c in range(n, 2 * n):
-        if hi[c] > lo[c]:
-            turns = box0[c] + np.arange(START_TURNS) * (hi[c] - lo[c]) / START_TURNS
-            angles.append(lo[c] + np.mod(turns - lo[c], hi[c] - lo[c]))
-        else:
-            angles.append(np.array([box0[c]]))
-    rows = [np.concatenate([t, a]) for t in (box0[:n], retracted) for a in itertools.product(*angles)]
-    cands = robot.domain.from_box(np.array(rows))
-    dist = np.linalg.norm(space.to_coords(cands) - space.to_coords(scene.start[None]), axis=1)
-    order = np.argsort(dist, kind="stable")
-    for a in range(0, len(order), START_CHUNK):
-        chunk = order[a:a + START_CHUNK]
-        valid = checker.check(cands[chunk])
-        if valid.any():
-            return cands[chunk[int(np.argmax(valid))]]
-    return None
+    return scene, ConfigurationChecker(PlanningModel.of(scene, world=context.world(task)))
 
 
 def _reach(task: DesignTask, scene: Scene, checker, record: dict, seed: int) -> None:

@@ -38,7 +38,6 @@ from ctrplan.design.report import pareto_figure, write_report
 from ctrplan.design.space import build_robot
 from ctrplan.design.study import finished_trials
 from ctrplan.design.task import DesignTask
-from ctrplan.kinematics import CosseratBackend
 from ctrplan.machine import machine_info
 from ctrplan.stability import certify, is_certified
 from ctrplan.yamlio import dump_yaml, load_yaml
@@ -113,6 +112,8 @@ def write_outputs(task: DesignTask, study: optuna.Study, out: Path, *, storage: 
 def write_best(task: DesignTask, best: Design, out: Path, study: str) -> dict[str, Path]:
     """``best_robot.yaml`` (certified here when the task asks for snap-free designs) and the folder
     of every target; returns the ``path.json`` of each reached target."""
+    from ctrplan.planning.model import exact_backend
+
     record = best.record
     robot = build_robot(record["robot"], str(out / "best_robot.yaml"))
     certificate = "not requested (constraints.snap_free: false): planning tests stability per state"
@@ -132,9 +133,7 @@ def write_best(task: DesignTask, best: Design, out: Path, study: str) -> dict[st
     with atomic_write(out / "best_robot.yaml") as fh:
         fh.write(header + dump_yaml(record["robot"]))
     start = np.asarray(record["start"])
-    exact = CosseratBackend(robot)
-    if not is_certified(robot):
-        exact = exact.checking_stability()
+    exact = exact_backend(robot)
     paths = {}
     for target, result in zip(task.targets, record["targets"], strict=True):
         folder = out / "paths" / target.name

@@ -14,36 +14,39 @@ The pieces are usable with any OMPL planner from user code::
     planner.solve(5.0)
     path_q = problem.solution()
 
-`plan` runs the whole pipeline (search, simplification, exact validation and repair).
+`plan` runs the whole pipeline (search, simplification, exact validation and repair) on one frozen
+`PlanningModel` (scene, backends, margins, collision world, the stability decision), with per-search
+data in a `ConfigurationChecker`.
+
+The names below load their modules on first use (PEP 562), so that ``ctrplan.planning.planners`` -- the
+planner table the CLI help reads -- loads without OMPL, torch or numba.
 """
 
-from ctrplan.planning.goal import GoalSampler, TipGoal
-from ctrplan.planning.ik import IKResult, backend_tip_jacobian, fd_tip_jacobian, solve_ik
-from ctrplan.planning.planner import (
-    OMPL_NAMES,
-    PlanningProblem,
-    PlanResult,
-    build_problem,
-    compile_kernels,
-    make_planner,
-    plan,
-    resolve_backend,
-    search,
-    seed_ompl,
-)
-from ctrplan.planning.space import BoxSpace
-from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate_path
-from ctrplan.planning.validity import (
-    BatchMotionValidator,
-    ConfigurationChecker,
-    Counters,
-    ValidityChecker,
-)
+from __future__ import annotations
 
-__all__ = [
-    "OMPL_NAMES", "BatchMotionValidator", "BoxSpace", "ConfigurationChecker",
-    "Counters", "GoalSampler", "IKResult", "PlanResult", "PlanningProblem", "TipGoal", "Validation",
-    "ValidatedPath", "ValidityChecker", "backend_tip_jacobian", "build_problem", "compile_kernels",
-    "fd_tip_jacobian", "make_planner", "plan", "repair_path", "resolve_backend", "search", "seed_ompl",
-    "solve_ik", "validate_path",
-]
+import importlib
+from typing import Any
+
+_MODULES = {
+    "goal": ("GoalSampler", "TipGoal"),
+    "ik": ("IKResult", "backend_tip_jacobian", "fd_tip_jacobian", "solve_ik"),
+    "model": ("PlanningModel", "StabilityDecision", "exact_backend"),
+    "planner": ("PlanningProblem", "PlanResult", "build_problem", "compile_kernels", "plan", "problem_for",
+                "resolve_backend", "search", "seed_ompl"),
+    "planners": ("OMPL_NAMES", "PLANNERS", "PlannerSpec", "make_planner"),
+    "space": ("BoxSpace",),
+    "validate": ("ValidatedPath", "Validation", "repair_path", "validate_planned_path", "validate_path"),
+    "validity": ("BatchMotionValidator", "ConfigurationChecker", "Counters", "ValidityChecker"),
+}
+_WHERE = {name: module for module, names in _MODULES.items() for name in names}
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _WHERE:
+        raise AttributeError(f"module 'ctrplan.planning' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"ctrplan.planning.{_WHERE[name]}"), name)
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -1,10 +1,14 @@
-"""Planning pipeline: scene + backend -> OMPL problem -> path -> exact validation (-> repair).
+"""Planning pipeline: scene + backend -> planning model -> OMPL problem -> path -> exact validation
+(-> repair).
 
-Wiring follows OMPL's ``demos/OptimalPlanning.py``: a `BoxSpace` state space, a `ValidityChecker`,
-a `BatchMotionValidator`, a `TipGoal` (IK-sampled goal region), a planner by name, a solve budgeted
-in work (`ctrplan.planning.budget`), path simplification; then `validate_path` with the exact
-Cosserat model. All OMPL objects live inside function scope (docs/design.md §4: module-level OMPL objects
-leak at exit).
+`plan` builds one frozen `PlanningModel` (`ctrplan.planning.model`) and hands it to every step; each
+search keeps its caches and counters in a `ConfigurationChecker`. Wiring follows OMPL's
+``demos/OptimalPlanning.py``: a `BoxSpace` state space, a `ValidityChecker`, a
+`BatchMotionValidator`, a `TipGoal` (IK-sampled goal region), a planner from the table of
+`ctrplan.planning.planners`, a solve budgeted in work (`ctrplan.planning.budget`), path
+simplification; then `validate_planned_path` with the model's exact backend. All OMPL objects
+live inside function scope (docs/design.md §4: module-level OMPL
+objects leak at exit).
 """
 
 from __future__ import annotations
@@ -25,27 +29,22 @@ from ompl import util as ou
 from ctrplan.errors import InputError
 from ctrplan.kinematics import make_backend
 from ctrplan.kinematics.backbone import Backbone
-from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Body, Points, arc_fractions
+from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.blas import single_threaded_blas
-from ctrplan.kinematics.cosserat import CosseratBackend
-from ctrplan.kinematics.pinn import ERROR_BOUND_KEY
 from ctrplan.planning.budget import GUARD_FACTOR, SearchBudget, check_max_states, states_for
 from ctrplan.planning.goal import ANGLE_WEIGHT_MM_PER_RAD, GoalSampler, TipGoal, tip_tangents
 from ctrplan.planning.ik import backend_tip_jacobian, solve_ik
-from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate_path
+from ctrplan.planning.model import PlanningModel
+from ctrplan.planning.planners import PlannerSpec, scene_planner
+from ctrplan.planning.scene_check import check_scene
+from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate_planned_path
 from ctrplan.planning.validity import BatchMotionValidator, ConfigurationChecker, ValidityChecker
-from ctrplan.scene import PLANNERS, Scene, planner_spec
-from ctrplan.stability import is_certified
-from ctrplan.training.evaluate import region_bounds_mm, region_margins_mm
+from ctrplan.scene import Scene
 
-#: Names OMPL uses for the planners (for logs and benchmark databases), from the one table `PLANNERS`.
-OMPL_NAMES = {name: spec.ompl_name for name, spec in PLANNERS.items()}
 #: Share of a search's work budget between two goal-sampling batches once goals are known.
 REFILL_SHARE = 0.05
 #: How close (mm) `exact_goal` brings the exact tip to the surrogate's.
 EXACT_GOAL_TOL_MM = 0.05
-#: Surrogate margin (mm) for a model whose card has no calibrated error bound.
-DEFAULT_SURROGATE_MARGIN_MM = 0.3
 
 Progress = Callable[..., None]
 
@@ -60,11 +59,6 @@ def resolve_backend(name: str | Backend | None, robot) -> Backend:
     if isinstance(name, Backend):
         return name
     return make_backend(name or "pinn", robot)
-
-
-def make_planner(name: str, si) -> Any:
-    """An OMPL geometric planner by ctrplan name (see `ctrplan.scene.PLANNERS`)."""
-    return getattr(og, planner_spec(name).ompl_name)(si)
 
 
 def seed_ompl(seed: int | None) -> None:
@@ -130,16 +124,26 @@ class PlanningProblem:
 
 
 def build_problem(scene: Scene, backend: Backend, *, start: np.ndarray | None = None,
-                  rng: np.random.Generator | None = None,
-                  checker: ConfigurationChecker | None = None,
-                  goal_q: np.ndarray | None = None, goal_hints: np.ndarray | None = None) -> PlanningProblem:
-    """State space, validity checker, motion validator, start and goal wired into OMPL objects.
+                  rng: np.random.Generator | None = None, goal_q: np.ndarray | None = None,
+                  goal_hints: np.ndarray | None = None) -> PlanningProblem:
+    """The OMPL objects of planning on ``scene`` with ``backend`` as it is (`PlanningModel.of`): see
+    `problem_for`."""
+    return problem_for(ConfigurationChecker(PlanningModel.of(scene, backend)), start=start, rng=rng,
+                       goal_q=goal_q, goal_hints=goal_hints)
+
+
+def problem_for(checker: ConfigurationChecker, *, start: np.ndarray | None = None,
+                rng: np.random.Generator | None = None, goal_q: np.ndarray | None = None,
+                goal_hints: np.ndarray | None = None) -> PlanningProblem:
+    """State space, validity checker, motion validator, start and goal wired into OMPL objects, checking
+    with ``checker`` (a search's data of a planning model).
 
     The goal is the scene's target region (a `TipGoal` sampled by IK, its first batches from
     ``goal_hints`` if given), or the single configuration ``goal_q`` (an ``ob.GoalState``, e.g. to
     reconnect two states of a path)."""
-    checker = checker or ConfigurationChecker(scene, backend)
+    scene = checker.scene
     box = checker.space
+    start = scene.start if start is None else start
     space = box.make_ompl_space()
     si = ob.SpaceInformation(space)
     validity = ValidityChecker(si, checker)
@@ -149,11 +153,11 @@ def build_problem(scene: Scene, backend: Backend, *, start: np.ndarray | None = 
     si.setup()
     pdef = ob.ProblemDefinition(si)
     st = si.allocState()
-    box.set_state(st, scene.start if start is None else start)
+    box.set_state(st, start)
     pdef.addStartState(st)
     sampler = GoalSampler(checker, scene.target, rng or np.random.default_rng(),
-                          seeds_per_batch=max(4, 3 * scene.settings.goal_samples),
-                          start=scene.start if start is None else start, hints=goal_hints)
+                          seeds_per_batch=max(4, 3 * scene.settings.goal_samples), start=start,
+                          hints=goal_hints)
     if goal_q is None:
         goal = TipGoal(si, sampler)
     else:
@@ -229,13 +233,11 @@ def _fix_goal_set(problem: PlanningProblem, budget: SearchBudget) -> None:
     problem.goal.max_batches = sampler.stats.batches
 
 
-def _setup_planner(name: str, problem: PlanningProblem, range_mm: float | None) -> Any:
-    """The OMPL planner ``name`` on ``problem``: its range, and a path-length objective if it
+def _setup_planner(spec: PlannerSpec, problem: PlanningProblem, range_mm: float | None) -> Any:
+    """The OMPL planner of ``spec`` on ``problem``: its range, and a path-length objective if it
     optimises."""
-    pl = make_planner(name, problem.si)
-    if range_mm is not None and hasattr(pl, "setRange"):
-        pl.setRange(float(range_mm))
-    if PLANNERS[name].optimizing:
+    pl = spec.make(problem.si, range_mm)
+    if spec.optimizing:
         problem.pdef.setOptimizationObjective(ob.PathLengthOptimizationObjective(problem.si))
     pl.setProblemDefinition(problem.pdef)
     pl.setup()
@@ -256,11 +258,6 @@ def _simplified_path(problem: PlanningProblem, simplify: bool, timings: dict) ->
     return _path_q(problem, path)
 
 
-def _all_invalid(scene: Scene) -> str:
-    """Why none of the configurations that reached the target is a goal."""
-    return "all in collision" if is_certified(scene.robot) else "all in collision or elastically unstable"
-
-
 def _failure_message(problem: PlanningProblem, budget: SearchBudget, to_configuration: bool) -> str:
     sampler = problem.sampler
     within = f"within {budget.describe()}"
@@ -271,18 +268,17 @@ def _failure_message(problem: PlanningProblem, budget: SearchBudget, to_configur
         turned = f", {st.wrong_direction} of them not along the approach direction" \
             if st.wrong_direction else ""
         return (f"no collision-free goal configuration found ({st.ik_reached} IK solutions reached "
-                f"the target{turned}, {_all_invalid(problem.scene)}; {budget.describe()})")
+                f"the target{turned}, all {problem.checker.model.stability.invalid}; {budget.describe()})")
     return f"no path found {within} ({len(sampler.goals)} goal configurations)"
 
 
-def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, planner: str | None = None,
+def search(checker: ConfigurationChecker, *, start: np.ndarray | None = None, planner: str | None = None,
            time_limit_s: float | None = None, max_states: int | None = None, seed: int | None = None,
-           progress: Progress = _quiet, simplify: bool | None = None,
-           checker: ConfigurationChecker | None = None, goal_q: np.ndarray | None = None,
-           goal_hints: np.ndarray | None = None) -> tuple[SearchOutcome, ConfigurationChecker]:
+           progress: Progress = _quiet, simplify: bool | None = None, goal_q: np.ndarray | None = None,
+           goal_hints: np.ndarray | None = None) -> SearchOutcome:
     """One OMPL search from ``start`` (default: the scene's) to the target region (or to the
-    configuration ``goal_q``) with ``backend``; ``goal_hints`` (K, 2N): where goal sampling starts
-    (see `GoalSampler`).
+    configuration ``goal_q``) with the planning model of ``checker``, whose counters and cache it
+    extends; ``goal_hints`` (K, 2N): where goal sampling starts (see `GoalSampler`).
 
     Budget (`ctrplan.planning.budget`): ``max_states`` states evaluated (goal sampling included;
     default: the scene's ``max_states``, else what ``time_limit_s`` buys with this backend on the
@@ -291,17 +287,16 @@ def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, p
     ``budget`` says how much was used and whether the guard cut the search short.
 
     Steps: build the problem, sample goal configurations, set up the planner, solve, simplify."""
-    s = scene.settings
-    planner = planner or s.planner
-    spec = planner_spec(planner)
+    model = checker.model
+    s = model.scene.settings
+    planner, spec = scene_planner(model.scene, planner)
     simplify = s.simplify if simplify is None else simplify
     limit_s = time_limit_s if time_limit_s is not None else s.time_limit_s
     seed_ompl(seed)
-    problem = build_problem(scene, backend, start=start, rng=np.random.default_rng(seed), checker=checker,
-                            goal_q=goal_q, goal_hints=goal_hints)
-    checker = problem.checker
+    problem = problem_for(checker, start=start, rng=np.random.default_rng(seed), goal_q=goal_q,
+                          goal_hints=goal_hints)
     sampler = problem.sampler
-    budget = SearchBudget.start(max_states or s.max_states or states_for(backend.name, limit_s),
+    budget = SearchBudget.start(max_states or s.max_states or states_for(model.backend.name, limit_s),
                                 GUARD_FACTOR * limit_s,
                                 lambda: checker.counters.kinematics_calls)
     with single_threaded_blas(), gc_paused(), _hooked(checker, _progress_hook(problem, budget, progress)):
@@ -322,17 +317,17 @@ def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, p
             return outcome(None, "INVALID_GOAL", False,
                            f"target unreachable: inverse kinematics got the tip no closer than "
                            f"{sampler.stats.closest_mm:.1f} mm to the target region after "
-                           f"{sampler.stats.seeds} seeds"), checker
+                           f"{sampler.stats.seeds} seeds")
         if budget.exhausted():
             reached = sampler.stats.ik_reached
-            why = f": {reached} IK solutions reached the target, {_all_invalid(scene)}" \
+            why = f": {reached} IK solutions reached the target, all {model.stability.invalid}" \
                 if reached and not sampler.goals else ""
             return outcome(None, "TIMEOUT", False,
                            f"budget used up while sampling goal configurations ({len(sampler.goals)} "
-                           f"found{why}; {budget.describe()})"), checker
+                           f"found{why}; {budget.describe()})")
         if spec.fixed_goal_set and region_goal:
             _fix_goal_set(problem, budget)
-        pl = _setup_planner(planner, problem, s.range_mm)
+        pl = _setup_planner(spec, problem, s.range_mm)
         progress("search", elapsed=budget.elapsed(), states=budget.used(), max_states=budget.max_states,
                  kinematics_calls=checker.counters.kinematics_calls, goals=len(sampler.goals))
         t_solve = time.perf_counter()
@@ -341,10 +336,10 @@ def search(scene: Scene, backend: Backend, *, start: np.ndarray | None = None, p
         status_name = status.asString() if hasattr(status, "asString") else str(status)
         if not problem.pdef.hasExactSolution():
             return outcome(None, status_name, False,
-                           _failure_message(problem, budget, goal_q is not None)), checker
+                           _failure_message(problem, budget, goal_q is not None))
         if simplify:
             progress("simplify", elapsed=budget.elapsed())
-        return outcome(_simplified_path(problem, simplify, timings), status_name, True, ""), checker
+        return outcome(_simplified_path(problem, simplify, timings), status_name, True, "")
 
 
 @dataclass
@@ -396,104 +391,33 @@ class PlanResult:
         }
 
 
-def check_start(scene: Scene, checker: ConfigurationChecker, exact: Backend) -> None:
+def check_start(model: PlanningModel, start_backbone: Backbone | None = None) -> None:
     """Raise `InputError` with what `ctrplan.planning.scene_check` finds before a search (obstacles
     of the wrong scale, a target inside an obstacle, a start outside the domain, not converged,
-    unstable or colliding under the exact model -- with the nearest valid start), one line."""
-    from ctrplan.planning.scene_check import check_scene
-
-    report = check_scene(scene, reach=False, exact=exact, world=checker.world)
+    unstable or colliding under the model's exact backend -- with the nearest valid start), one line.
+    ``start_backbone``: the exact backbone of the start, if solved already (`compile_kernels`)."""
+    report = check_scene(model.scene, reach=False, model=model, start_backbone=start_backbone)
     if not report.usable:
         raise InputError("; ".join(p.message for p in report.problems))
 
 
-def compile_kernels(backends: list[Backend], q: np.ndarray, points: int,
-                    progress: Progress = _quiet) -> None:
-    """Run every backend on one and on two configurations ``q`` (mm, rad), so that numba compiles
-    (first run only) or loads from its cache every kernel a plan uses before the planning clock
-    starts. ``progress("compile", done=k, total=n)`` counts the n kernel sets (a backend's
-    single-query and batched ones), k of them ready."""
-    q = np.asarray(q, dtype=float)
+def compile_kernels(model: PlanningModel, progress: Progress = _quiet) -> Backbone:
+    """Run the model's backends on the start and on it twice, so that numba compiles (first run only)
+    or loads from its cache every kernel a plan uses before the planning clock starts. Returns the
+    exact backbone of the start (the start check uses it: the start is solved once).
+    ``progress("compile", done=k, total=n)`` counts the n kernel sets (a backend's single-query and
+    batched ones), k of them ready."""
+    q = np.asarray(model.scene.start, dtype=float)
+    backends = [model.backend] if model.backend is model.exact else [model.backend, model.exact]
     calls = [(be, batch) for be in backends for batch in (q, np.stack([q, q]))]  # single, batched
+    bb = None
     for done, (be, batch) in enumerate(calls):
         progress("compile", done=done, total=len(calls))
-        be.forward(batch, points=points, check=False)
+        out = be.forward(batch, points=model.points, check=False)
+        if batch.ndim == 1:
+            bb = out
     progress("compile", done=len(calls), total=len(calls))
-
-
-class RegionMarginBackend(Backend):
-    """A surrogate whose backbones carry extra radius (mm) by arc-length region: its calibrated
-    error bound at ``coverage`` (`ctrplan.training.evaluate.error_bound`), so that planning keeps
-    that much more clearance where the surrogate is less accurate. Positions, tips and all else are
-    the wrapped backend's."""
-
-    def __init__(self, inner: Backend, bound: dict, coverage: float):
-        super().__init__(inner.robot)
-        self.inner = inner
-        self.bound = bound
-        self.coverage = coverage
-        self._margin_cache: dict[bytes, np.ndarray] = {}
-        self.name = inner.name
-        self.exact = inner.exact
-        self.warm_startable = inner.warm_startable
-        self.analytic_tip_jacobian = inner.analytic_tip_jacobian
-        self.partial_backbones_cheap = inner.partial_backbones_cheap
-
-    def forward(self, q: np.ndarray, points: Points = DEFAULT_POINTS, *,
-                guess: np.ndarray | None = None, check: bool = True) -> Backbone:
-        bb = self.inner.forward(q, points, guess=guess, check=check)
-        return bb.with_radius(bb.radius_mm + self._margins(arc_fractions(points)))
-
-    def body(self, q: np.ndarray, points: Points, *, guess: np.ndarray | None = None,
-             check: bool = True) -> Body:
-        pos, radius, usable, init = self.inner.body(q, points, guess=guess, check=check)
-        return Body(pos, radius + self._margins(arc_fractions(points)), usable, init)
-
-    def _margins(self, s_fraction: np.ndarray) -> np.ndarray:
-        """`region_margins_mm` at arc fractions (P,) of l1, once per set of fractions (a planner asks
-        for the same few again and again)."""
-        key = s_fraction.tobytes()
-        if key not in self._margin_cache:
-            self._margin_cache[key] = region_margins_mm(self.bound, self.coverage, s_fraction)
-        return self._margin_cache[key]
-
-    def tip_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return self.inner.tip_jacobian(q)
-
-    def tip_and_tangent(self, q: np.ndarray, *, check: bool = True
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return self.inner.tip_and_tangent(q, check=check)
-
-    def tips(self, q: np.ndarray, *, check: bool = True) -> np.ndarray:
-        return self.inner.tips(q, check=check)
-
-    def describe(self) -> dict:
-        return {**self.inner.describe(), "coverage": self.coverage}
-
-
-def planning_backend(scene: Scene, backend: Backend) -> tuple[Backend, float, dict]:
-    """The backend and capsule margin (mm) to plan with, and where the margin comes from.
-
-    An exact backend plans with the scene's ``margin_mm``. A surrogate adds the scene's
-    ``surrogate_margin_mm`` everywhere if the scene sets one; otherwise the calibrated error bound
-    of its model card at the scene's ``surrogate_coverage``, by arc-length region
-    (`RegionMarginBackend`); a model without one gets `DEFAULT_SURROGATE_MARGIN_MM`."""
-    s = scene.settings
-    if backend.exact:
-        return backend, s.margin_mm, {"source": "exact backend"}
-    if s.surrogate_margin_mm is not None:
-        return backend, s.margin_mm + s.surrogate_margin_mm, {
-            "source": "scene surrogate_margin_mm", "surrogate_margin_mm": s.surrogate_margin_mm}
-    bound = backend.error_bound
-    if bound is None:
-        return backend, s.margin_mm + DEFAULT_SURROGATE_MARGIN_MM, {
-            "source": "default (the model card has no calibrated error bound)",
-            "surrogate_margin_mm": DEFAULT_SURROGATE_MARGIN_MM}
-    margins = region_bounds_mm(bound, s.surrogate_coverage)
-    return RegionMarginBackend(backend, bound, s.surrogate_coverage), s.margin_mm, {
-        "source": f"model card {ERROR_BOUND_KEY} at coverage {s.surrogate_coverage:g}",
-        "regions": [{"s_fraction": r["s_fraction"], "margin_mm": m}
-                    for r, m in zip(bound["regions"], margins, strict=True)]}
+    return bb
 
 
 def _time_limit(scene: Scene, time_limit_s: float | None) -> float:
@@ -503,10 +427,10 @@ def _time_limit(scene: Scene, time_limit_s: float | None) -> float:
     return limit
 
 
-def exact_goal(path_q: np.ndarray, checker: ConfigurationChecker, exact: Backend) -> np.ndarray:
-    """The path with one more state, where the *exact* tip lies where the planning backend put the
-    tip of the path's last state (inside the target), when the planning backend is a surrogate and
-    the exact tip of that state misses the target.
+def exact_goal(path_q: np.ndarray, checker: ConfigurationChecker) -> np.ndarray:
+    """The path with one more state, where the *exact* tip (the exact backend of ``checker``'s model)
+    lies where the planning backend put the tip of the path's last state (inside the target), when the
+    planning backend is a surrogate and the exact tip of that state misses the target.
 
     A surrogate's goal configuration misses the target by its tip error, often as much as the target
     is wide; a few exact damped-least-squares iterations from that configuration close the gap for the
@@ -518,6 +442,7 @@ def exact_goal(path_q: np.ndarray, checker: ConfigurationChecker, exact: Backend
     unchanged for an exact planning backend, or when the exact iterations fail."""
     if checker.backend.exact:
         return path_q
+    exact = checker.model.exact
     goal = path_q[-1]
     scene = checker.scene
     bb = exact.forward(goal[None], points=2, check=False)
@@ -535,22 +460,21 @@ def exact_goal(path_q: np.ndarray, checker: ConfigurationChecker, exact: Backend
     return np.vstack([path_q, ik.q]) if ik.success[0] else path_q
 
 
-def _replanner(scene: Scene, exact: Backend, checker: ConfigurationChecker, seed: int | None,
-               hints: np.ndarray, time_s: float) -> tuple[Callable[..., np.ndarray | None], dict]:
-    """``replan(start_q, goal_q)`` for `repair_path`: exact RRTConnect searches sharing one work
-    budget (what ``time_s`` buys with the exact model; each search gets what is left, at least a
-    tenth) and one wall-clock guard; and the budget's record (``max_states``, ``states``,
-    ``cut_short``), updated by every search."""
-    total = states_for(exact.name, time_s)
+def _replanner(checker: ConfigurationChecker, seed: int | None, hints: np.ndarray,
+               time_s: float) -> tuple[Callable[..., np.ndarray | None], dict]:
+    """``replan(start_q, goal_q)`` for `repair_path`: RRTConnect searches with ``checker`` (of the
+    exact model) sharing one work budget (what ``time_s`` buys with the exact model; each search gets
+    what is left, at least a tenth) and one wall-clock guard; and the budget's record
+    (``max_states``, ``states``, ``cut_short``), updated by every search."""
+    total = states_for(checker.backend.name, time_s)
     guard_end = time.perf_counter() + GUARD_FACTOR * time_s
     record = {"max_states": total, "states": 0, "cut_short": False}
 
     def replan(start_q: np.ndarray, goal_q: np.ndarray | None) -> np.ndarray | None:
         left = max(total - record["states"], total // 10)
         limit = max(guard_end - time.perf_counter(), 0.5 * GUARD_FACTOR) / GUARD_FACTOR
-        out, _ = search(scene, exact, start=start_q, goal_q=goal_q, planner="rrtconnect", time_limit_s=limit,
-                        max_states=left, seed=seed, checker=checker,
-                        goal_hints=hints if goal_q is None else None)
+        out = search(checker, start=start_q, goal_q=goal_q, planner="rrtconnect", time_limit_s=limit,
+                     max_states=left, seed=seed, goal_hints=hints if goal_q is None else None)
         record["states"] += out.budget["states"]
         record["cut_short"] = record["cut_short"] or out.budget["cut_short"]
         return out.path_q
@@ -558,8 +482,7 @@ def _replanner(scene: Scene, exact: Backend, checker: ConfigurationChecker, seed
     return replan, record
 
 
-def _validate_and_repair(scene: Scene, path_q: np.ndarray, be: Backend, exact: Backend,
-                         checker: ConfigurationChecker, result: PlanResult, repair: bool,
+def _validate_and_repair(model: PlanningModel, path_q: np.ndarray, result: PlanResult, repair: bool,
                          progress: Progress, goals: list[np.ndarray]) -> tuple[ValidatedPath, np.ndarray]:
     """Exact validation of a planned path; if it fails and ``repair``, the failing stretches are
     re-planned with the exact model and the repaired path is validated again -- an end re-planned
@@ -567,16 +490,16 @@ def _validate_and_repair(scene: Scene, path_q: np.ndarray, be: Backend, exact: B
     first (exact inverse kinematics from scratch costs most of a repair). Records repair time and
     calls in ``result``; returns the validated path and its joints."""
     progress("validate")
-    vp = validate_path(scene, path_q, be, exact=exact, world=checker.world)
+    vp = validate_planned_path(model, path_q)
     result.details["validation_time_s"] = vp.report.time_s
     if vp.report.ok or not repair:
         return vp, path_q
     progress("repair")
     t_rep = time.perf_counter()
-    rep_checker = ConfigurationChecker(scene, exact, world=checker.world)
+    rep_checker = ConfigurationChecker(model.exact_search())
     rep_seed = None if result.seed is None else result.seed + 1
     hints = np.stack([path_q[-1], *goals])
-    replan, budget = _replanner(scene, exact, rep_checker, rep_seed, hints, max(5.0, result.time_limit_s))
+    replan, budget = _replanner(rep_checker, rep_seed, hints, max(5.0, result.time_limit_s))
     fixed = repair_path(vp, replan)
     result.details["repair_budget"] = budget
     result.cut_short = result.cut_short or budget["cut_short"]
@@ -588,7 +511,7 @@ def _validate_and_repair(scene: Scene, path_q: np.ndarray, be: Backend, exact: B
     if fixed is None:
         result.details["repair"] = "re-planning with the exact model failed"
         return vp, path_q
-    vp2 = validate_path(scene, fixed, be, exact=exact, world=checker.world)
+    vp2 = validate_planned_path(model, fixed)
     vp2.report.repaired = True
     if vp2.report.ok:
         return vp2, fixed
@@ -629,7 +552,9 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
 
     With an approximate backend (the PINN) the capsules get extra radius while planning: its
     calibrated error bound by arc-length region at the scene's ``surrogate_coverage``, or the
-    scene's ``surrogate_margin_mm`` (see `planning_backend`). Every path is re-validated with the
+    scene's ``surrogate_margin_mm`` (see `ctrplan.planning.model.planning_backend`). The planning
+    model (`PlanningModel.build`: backends, margins, collision world, the stability decision) is
+    built once here and handed to the search, validation and repair. Every path is re-validated with the
     exact model at the planner's resolution (refined where the backbone moves more than a capsule
     radius); a path that fails there is repaired (colliding stretches re-planned with the exact
     model) or reported as not solved. ``solved`` is True only if the exact model confirms a
@@ -639,8 +564,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     configurations known already (e.g. from a reachability screen), where goal sampling starts.
     """
     s = scene.settings
-    planner = planner or s.planner
-    planner_spec(planner)
+    planner, _ = scene_planner(scene, planner)
     time_limit_s = _time_limit(scene, time_limit_s)
     max_states = check_max_states(max_states) or s.max_states
     seed = s.seed if seed is None else seed
@@ -648,35 +572,46 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     progress("compile")  # loading a backend compiles its kernels too
     t_compile = time.perf_counter()
     scene.robot.calibration.refuse(scene.robot.name, "plan")
-    be = resolve_backend(backend, scene.robot)
-    exact = exact or (be if be.exact and be.robot is scene.robot else CosseratBackend(scene.robot))
-    if not is_certified(scene.robot):  # the planner must never use a configuration that snaps
-        be, exact = be.checking_stability(), exact.checking_stability()
-    compile_kernels([be] if be is exact else [be, exact], scene.start, s.points, progress)
+    model = PlanningModel.build(scene, resolve_backend(backend, scene.robot), exact)
+    start_bb = compile_kernels(model, progress)
     compile_s = time.perf_counter() - t_compile
     progress("start")  # the collision world: its distance grid and kernels on first use
-    planning_be, margin, margin_source = planning_backend(scene, be)
-    checker = ConfigurationChecker(scene, planning_be, margin_mm=margin)
-    check_start(scene, checker, exact)
-
-    result = PlanResult(False, planner, be.name, 0.0, 0, np.zeros((0, len(scene.start))),
+    check_start(model, start_bb)  # the start under the exact model, solved once
+    checker = ConfigurationChecker(model)
+    result = PlanResult(False, planner, model.backend.name, 0.0, 0, np.zeros((0, len(scene.start))),
                         scene.target.center, scene.target.tolerance_mm, scene.base_pose, seed=seed,
                         time_limit_s=time_limit_s, scene=scene.name,
-                        max_states=max_states or states_for(planning_be.name, time_limit_s))
-    result.details = {"planning_margin_mm": margin, "surrogate_margin": margin_source,
+                        max_states=max_states or states_for(model.backend.name, time_limit_s))
+    result.details = {"planning_margin_mm": model.margin_mm, "surrogate_margin": model.margin_source,
                       "compile_s": compile_s}
-    if not checker.is_valid(scene.start):
+    if not checker.is_valid(scene.start):  # under the planning backend: cached for the search
         # valid for the exact model (checked above), not for the planning backend + its margin
         result.status = "INVALID_START"
-        result.message = (f"the start configuration collides under the {be.name} backend with its "
-                          f"planning margin ({margin_source['source']}) but not under the exact model "
-                          f"with {s.margin_mm:g} mm")
+        result.message = (f"the start configuration collides under the {model.backend.name} backend with "
+                          f"its planning margin ({model.margin_source['source']}) but not under the exact "
+                          f"model with {s.margin_mm:g} mm")
         result.details["counters"] = vars(checker.counters).copy()
         return result
+    outcome = search(checker, planner=planner, time_limit_s=time_limit_s, max_states=result.max_states,
+                     seed=seed, progress=progress, goal_hints=goal_hints)
+    _record_search(result, outcome, checker)
+    if outcome.path_q is not None:
+        t_goal = time.perf_counter()
+        path_q = exact_goal(outcome.path_q, checker)
+        result.details["exact_goal"] = {"appended": len(path_q) > len(outcome.path_q),
+                                        "time_s": time.perf_counter() - t_goal}
+        result.planning_time_s += result.details["exact_goal"]["time_s"]
+        vp, result.path = _validate_and_repair(model, path_q, result, repair, progress, outcome.goals)
+        result.validated, result.dense = vp.report, vp
+        result.tip_mm = np.asarray(vp.report.tip_mm)
+        result.solved = vp.report.ok
+        result.message = _verdict(vp.report, repair)
+    _report_guard(result)
+    return result
 
-    outcome, checker = search(scene, planning_be, planner=planner, time_limit_s=time_limit_s,
-                              max_states=result.max_states, seed=seed, progress=progress, checker=checker,
-                              goal_hints=goal_hints)
+
+def _record_search(result: PlanResult, outcome: SearchOutcome, checker: ConfigurationChecker) -> None:
+    """The search's outcome, work and budget in ``result``."""
     result.planning_time_s = outcome.time_s
     result.kinematics_calls = checker.counters.kinematics_calls
     result.status, result.message = outcome.status, outcome.message
@@ -684,17 +619,3 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     result.details["goal_sampling"] = outcome.goal_stats
     result.details["budget"] = outcome.budget
     result.cut_short = outcome.budget["cut_short"]
-    if outcome.path_q is not None:
-        t_goal = time.perf_counter()
-        path_q = exact_goal(outcome.path_q, checker, exact)
-        result.details["exact_goal"] = {"appended": len(path_q) > len(outcome.path_q),
-                                        "time_s": time.perf_counter() - t_goal}
-        result.planning_time_s += result.details["exact_goal"]["time_s"]
-        vp, result.path = _validate_and_repair(scene, path_q, be, exact, checker, result, repair,
-                                               progress, outcome.goals)
-        result.validated, result.dense = vp.report, vp
-        result.tip_mm = np.asarray(vp.report.tip_mm)
-        result.solved = vp.report.ok
-        result.message = _verdict(vp.report, repair)
-    _report_guard(result)
-    return result

@@ -7,23 +7,28 @@ planner its whole time budget or give a meaningless "solved".
 3. **Target out of reach**: no sampled configuration of the robot puts its tip in (or near) the
    target from this base pose (the closest distance is reported).
 4. **Start**: outside the joint domain, in collision under the exact model (naming what it hits),
-   not converged or elastically unstable. The nearest valid start (`ctrplan.design.evaluate.
-   design_start`'s candidates: the start's own translations and the fully retracted ones, every
-   tube turned by 1/8 turns, nearest in the planning metric first) is proposed.
+   not converged or elastically unstable. The nearest valid start (`valid_start`'s candidates: the
+   start's own translations and the fully retracted ones, every tube turned by 1/8 turns, nearest in
+   the planning metric first) is proposed.
+5. **Planner**: the scene names a planner of `ctrplan.planning.planners.PLANNERS`.
 
 `check_scene` returns the problems found; `plan` and `ctrplan scene check` report the same lines.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ctrplan.errors import InputError
-from ctrplan.kinematics import Backend, CosseratBackend
+from ctrplan.kinematics import CosseratBackend
+from ctrplan.kinematics.backbone import Backbone
+from ctrplan.planning.model import PlanningModel
+from ctrplan.planning.planners import scene_planner
+from ctrplan.planning.validity import ConfigurationChecker
 from ctrplan.scene import Scene
-from ctrplan.stability import is_certified
 
 #: Obstacles spanning less than this fraction of the robot's length, or more than this multiple of
 #: it, are reported as a likely unit error.
@@ -33,11 +38,15 @@ SCALE_TOO_LARGE = 100.0
 #: inverse kinematics tries the target before it is called unreachable.
 REACH_SAMPLES = 4000
 REACH_IK_SEEDS = 16
+#: Tube rotations tried for a start: multiples of 1/START_TURNS turn.
+START_TURNS = 8
+#: Candidate starts checked per batched call.
+START_CHUNK = 64
 
 
 @dataclass(frozen=True)
 class SceneProblem:
-    """One thing that makes a scene unusable: ``kind`` is scale | target | reach | start."""
+    """One thing that makes a scene unusable: ``kind`` is scale | target | reach | start | planner."""
 
     kind: str
     message: str
@@ -58,27 +67,26 @@ class SceneCheck:
 
 
 def check_scene(scene: Scene, *, samples: int = REACH_SAMPLES, seed: int = 0, reach: bool = True,
-                exact: Backend | None = None, world=None) -> SceneCheck:
+                model: PlanningModel | None = None, start_backbone: Backbone | None = None) -> SceneCheck:
     """Run every check on ``scene`` (its start may lie outside the domain: see
     `ctrplan.scene.load_scene(..., check_start=False)`). ``reach=False`` skips the sampled
     reachability check (seconds; `plan` runs the others, which take milliseconds, before every
-    search). ``exact``: the exact backend to judge the start with (default: Cosserat, testing
-    stability unless the robot is certified); ``world``: a prebuilt `CollisionWorld` of the scene."""
+    search). ``model``: the plan's `PlanningModel` (its exact backend, with the stability decision,
+    judges the start; its collision world is reused); default: one of the exact model.
+    ``start_backbone``: that backend's backbone of the start at the model's points, if solved
+    already (`plan` solves it when it compiles the kernels)."""
     report = SceneCheck()
     robot_mm = float(scene.robot.lengths_mm[0] + scene.robot.domain.box_upper[0])
     _check_scale(scene, robot_mm, report)
     _check_target_inside(scene, report)
     if reach:
         _check_reach(scene, samples, seed, report)
-    _check_start(scene, report, exact or exact_backend(scene), world)
+    _check_start(scene, report, model or PlanningModel.of(scene), start_backbone)
+    try:
+        scene_planner(scene)
+    except InputError as exc:
+        report.problems.append(SceneProblem("planner", str(exc)))
     return report
-
-
-def exact_backend(scene: Scene) -> Backend:
-    """The exact model of the scene's robot, testing stability per state unless the robot has a
-    snap-free certificate (`ctrplan stability`)."""
-    exact: Backend = CosseratBackend(scene.robot)
-    return exact if is_certified(scene.robot) else exact.checking_stability()
 
 
 def _check_scale(scene: Scene, robot_mm: float, report: SceneCheck) -> None:
@@ -148,10 +156,7 @@ def _check_reach(scene: Scene, samples: int, seed: int, report: SceneCheck) -> N
                  f"closest {best:.1f} mm)"))
 
 
-def _check_start(scene: Scene, report: SceneCheck, exact: Backend, world) -> None:
-    from ctrplan.design.evaluate import design_start
-    from ctrplan.planning.validity import ConfigurationChecker
-
+def _check_start(scene: Scene, report: SceneCheck, model: PlanningModel, bb: Backbone | None) -> None:
     robot = scene.robot
     where = scene.where("start")
     lo, hi = scene.joint_box
@@ -163,14 +168,14 @@ def _check_start(scene: Scene, report: SceneCheck, exact: Backend, world) -> Non
             problem = f"{where}: outside the scene's joint_limits"
     except InputError as exc:
         problem = f"{where}: {str(exc).removeprefix('start: ').removeprefix('row 0: ')}"
-    inside = robot.domain.from_box(np.clip(box, lo, hi))
-    checker = ConfigurationChecker(replace(scene, start=inside), exact, world=world)
+    inside = replace(scene, start=robot.domain.from_box(np.clip(box, lo, hi)))
+    checker = ConfigurationChecker(model.exact_search().with_scene(inside))
     if problem is None:
-        problem = start_problem(scene, checker)
+        problem = start_problem(scene, checker, bb)
     if problem is None:
         report.facts["start"] = "valid"
         return
-    fixed = design_start(replace(scene, start=inside), checker)
+    fixed = valid_start(inside, checker)
     if fixed is None:
         report.problems.append(SceneProblem("start", f"{problem}; no valid start found near it"))
         return
@@ -179,10 +184,12 @@ def _check_start(scene: Scene, report: SceneCheck, exact: Backend, world) -> Non
         "start", f"{problem}; nearest valid start: {np.round(fixed, 4).tolist()}"))
 
 
-def start_problem(scene: Scene, checker) -> str | None:
+def start_problem(scene: Scene, checker: ConfigurationChecker, bb: Backbone | None = None) -> str | None:
     """Why the scene's start cannot begin a plan under ``checker``'s exact model: not converged,
-    unstable, or in collision (naming the obstacles, with the scene's margin); None if it can."""
-    bb = checker.backend.forward(scene.start, points=checker.points, check=False)
+    unstable, or in collision (naming the obstacles, with the scene's margin); None if it can.
+    ``bb``: the start's backbone under that model (solved here if not given)."""
+    if bb is None:
+        bb = checker.backend.forward(scene.start, points=checker.points, check=False)
     where = scene.where("start")
     if not bb.converged[0]:
         return f"{where}: the exact model does not converge at the start configuration"
@@ -195,4 +202,35 @@ def start_problem(scene: Scene, checker) -> str | None:
                           for n in sorted({n for _, n in contacts}))
         return (f"{where}: the start configuration is in collision with {names} "
                 f"(scene margin {scene.settings.margin_mm:g} mm)")
+    return None
+
+
+def valid_start(scene: Scene, checker: ConfigurationChecker) -> np.ndarray | None:
+    """A start near the scene's that is valid under ``checker`` (a design's start; the fix that
+    `check_scene` proposes): the scene's start if valid, else the valid candidate nearest it in the
+    planning metric among its translations and the fully retracted ones (``betaN`` lowest,
+    differences largest), each with every rotatable tube turned by multiples of 1/`START_TURNS` turn
+    (wrapped into its interval). None when no candidate is valid."""
+    space = checker.space
+    robot = scene.robot
+    n = robot.n_tubes
+    lo, hi = scene.joint_box
+    box0 = robot.domain.to_box(scene.start)
+    retracted = np.concatenate([[lo[0]], hi[1:n]])
+    angles = []
+    for c in range(n, 2 * n):
+        if hi[c] > lo[c]:
+            turns = box0[c] + np.arange(START_TURNS) * (hi[c] - lo[c]) / START_TURNS
+            angles.append(lo[c] + np.mod(turns - lo[c], hi[c] - lo[c]))
+        else:
+            angles.append(np.array([box0[c]]))
+    rows = [np.concatenate([t, a]) for t in (box0[:n], retracted) for a in itertools.product(*angles)]
+    cands = robot.domain.from_box(np.array(rows))
+    dist = np.linalg.norm(space.to_coords(cands) - space.to_coords(scene.start[None]), axis=1)
+    order = np.argsort(dist, kind="stable")
+    for a in range(0, len(order), START_CHUNK):
+        chunk = order[a:a + START_CHUNK]
+        valid = checker.check(cands[chunk])
+        if valid.any():
+            return cands[chunk[int(np.argmax(valid))]]
     return None

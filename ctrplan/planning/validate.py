@@ -21,11 +21,10 @@ import numpy as np
 from ctrplan.collision import CollisionWorld, RobotCollisionChecker
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
-from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.planning.goal import tip_tangents
+from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.space import BoxSpace
 from ctrplan.scene import Scene
-from ctrplan.stability import is_certified
 
 
 @dataclass
@@ -78,60 +77,94 @@ def _finite(x: float):
 
 @dataclass
 class ValidatedPath:
-    """A dense path (K, 2N) with its exact and planning-backend backbones and the report."""
+    """A dense path (K, 2N) with its exact and planning-backend backbones and the report; ``world``:
+    the collision world it was checked in (the writers' clearances reuse it)."""
 
     dense_q: np.ndarray
     exact: Backbone
     planned: Backbone | None
     report: Validation
+    world: CollisionWorld | None = None
 
 
 def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | None = None, *,
                   exact: Backend | None = None, resolution: float | None = None,
                   points: int | None = None, margin_mm: float | None = None,
-                  world: CollisionWorld | None = None, clearance_stride: int = 1) -> ValidatedPath:
-    """Re-validate ``path_q`` (K, 2N) with the exact model at ``resolution`` (planning metric, mm).
+                  world: CollisionWorld | None = None) -> ValidatedPath:
+    """`validate_planned_path` on the planning model of ``scene`` with ``planning_backend`` (if given and not
+    exact itself: evaluated on the same states for the position error), ``exact`` (default:
+    Cosserat; testing stability unless the robot is certified), ``points`` and a prebuilt ``world``
+    (`PlanningModel.of`)."""
+    model = PlanningModel.of(scene, planning_backend, exact=exact, points=points, world=world)
+    return validate_planned_path(model, path_q, resolution=resolution, margin_mm=margin_mm)
 
-    ``planning_backend`` (if given and not exact itself) is evaluated on the same states for the
-    position error. ``clearance_stride`` > 1 computes distances on every n-th state only (plus the
-    colliding-free minimum over all states is still exact for collisions). For a robot without a
-    stability certificate the exact model also computes elastic stability: an unstable state fails
-    like a colliding one.
+
+def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolution: float | None = None,
+                          margin_mm: float | None = None) -> ValidatedPath:
+    """Re-validate ``path_q`` (K, 2N) with the model's exact backend at ``resolution`` (planning
+    metric, mm; default: the scene's) and capsule margin ``margin_mm`` (default: the scene's, not the
+    search's).
+
+    The model's planning backend, unless it is the exact one, is evaluated on the same states for
+    the position error. Collisions and clearance are found in one pass over the states. The exact
+    backend computes elastic stability unless the robot is certified (`StabilityDecision`): an
+    unstable state fails like a colliding one.
     """
     t0 = time.perf_counter()
+    scene = model.scene
     s = scene.settings
     resolution = float(resolution or s.resolution_mm)
-    points = int(points or s.points)
     margin = s.margin_mm if margin_mm is None else float(margin_mm)
-    space = BoxSpace.for_scene(scene)
-    exact = exact or CosseratBackend(scene.robot)
-    if not is_certified(scene.robot):
-        exact = exact.checking_stability()
-    dense = space.densify(path_q, resolution)
-    ebb = exact.forward(dense, points=points, check=False)
+    exact = model.exact
+    dense = model.space.densify(path_q, resolution)
+    ebb = exact.forward(dense, points=model.points, check=False)
     bound = float(np.min(ebb.radius_mm)) + margin
-    dense, ebb = refine_steps(space, exact, dense, ebb, bound)
+    dense, ebb = refine_steps(model.space, exact, dense, ebb, bound)
     report = Validation(backend=exact.name, states=len(dense), step_bound_mm=bound,
                         max_step_mm=float(np.max(backbone_steps(ebb), initial=0.0)))
     report.converged = bool(ebb.converged.all())
     report.stable = bool(ebb.stable.all())
-
     pbb = None
-    if planning_backend is not None and planning_backend is not exact:
-        pbb = planning_backend.forward(dense, points=points, check=False)
-        err = np.linalg.norm(pbb.positions_mm - ebb.positions_mm, axis=-1)
-        tip_err = np.linalg.norm(pbb.tip_mm - ebb.tip_mm, axis=-1)
-        report.max_position_error_mm = float(np.nanmax(err)) if np.isfinite(err).any() else np.inf
-        report.max_tip_error_mm = float(np.nanmax(tip_err)) if np.isfinite(tip_err).any() else np.inf
-        if not np.all(np.isfinite(err)):
-            report.max_position_error_mm = np.inf
+    if model.backend is not exact:
+        pbb = model.backend.forward(dense, points=model.points, check=False)
+        _position_errors(report, pbb, ebb)
+    checker = RobotCollisionChecker(model.world, scene.base_pose, model.points, margin)
+    _collisions_and_clearance(report, checker, ebb)
+    tip = scene.to_scene(ebb.tip_mm[-1])
+    report.tip_mm = tip.tolist()
+    angle = float(scene.target.angle_rad(tip_tangents(scene, ebb)[-1]))
+    report.tip_angle_deg = float(np.degrees(angle))
+    report.tip_in_target = bool(ebb.converged[-1] and scene.target.contains(tip)
+                                and angle <= scene.target.angle_tolerance_rad + 1e-12)
+    report.time_s = time.perf_counter() - t0
+    return ValidatedPath(dense, ebb, pbb, report, model.world)
 
-    checker = RobotCollisionChecker(world or CollisionWorld.from_scene(scene), scene.base_pose,
-                                    points, margin)
-    bad = []
-    for i in range(len(dense)):
-        if not ebb.stable[i] or not checker.is_free(ebb.positions_mm[i], ebb.radius_mm[i]):
+
+def _position_errors(report: Validation, pbb: Backbone, ebb: Backbone) -> None:
+    """The largest backbone point and tip distances (mm) between the planning backend and the exact
+    model (inf where either did not converge)."""
+    err = np.linalg.norm(pbb.positions_mm - ebb.positions_mm, axis=-1)
+    tip_err = np.linalg.norm(pbb.tip_mm - ebb.tip_mm, axis=-1)
+    report.max_position_error_mm = float(np.nanmax(err)) if np.isfinite(err).any() else np.inf
+    report.max_tip_error_mm = float(np.nanmax(tip_err)) if np.isfinite(tip_err).any() else np.inf
+    if not np.all(np.isfinite(err)):
+        report.max_position_error_mm = np.inf
+
+
+def _collisions_and_clearance(report: Validation, checker: RobotCollisionChecker, ebb: Backbone) -> None:
+    """One pass over the exact backbones: the clearance of every state (mm, surface to the nearest
+    obstacle, 0 on contact), which decides its collision too -- a capsule grown by the margin touches
+    an obstacle exactly when the capsule's clearance is at most the margin -- the failing states
+    (colliding, not converged or unstable), the first one's obstacles, and the smallest clearance
+    with its obstacle."""
+    bad: list[int] = []
+    best, nearest = np.inf, ""
+    for i in range(len(ebb.positions_mm)):
+        c = checker.clearance(ebb.positions_mm[i], ebb.radius_mm[i])
+        if not (ebb.stable[i] and c.distance_mm > checker.margin_mm):
             bad.append(i)  # unstable states fail too: the robot would snap there
+        if c.distance_mm < best:
+            best, nearest = c.distance_mm, c.obstacle
     report.colliding_states = bad
     report.collision_free = not bad and report.converged
     if bad:
@@ -141,27 +174,8 @@ def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | 
         if ebb.converged[i] and not ebb.stable[i]:
             names.append("(unstable equilibrium: the robot snaps)")
         report.first_collision = {"state": i, "obstacles": names}
-
-    best = np.inf
-    nearest = ""
-    idx = list(range(0, len(dense), max(1, int(clearance_stride))))
-    if len(dense) - 1 not in idx:
-        idx.append(len(dense) - 1)
-    for i in sorted(set(idx) | set(bad[:1])):
-        c = checker.clearance(ebb.positions_mm[i], ebb.radius_mm[i])
-        if c.distance_mm < best:
-            best, nearest = c.distance_mm, c.obstacle
     report.min_clearance_mm = float(best) if np.isfinite(best) else float("inf")
     report.nearest_obstacle = nearest
-
-    tip = scene.to_scene(ebb.tip_mm[-1])
-    report.tip_mm = tip.tolist()
-    angle = float(scene.target.angle_rad(tip_tangents(scene, ebb)[-1]))
-    report.tip_angle_deg = float(np.degrees(angle))
-    report.tip_in_target = bool(ebb.converged[-1] and scene.target.contains(tip)
-                                and angle <= scene.target.angle_tolerance_rad + 1e-12)
-    report.time_s = time.perf_counter() - t0
-    return ValidatedPath(dense, ebb, pbb, report)
 
 
 def clearance_along(scene: Scene, bb: Backbone, cap_mm: float,

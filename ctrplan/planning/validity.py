@@ -2,9 +2,10 @@
 
 A configuration is valid when the kinematics backend converged and the capsule chain around its
 backbone touches no obstacle. `ConfigurationChecker` does that for batches of joint vectors (one
-backend call per batch), keeps a small cache (tip, validity, warm start) per checked state and counts
-kinematics calls. `ValidityChecker` and `BatchMotionValidator` adapt it to OMPL; both are usable with
-any OMPL planner from user code (see ``examples/custom_planner.py``).
+backend call per batch) for a frozen `PlanningModel`, keeps a small cache (tip, validity, warm start)
+per checked state and counts kinematics calls: the per-search data of the model. `ValidityChecker`
+and `BatchMotionValidator` adapt it to OMPL; both are usable with any OMPL planner from user code
+(see ``examples/custom_planner.py``).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from ompl import base as ob
 from ctrplan.collision import CollisionWorld, RobotCollisionChecker
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import ArcFractions, Backend, Body, Points, arc_fractions
+from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.space import BoxSpace
 from ctrplan.scene import Scene
 
@@ -50,41 +52,54 @@ class _Entry:
 
 @dataclass
 class ConfigurationChecker:
-    """Backend + scene collision for batches of configurations, with a state cache.
+    """The per-search data of a `PlanningModel` (as Pinocchio's ``Data`` to its ``Model``): checks
+    batches of configurations with the model's backend and collision world, and keeps what one search
+    learns -- a state cache, counters, a progress hook, recently found valid states.
 
     Args:
-        scene: the planning scene (base pose, obstacles, settings).
-        backend: any `Backend`; if its ``forward`` accepts ``guess=`` (Cosserat) edges are
-            warm-started from the solution at their first state.
-        points: backbone points per configuration (default: scene setting).
-        margin_mm: capsule margin (default: scene setting).
-        world: a prebuilt `CollisionWorld` to share.
+        model: the frozen planning model (scene, backend, margin, world, space).
+        cache_size: states kept in the cache.
     """
 
-    scene: Scene
-    backend: Backend
-    points: int | None = None
-    margin_mm: float | None = None
-    world: CollisionWorld | None = None
+    model: PlanningModel
     cache_size: int = 200_000
     counters: Counters = field(default_factory=Counters)
     hook: Callable[[], None] | None = None
 
     def __post_init__(self) -> None:
-        s = self.scene.settings
-        self.points = int(self.points or s.points)
-        self.margin_mm = s.margin_mm if self.margin_mm is None else float(self.margin_mm)
-        self.world = self.world or CollisionWorld.from_scene(self.scene)
-        self.collision = RobotCollisionChecker(self.world, self.scene.base_pose, self.points,
-                                               self.margin_mm)
-        self.space = BoxSpace.for_scene(self.scene)
-        self.warm_start = self.backend.warm_startable
+        m = self.model
+        self.collision = RobotCollisionChecker(m.world, m.scene.base_pose, m.points, m.margin_mm)
+        self.warm_start = m.backend.warm_startable
         self._cache: OrderedDict[bytes, _Entry] = OrderedDict()
         #: joints and scene-frame tips of recently found valid states (seeds for goal sampling)
         self.valid_q: list[np.ndarray] = []
         self.valid_tips: list[np.ndarray] = []
         #: arc fractions checked in turn (see `_stages`)
         self.stages = self._stages()
+
+    @property
+    def scene(self) -> Scene:
+        return self.model.scene
+
+    @property
+    def backend(self) -> Backend:
+        return self.model.backend
+
+    @property
+    def space(self) -> BoxSpace:
+        return self.model.space
+
+    @property
+    def points(self) -> int:
+        return self.model.points
+
+    @property
+    def margin_mm(self) -> float:
+        return self.model.margin_mm
+
+    @property
+    def world(self) -> CollisionWorld:
+        return self.model.world
 
     def _stages(self) -> tuple[ArcFractions, ...]:
         """Arc fractions of the backbone points checked in turn. Where the backend makes part of a

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 import torch
 
-from ctrplan.kinematics.pinn import PinnNet
+from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.training.losses import boundary_residual, observation_residual, ode_residual, supervised_residual
 from ctrplan.training.physics import TubeTensors
 

@@ -14,6 +14,7 @@ import trimesh
 from ctrplan import broadphase
 from ctrplan.broadphase import DistanceGrid, geometry_key, grid_for
 from ctrplan.collision import CollisionWorld, RobotCollisionChecker
+from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.space import BoxSpace
 from ctrplan.planning.validity import ConfigurationChecker
 from ctrplan.scene import Obstacle, load_scene, make_pose
@@ -172,8 +173,9 @@ def test_planner_validity_is_identical_with_and_without_broadphase(cosserat):
     # states around the start (in the nose: many near misses) and across the whole box
     y = space.to_coords(np.repeat(scene.start[None], 150, axis=0)) + rng.normal(scale=6.0, size=(150, 6))
     q = np.concatenate([space.to_joints(space.clip(y)), space.sample(50, rng)])
-    with_bp = ConfigurationChecker(scene, cosserat, world=CollisionWorld.from_scene(scene))
-    without = ConfigurationChecker(scene, cosserat, world=CollisionWorld.from_scene(scene, broadphase=False))
+    with_bp = ConfigurationChecker(PlanningModel.of(scene, cosserat, world=CollisionWorld.from_scene(scene)))
+    without = ConfigurationChecker(PlanningModel.of(scene, cosserat,
+                                                    world=CollisionWorld.from_scene(scene, broadphase=False)))
     assert with_bp.world.grid is not None and without.world.grid is None
     valid = with_bp.check(q)
     assert np.array_equal(valid, without.check(q))

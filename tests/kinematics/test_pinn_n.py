@@ -213,7 +213,8 @@ def test_train_cli_with_fixed_joints_and_a_tube_curved_from_its_base(tmp_path, c
     assert pinn.forward(robot.sample_joints(2, rng=0)).converged.all()
     # the card carries the planner's calibrated margin: on configurations calibration never saw, the
     # tip region's largest error is within its 0.8-coverage bound for about 80 % of them
-    from ctrplan.training.evaluate import compare, region_bounds_mm
+    from ctrplan.kinematics.error_bound import region_bounds_mm
+    from ctrplan.training.evaluate import compare
 
     fresh = compare(pinn, robot, n=300, points=64, seed=2024)
     err = np.linalg.norm(fresh.predicted.positions_mm - fresh.exact.positions_mm, axis=-1)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.validity import EDGE_BATCHES, ConfigurationChecker, bisection_order, edge_batches
 from ctrplan.robot import Robot
 
@@ -24,7 +25,7 @@ def test_edge_batches_cover_the_interior_once(k):
 
 def test_long_edge_through_an_obstacle_stops_after_the_first_batch(open_scene, cosserat):
     domain = Robot.nominal().domain
-    checker = ConfigurationChecker(open_scene, cosserat)
+    checker = ConfigurationChecker(PlanningModel.of(open_scene, cosserat))
     # both ends valid, the straight line between them swings the robot through the ball
     goal = domain.from_box(np.array([0, 10, 5, 0.5, 3.0, 0.3]))
     assert checker.check(np.stack([open_scene.start, goal])).all()
@@ -40,7 +41,7 @@ def test_long_edge_through_an_obstacle_stops_after_the_first_batch(open_scene, c
 
 
 def test_long_free_edge_checks_every_interior_state(open_scene, cosserat):
-    checker = ConfigurationChecker(open_scene, cosserat)
+    checker = ConfigurationChecker(PlanningModel.of(open_scene, cosserat))
     a = open_scene.start
     b = a.copy()
     b[:3] += np.array([10.0, 10.0, 5.0])  # a short insertion move in free space: 7.07 mm

@@ -13,7 +13,8 @@ from ctrplan.collision import RobotCollisionChecker
 from ctrplan.kinematics import CosseratBackend, make_backend
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend
 from ctrplan.planning import ConfigurationChecker
-from ctrplan.planning.planner import EXACT_GOAL_TOL_MM, exact_goal, planning_backend
+from ctrplan.planning.model import PlanningModel, planning_backend
+from ctrplan.planning.planner import EXACT_GOAL_TOL_MM, exact_goal
 from ctrplan.scene import Obstacle, TargetRegion, load_scene
 from tests.paths import SCENES
 
@@ -21,7 +22,7 @@ from tests.paths import SCENES
 @pytest.fixture(scope="module")
 def pinn_checker(skullbase):
     be, margin, _ = planning_backend(skullbase, make_backend("pinn", skullbase.robot))
-    return ConfigurationChecker(skullbase, be, margin_mm=margin)
+    return ConfigurationChecker(PlanningModel.of(skullbase, be, margin_mm=margin))
 
 
 def _fcl_valid(checker: ConfigurationChecker, q: np.ndarray) -> np.ndarray:
@@ -42,8 +43,7 @@ def _states_near_start(checker: ConfigurationChecker, n: int, seed: int) -> np.n
 
 def _one_by_one(checker: ConfigurationChecker, q: np.ndarray) -> np.ndarray:
     """`is_valid` (the planner's single-state path) of every row, on a checker with an empty cache."""
-    fresh = ConfigurationChecker(checker.scene, checker.backend, margin_mm=checker.margin_mm,
-                                 world=checker.world)
+    fresh = ConfigurationChecker(checker.model)
     return np.array([fresh.is_valid(qi) for qi in q])
 
 
@@ -77,7 +77,7 @@ def test_contacts_on_the_proximal_half_alone_are_found():
     pose[:3, 3] = [6.0, 0.0, 45.0]
     scene = replace(scene, obstacles=(Obstacle("ball", "sphere", pose, radius=3.0),))
     be, margin, _ = planning_backend(scene, make_backend("pinn", scene.robot))
-    checker = ConfigurationChecker(scene, be, margin_mm=margin)
+    checker = ConfigurationChecker(PlanningModel.of(scene, be, margin_mm=margin))
     q = scene.robot.sample_joints(300, rng=11)
     bb = be.forward(q, checker.points, check=False)
     assert bb.s_mm[0, checker.points // 2] > 45.0 + 10.0  # the ball is beside the proximal half
@@ -100,8 +100,7 @@ def test_staged_edge_checks_agree_with_fcl_on_every_state(skullbase, pinn_checke
         n = max(1, int(np.ceil(float(pinn_checker.space.distance(q1, q2)) / res)))
         line = pinn_checker.space.interpolate(q1, q2, np.arange(1, n + 1) / n)
         expected = bool(_fcl_valid(pinn_checker, line).all())
-        fresh = ConfigurationChecker(skullbase, pinn_checker.backend, margin_mm=pinn_checker.margin_mm,
-                                     world=pinn_checker.world)
+        fresh = ConfigurationChecker(pinn_checker.model)
         fresh.check(q1)
         assert fresh.check_motion(q1, q2, res) == expected
         outcomes.append(expected)
@@ -126,12 +125,12 @@ class _CurvedMore(Backend):
 def test_exact_goal_puts_the_exact_tip_where_the_surrogate_put_it():
     scene = load_scene(SCENES / "open.yaml")
     exact = CosseratBackend(scene.robot)
-    checker = ConfigurationChecker(scene, _CurvedMore(scene.robot))
+    checker = ConfigurationChecker(PlanningModel.of(scene, _CurvedMore(scene.robot), exact=exact))
     goal = np.array([-40.0, -25.0, -5.0, 0.4, 1.2, -0.6])
     aim = checker.backend.forward(goal, 2).tip_mm[0]
     assert np.linalg.norm(exact.forward(goal, 2).tip_mm[0] - aim) > 1.0  # the surrogate is off
     path = np.stack([scene.start, goal])
-    out = exact_goal(path, checker, exact)
+    out = exact_goal(path, checker)
     assert out.shape == (3, 6)
     np.testing.assert_array_equal(out[:2], path)
     assert np.linalg.norm(exact.forward(out[-1], 2).tip_mm[0] - aim) <= EXACT_GOAL_TOL_MM + 1e-9
@@ -141,12 +140,12 @@ def test_exact_goal_puts_the_exact_tip_where_the_surrogate_put_it():
     aimed = replace(scene, target=replace(scene.target, direction=np.array([0.0, 0.0, 1.0]),
                                           angle_tolerance_rad=np.pi / 2))
     _, tangent, _ = checker.backend.tip_and_tangent(goal)
-    out = exact_goal(path, ConfigurationChecker(aimed, checker.backend), exact)
+    out = exact_goal(path, ConfigurationChecker(checker.model.with_scene(aimed)))
     tip, exact_tangent, _ = exact.tip_and_tangent(out[-1])
     assert np.linalg.norm(tip - aim) < EXACT_GOAL_TOL_MM
     assert np.degrees(np.arccos(np.clip(exact_tangent[0] @ tangent[0], -1, 1))) < 0.2
 
     # left alone: when the exact tip is in the target already, and for an exact planning backend
     inside = replace(scene, target=TargetRegion.sphere(scene.to_scene(exact.forward(goal, 2).tip_mm[0]), 2.0))
-    assert exact_goal(path, ConfigurationChecker(inside, checker.backend), exact) is path
-    assert exact_goal(path, ConfigurationChecker(scene, exact), exact) is path
+    assert exact_goal(path, ConfigurationChecker(checker.model.with_scene(inside))) is path
+    assert exact_goal(path, ConfigurationChecker(PlanningModel.of(scene, exact))) is path

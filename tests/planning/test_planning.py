@@ -19,6 +19,7 @@ from ctrplan.planning import (
     BoxSpace,
     ConfigurationChecker,
     GoalSampler,
+    PlanningModel,
     build_problem,
     make_planner,
     plan,
@@ -28,9 +29,10 @@ from ctrplan.planning import (
     validate_path,
 )
 from ctrplan.planning.ik import fd_tip_jacobian
+from ctrplan.planning.planners import PLANNERS
 from ctrplan.planning.validity import bisection_order
 from ctrplan.robot import Robot
-from ctrplan.scene import PLANNERS, load_scene
+from ctrplan.scene import load_scene
 from tests.independent.cosserat import Tubes, solve
 from tests.independent.geometry import axis_angle, box_gap, sphere_gap
 from tests.paths import SCENES
@@ -70,7 +72,7 @@ def test_ik_reaches_reachable_targets(exact):
 
 
 def test_goal_sampler_gives_valid_goals_in_the_region(open_scene, exact):
-    checker = ConfigurationChecker(open_scene, exact)
+    checker = ConfigurationChecker(PlanningModel.of(open_scene, exact))
     sampler = GoalSampler(checker, open_scene.target, np.random.default_rng(0), start=open_scene.start)
     goals = sampler.sample_batch()
     assert len(goals) >= 3
@@ -80,7 +82,7 @@ def test_goal_sampler_gives_valid_goals_in_the_region(open_scene, exact):
 
 
 def test_motion_validator_checks_an_edge_in_one_batch(open_scene, exact):
-    checker = ConfigurationChecker(open_scene, exact)
+    checker = ConfigurationChecker(PlanningModel.of(open_scene, exact))
     a = open_scene.start
     b = a.copy()
     b[:3] += np.array([10.0, 10.0, 5.0])  # box coordinates move by (5, -5, 0): 7.07 mm

@@ -12,6 +12,7 @@ from ctrplan.errors import InputError
 from ctrplan.kinematics import make_backend
 from ctrplan.planning import ConfigurationChecker, GoalSampler, plan, validate_path
 from ctrplan.planning.goal import tip_tangents
+from ctrplan.planning.model import PlanningModel
 from ctrplan.scene import load_scene
 from tests.paths import SCENES
 
@@ -33,7 +34,7 @@ def test_scene_reads_the_approach_direction(tmp_path):
 
 
 def test_goal_sampling_and_validation_respect_the_direction(open_scene, exact):
-    free = GoalSampler(ConfigurationChecker(open_scene, exact), open_scene.target,
+    free = GoalSampler(ConfigurationChecker(PlanningModel.of(open_scene, exact)), open_scene.target,
                        np.random.default_rng(0), start=open_scene.start)
     goals = np.stack(free.sample_batch())
     tangents = tip_tangents(open_scene, exact.forward(goals, points=2, check=False))
@@ -43,8 +44,8 @@ def test_goal_sampling_and_validation_respect_the_direction(open_scene, exact):
     assert off.max() > 10, "the goals all point the same way: the test would prove nothing"
     scene = replace(open_scene, target=target)
 
-    sampler = GoalSampler(ConfigurationChecker(scene, exact), target, np.random.default_rng(1),
-                          start=scene.start)
+    sampler = GoalSampler(ConfigurationChecker(PlanningModel.of(scene, exact)), target,
+                          np.random.default_rng(1), start=scene.start)
     for _ in range(4):
         sampler.sample_batch()
     assert sampler.goals and sampler.stats.wrong_direction > 0
@@ -58,7 +59,7 @@ def test_goal_sampling_and_validation_respect_the_direction(open_scene, exact):
 
 
 def test_plan_reaches_the_target_along_the_direction(open_scene, exact):
-    goals = GoalSampler(ConfigurationChecker(open_scene, exact), open_scene.target,
+    goals = GoalSampler(ConfigurationChecker(PlanningModel.of(open_scene, exact)), open_scene.target,
                         np.random.default_rng(0), start=open_scene.start).sample_batch()
     tangent = tip_tangents(open_scene, exact.forward(goals[0], points=2, check=False))[0]
     scene = replace(open_scene, target=replace(open_scene.target, direction=tangent,
@@ -93,11 +94,11 @@ def test_rrtconnect_keeps_asking_for_goals_while_none_is_found(open_scene):
 def test_goal_sampling_starts_from_hints(open_scene, exact):
     """Hints (e.g. the PINN's goals, for an exact repair) are the first batch's only seeds, and goals
     next to them come back from few exact solves; later batches sample as usual."""
-    pinn = ConfigurationChecker(open_scene, make_backend("pinn", open_scene.robot))
+    pinn = ConfigurationChecker(PlanningModel.of(open_scene, make_backend("pinn", open_scene.robot)))
     pinn_goals = GoalSampler(pinn, open_scene.target, np.random.default_rng(0),
                              start=open_scene.start).sample_batch()
     assert len(pinn_goals) >= 2
-    checker = ConfigurationChecker(open_scene, exact)
+    checker = ConfigurationChecker(PlanningModel.of(open_scene, exact))
     hinted = GoalSampler(checker, open_scene.target, np.random.default_rng(1), start=open_scene.start,
                          hints=np.stack(pinn_goals))
     found = hinted.sample_batch()
@@ -106,7 +107,7 @@ def test_goal_sampling_starts_from_hints(open_scene, exact):
     calls = checker.counters.kinematics_calls
     hinted.sample_batch()  # hints are used once: a usual batch now
     assert hinted.stats.seeds - len(pinn_goals) >= hinted.seeds_per_batch
-    plain = GoalSampler(ConfigurationChecker(open_scene, exact), open_scene.target,
+    plain = GoalSampler(ConfigurationChecker(PlanningModel.of(open_scene, exact)), open_scene.target,
                         np.random.default_rng(1), start=open_scene.start)
     plain.sample_batch()
     assert calls < plain.checker.counters.kinematics_calls  # cheaper than a batch from scratch

@@ -11,6 +11,7 @@ import numpy as np
 from ctrplan.cli import main
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.planning import plan, validate_path
+from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.validity import ConfigurationChecker
 from ctrplan.robot import Robot
 from ctrplan.scene import load_scene
@@ -49,8 +50,9 @@ def test_planning_validity_rejects_an_unstable_configuration(tmp_path, private_c
     scene = load_scene(scene_file)
     assert not is_certified(scene.robot)
     plain = CosseratBackend(scene.robot)
-    assert ConfigurationChecker(scene, plain).is_valid(HALF_TURN)  # without the stability test
-    checked = ConfigurationChecker(scene, plain.checking_stability())
+    # without the stability test
+    assert ConfigurationChecker(PlanningModel.of(scene, plain)).is_valid(HALF_TURN)
+    checked = ConfigurationChecker(PlanningModel.of(scene, plain.checking_stability()))
     assert not checked.is_valid(HALF_TURN)
     assert checked.is_valid(np.array([0.0, 0.0, 0.0, 1.0]))
 

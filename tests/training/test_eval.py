@@ -10,9 +10,10 @@ import pytest
 
 from ctrplan.errors import InputError
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.kinematics.error_bound import region_bounds_mm
 from ctrplan.kinematics.model_file import read_card, resolve_model
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY
-from ctrplan.planning.planner import RegionMarginBackend, planning_backend
+from ctrplan.planning.model import RegionMarginBackend, planning_backend
 from ctrplan.robot import Robot
 from ctrplan.scene import load_scene
 from ctrplan.training.evaluate import (
@@ -24,7 +25,6 @@ from ctrplan.training.evaluate import (
     compare,
     conformal_quantile,
     error_bound,
-    region_bounds_mm,
 )
 from tests.paths import SCENES
 
