@@ -607,7 +607,7 @@ def main() -> None:  # pragma: no cover - script
         path.write_text(header + dump_yaml(d))
         print(f"wrote {path.relative_to(ROOT)}")
     path = SCENES / "skullbase_design.yaml"
-    note = "# The design task of `ctrplan design` (README); targets in the scene frame, mm.\n"
+    note = "# The design task of `ctrplan design` (docs/design.md §5); targets in the scene frame, mm.\n"
     path.write_text(header + note + dump_yaml(design_task(SKULLBASE)))
     print(f"wrote {path.relative_to(ROOT)}")
     if args.check:

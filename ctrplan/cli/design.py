@@ -29,7 +29,7 @@ OPTIONS = {"workers": "--workers", "ray": "--ray", "storage": "--storage", "stud
 TaskArg = Annotated[Path, typer.Argument(
     metavar="TASK.yaml", show_default=False,
     help="Design task: scene, named targets, base robot, what may vary, catalogue, constraints, "
-         "objectives, budget (README: ctrplan design).")]
+         "objectives, budget (docs/design.md §5).")]
 TrialsOpt = Annotated[int | None, typer.Option(
     "--trials", metavar="N", show_default=False,
     help="Finished trials the study should have (default: the task's budget); a continued study "

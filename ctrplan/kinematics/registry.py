@@ -47,7 +47,7 @@ def _hybrid(robot: Robot, model: str | Path | None) -> Backend:
     return HybridBackend(robot, model)
 
 
-#: Rates: `ctrplan bench plan scenes/skullbase.yaml` (README), searches that use their whole 10 s
+#: Rates: `ctrplan bench plan scenes/skullbase.yaml` (docs/benchmarks.md), searches that use their whole 10 s
 #: (RRT, RRT*: 15,000-17,000 with the PINN, 4,900-5,300 with the exact backends).
 BACKEND_KINDS: dict[str, BackendKind] = {kind.name: kind for kind in (
     BackendKind("cosserat", _cosserat, uses_model=False, reference_states_per_s=5000.0),

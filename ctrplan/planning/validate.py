@@ -154,14 +154,19 @@ def _position_errors(report: Validation, pbb: Backbone, ebb: Backbone) -> None:
 def _collisions_and_clearance(report: Validation, checker: RobotCollisionChecker, ebb: Backbone) -> None:
     """One pass over the exact backbones: the clearance of every state (mm, surface to the nearest
     obstacle, 0 on contact), which decides its collision too -- a capsule grown by the margin touches
-    an obstacle exactly when the capsule's clearance is at most the margin -- the failing states
+    an obstacle exactly when the capsule's clearance is at most the margin; where a structure's own
+    margin could decide, the margin-aware boolean check does -- the failing states
     (colliding, not converged or unstable), the first one's obstacles, and the smallest clearance
     with its obstacle."""
     bad: list[int] = []
     best, nearest = np.inf, ""
+    own = max(checker.world.margins, default=0.0)  # the largest structure's own margin (mm)
     for i in range(len(ebb.positions_mm)):
         c = checker.clearance(ebb.positions_mm[i], ebb.radius_mm[i])
-        if not (ebb.stable[i] and c.distance_mm > checker.margin_mm):
+        free = c.distance_mm > checker.margin_mm
+        if free and c.distance_mm <= checker.margin_mm + own:  # a structure's own margin may decide
+            free = checker.is_free(ebb.positions_mm[i], ebb.radius_mm[i])
+        if not (ebb.stable[i] and free):
             bad.append(i)  # unstable states fail too: the robot would snap there
         if c.distance_mm < best:
             best, nearest = c.distance_mm, c.obstacle
