@@ -53,6 +53,7 @@ def _register() -> None:
         kinematics,
         model,
         plan,
+        roadmap,
         scene,
         stability,
     )

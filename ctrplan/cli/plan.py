@@ -94,6 +94,14 @@ def plan_command(
              "into DIR.")] = None,
     json_out: Annotated[bool, typer.Option(
         "--json", help="Print one JSON summary on stdout (progress and summary go to stderr).")] = False,
+    roadmap: Annotated[Path | None, typer.Option(
+        "--roadmap", metavar="DIR", show_default=False,
+        help="Answer from the roadmap in DIR (`ctrplan roadmap build`) instead of a single-query search; "
+             "--out then writes obstacles.ply and path_<row>.json per target.")] = None,
+    targets: Annotated[Path | None, typer.Option(
+        "--targets", metavar="TARGETS.csv", show_default=False,
+        help="With --roadmap: answer every row (header x,y,z,tolerance_mm; scene frame, mm) instead of "
+             "the scene's target.")] = None,
 ) -> None:
     """Plan a motion of the robot's tip into the scene's target region.
 
@@ -102,6 +110,15 @@ def plan_command(
     """
     from rich.console import Console
 
+    if targets is not None and roadmap is None:
+        raise InputError("--targets: needs --roadmap DIR (the single-query planner answers the scene's "
+                         "target)")
+    if roadmap is not None:
+        from ctrplan.cli.roadmap import plan_from_roadmap
+
+        plan_from_roadmap(scene, roadmap, targets, backend=backend, model=model, out=out, json_out=json_out,
+                          robot=None if robot is None else Robot.load(robot))
+        return
     time_limit = parse_duration(time_limit, "s")
     if max_states is not None and max_states < 1:
         raise InputError(f"--max-states: must be an integer >= 1 (states), got {max_states}")
