@@ -12,6 +12,7 @@ import numpy as np
 import typer
 
 from ctrplan.cli import HELP_SETTINGS, app
+from ctrplan.cli.bench import bench_app, publish
 from ctrplan.cli.kinematics import ModelOpt, as_option, load_backend
 from ctrplan.cli.options import parse_duration
 from ctrplan.cli.progress import StatusLine
@@ -202,3 +203,77 @@ def _summary(console, doc: dict) -> None:
     for i, r in enumerate(doc["results"], 1):
         if not r["solved"]:
             console.print(f"  target {i} {np.round(r['target_mm'], 2).tolist()}: {r['message']}")
+
+
+@bench_app.command("roadmap")
+def bench_roadmap(
+    scene: Annotated[Path, typer.Argument(metavar="SCENE.yaml", show_default=False, help="Scene file.")],
+    roadmap: Annotated[Path, typer.Option(
+        "--roadmap", metavar="DIR", show_default=False,
+        help="Roadmap of the scene (`ctrplan roadmap build`).")],
+    n: Annotated[int, typer.Option("--n", help="Random targets, uniform in the scene's target region.")] = 30,
+    tolerance_mm: Annotated[float, typer.Option(
+        "--tolerance-mm", help="Radius of each target sphere (mm).")] = 1.0,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the targets and the planners.")] = 0,
+    single_time_limit: Annotated[str, typer.Option(
+        "--single-time-limit", metavar="DURATION",
+        help="Time budget of the single-query RRTConnect run per target (as `plan --time-limit`); 0: "
+             "skip the single-query runs.")] = "10s",
+    backend: Annotated[str, typer.Option("--backend", metavar="NAME", help="Planning backend.")] = "pinn",
+    model: ModelOpt = None,
+    out: Annotated[Path, typer.Option(
+        "--out", help="Directory for results.json, the OMPL log, benchmark.db and the plot.")
+    ] = Path("runs/bench_roadmap"),
+    as_json: Annotated[bool, typer.Option("--json", help="Print the JSON summary on stdout.")] = False,
+) -> None:
+    """Roadmap query times against single-query planning on N random targets in the scene's target
+    region: query and exact-validation time distributions, solve rates, unsafe paths, a plot, and
+    roadmap rows in the Planner Arena database."""
+    from rich.console import Console
+
+    from ctrplan.bench import machine_info
+    from ctrplan.bench import roadmap as roadmap_bench
+    from ctrplan.bench.ompl_log import write_database, write_logs
+    from ctrplan.dataio import check_output_dir, output_dir
+    from ctrplan.planning.roadmap._adapter import planning_context
+    from ctrplan.planning.roadmap.query import RoadmapPlanner
+    from ctrplan.planning.roadmap.store import fingerprints, load_roadmap
+    from ctrplan.scene import load_scene
+
+    if n < 1:
+        raise InputError(f"--n: need at least 1 target, got {n}")
+    if not tolerance_mm > 0:
+        raise InputError(f"--tolerance-mm: must be > 0 (mm), got {tolerance_mm}")
+    limit = None if single_time_limit.strip() in ("0", "0s") else parse_duration(
+        single_time_limit, "s", "--single-time-limit")
+    check_output_dir(out)
+    sc = load_scene(scene)
+    be = load_backend(backend, sc.robot, model)
+    rm = load_roadmap(roadmap, fingerprints(sc, be))
+    err = Console(stderr=True, highlight=False)
+    with StatusLine(err, "bench roadmap", "compiling kernels (first run only)", timed=True) as status:
+        ctx = planning_context(sc, be)
+        planner = RoadmapPlanner(ctx, rm)
+        targets = roadmap_bench.random_targets(sc.target, n, tolerance_mm, seed)
+        records = roadmap_bench.run(planner, targets, backend_name=be.name, seed=seed,
+                                    single=None if limit is None else (be, ctx.exact, limit),
+                                    tick=lambda done, total: status(f"{done}/{total} runs"))
+    out = output_dir(out)
+    machine = machine_info()
+    settings = {"roadmap": str(roadmap), "nodes": rm.n_nodes, "build_s": rm.meta.get("build_s"), "n": n,
+                "tolerance_mm": tolerance_mm, "region": sc.target.to_dict(), "first_seed": seed,
+                "single_time_limit_s": limit, "executor": "this process (not pinned)"}
+    for r in records:
+        if r["planner"] == roadmap_bench.ROADMAP_PLANNER:
+            r["time_limit_s"] = limit or 0.0
+    logs = write_logs(records, out, machine, settings)
+    write_database(logs, out / "benchmark.db")
+    roadmap_bench.plot(records, out / "roadmap_times.png")
+    doc = {"machine": machine, "settings": settings, "summary": roadmap_bench.summarize(records),
+           "runs": records}
+    if publish(doc, out, as_json):
+        return
+    for name, s in doc["summary"].items():
+        typer.echo(f"{name}: {s}")
+    typer.echo(f"wrote {out / 'results.json'}, {out / 'benchmark.db'} and {out / 'roadmap_times.png'}",
+               err=True)
