@@ -356,10 +356,12 @@ def open_build(ctx: PlanningContext, folder: Path, meta: dict) -> Roadmap:
 
 
 def build(ctx: PlanningContext, source: Source, folder: Path, pool: Pool, *, time_limit_s: float,
-          seed: int, workers: int, executor: str, progress: Progress = _quiet) -> Roadmap:
+          seed: int, workers: int, executor: str, progress: Progress = _quiet,
+          max_nodes: int | None = None) -> Roadmap:
     """Grow the roadmap in ``folder`` (new, or continued) until its total build time reaches
-    ``time_limit_s``, with ``workers`` jobs in flight on ``pool``; saved every `CHECKPOINT_S` s, at
-    the end and when interrupted. Returns the saved roadmap."""
+    ``time_limit_s`` (or it has ``max_nodes`` nodes: a budget in work), with ``workers`` jobs in flight
+    on ``pool``; saved every `CHECKPOINT_S` s, at the end and when interrupted. Returns the saved
+    roadmap."""
     meta = {"scene_name": ctx.scene.name, "scene_file": source.scene_file, "robot": ctx.scene.robot.name,
             "backend": source.backend, "model": source.model,
             "fingerprints": fingerprints(ctx.scene, ctx.loaded),
@@ -388,7 +390,8 @@ def build(ctx: PlanningContext, source: Source, folder: Path, pool: Pool, *, tim
 
     in_flight: dict[int, dict] = {}
     try:
-        while before + time.perf_counter() - t0 < time_limit_s:
+        while (before + time.perf_counter() - t0 < time_limit_s
+               and (max_nodes is None or graph.n < max_nodes)):
             while len(in_flight) < max(2, 2 * workers):
                 job, book = grower.next_job()
                 in_flight[pool.submit(check_job, job)] = book
