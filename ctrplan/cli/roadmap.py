@@ -4,7 +4,6 @@ from it). See `ctrplan.planning.roadmap`."""
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 from typing import Annotated
 
@@ -15,7 +14,7 @@ from ctrplan.cli import HELP_SETTINGS, app
 from ctrplan.cli.bench import bench_app, publish
 from ctrplan.cli.kinematics import ModelOpt, as_option, load_backend
 from ctrplan.cli.options import parse_duration
-from ctrplan.cli.progress import StatusLine
+from ctrplan.cli.progress import PlainProgress, StatusLine
 from ctrplan.errors import InputError
 
 ROADMAP_HELP = "Multi-query roadmaps: build once per scene, then answer targets in milliseconds."
@@ -55,8 +54,6 @@ def build_command(
     stable states only); the build is saved every minute and at the end, with the fingerprints of
     scene, robot and model.
     """
-    from rich.console import Console
-
     from ctrplan.bench.fanout import check_workers, open_pool
     from ctrplan.dataio import check_output_dir, output_dir
     from ctrplan.planning.roadmap.build import Source, build, planning_context, register_context
@@ -75,9 +72,9 @@ def build_command(
     if read_meta(out) is not None:  # refuse a foreign roadmap before any work
         load_roadmap(out, fingerprints(sc, be))
     source = Source(str(scene.resolve()), backend, model)
-    err = Console(stderr=True, highlight=False)
     executor = f"ray {ray}" if ray else f"{workers} local worker(s)"
-    with StatusLine(err, "roadmap build", "compiling kernels (first run only)", timed=True) as status:
+    with _BuildProgress(limit_s) as status:
+        status("compiling kernels (first run only)")
         ctx = planning_context(sc, be)
         register_context(source, ctx)
         output_dir(out)
@@ -87,20 +84,57 @@ def build_command(
                 status(f"starting {executor} (each loads the model and the scene)")
                 return
             st = info["stats"]
-            status(f"{info['elapsed_s']:.0f}/{info['limit_s']:.0f} s, {info['nodes']:,} nodes "
-                   f"({info['connected']:,} connected), {st.edges_valid:,} edges, {st.jobs} jobs")
+            status(f"{info['nodes']:,} nodes ({info['connected']:,} connected), {st.edges_valid:,} edges, "
+                   f"{st.jobs} jobs", info["elapsed_s"])
 
-        t0 = time.perf_counter()
         with open_pool(workers, ray) as pool:
             rm = build(ctx, source, out, pool, time_limit_s=limit_s, seed=seed, workers=workers,
                        executor=executor, progress=progress)
     run = rm.meta["runs"][-1]
-    minutes = max(time.perf_counter() - t0, 1e-9) / 60.0
+    minutes = max(run["seconds"], 1e-9) / 60.0
     added = run["nodes_after"] - run["nodes_before"]
     typer.echo(f"roadmap {out}: {rm.n_nodes:,} nodes ({int(rm.connected.sum()):,} connected to the start), "
                f"{len(rm.edges):,} edges; this run added {added:,} nodes in {run['seconds']:.0f} s "
                f"({added / minutes:,.0f} per minute, {executor}); total build time "
                f"{rm.meta['build_s']:.0f} s")
+
+
+class _BuildProgress:
+    """The build's progress on stderr: a transient bar of build time against the limit on a terminal,
+    else a plain line about every 10 s (`PlainProgress`). Call it with the latest text and, once
+    growing, the build time so far (s)."""
+
+    def __init__(self, limit_s: float):
+        from rich.console import Console
+
+        self.console = Console(stderr=True, highlight=False)
+        self.limit_s = limit_s
+        self.plain = PlainProgress("roadmap build", enabled=not self.console.is_terminal)
+        self.bar = self.task = None
+
+    def __enter__(self) -> _BuildProgress:
+        if self.console.is_terminal:
+            from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+            self.bar = Progress(BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
+                                TimeRemainingColumn(), TextColumn("{task.description}"),
+                                console=self.console, transient=True)
+            self.bar.__enter__()
+            self.task = self.bar.add_task("starting", total=self.limit_s)
+        self.plain.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.plain.__exit__(*exc)
+        if self.bar is not None:
+            self.bar.__exit__(*exc)
+
+    def __call__(self, text: str, elapsed_s: float | None = None) -> None:
+        shown = text if elapsed_s is None else f"{elapsed_s:.0f}/{self.limit_s:.0f} s of build time, {text}"
+        self.plain(shown)
+        if self.bar is not None:
+            self.bar.update(self.task, description=text,
+                            **({} if elapsed_s is None else {"completed": min(elapsed_s, self.limit_s)}))
 
 
 def read_targets(path: Path):

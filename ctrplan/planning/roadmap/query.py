@@ -117,7 +117,9 @@ class RoadmapPlanner:
         while res.attempts < MAX_ATTEMPTS:
             path, used = self.connect(target, skip)
             if path is None:
-                res.message = ("no roadmap state connects to the target" if res.attempts == 0 else
+                nearest = float(self.tree.query(target.center)[0])
+                res.message = (f"no roadmap state connects to the target (the nearest roadmap tip is "
+                               f"{nearest:.1f} mm from its centre)" if res.attempts == 0 else
                                f"not solved: {res.attempts} roadmap paths failed exact validation")
                 break
             res.attempts += 1
