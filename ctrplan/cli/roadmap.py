@@ -75,7 +75,7 @@ def build_command(
     executor = f"ray {ray}" if ray else f"{workers} local worker(s)"
     with _BuildProgress(limit_s) as status:
         status("compiling kernels (first run only)")
-        ctx = planning_context(sc, be)
+        ctx = planning_context(sc, be, model)
         register_context(source, ctx)
         output_dir(out)
 
@@ -172,7 +172,7 @@ def plan_from_roadmap(scene: Path, roadmap_dir: Path, targets: Path | None, *, b
     rm = load_roadmap(roadmap_dir, fingerprints(sc, be))  # a foreign roadmap: one line, exit 2
     err = Console(stderr=True, highlight=False)
     with StatusLine(err, "plan --roadmap", "compiling kernels (first run only)", timed=True) as status:
-        planner = RoadmapPlanner(planning_context(sc, be), rm)
+        planner = RoadmapPlanner(planning_context(sc, be, model), rm)
         results = []
         for i, region in enumerate(regions, 1):
             status(f"target {i}/{len(regions)}")
@@ -286,7 +286,7 @@ def bench_roadmap(
     rm = load_roadmap(roadmap, fingerprints(sc, be))
     err = Console(stderr=True, highlight=False)
     with StatusLine(err, "bench roadmap", "compiling kernels (first run only)", timed=True) as status:
-        ctx = planning_context(sc, be)
+        ctx = planning_context(sc, be, model)
         planner = RoadmapPlanner(ctx, rm)
         targets = roadmap_bench.random_targets(sc.target, n, tolerance_mm, seed)
         records = roadmap_bench.run(planner, targets, backend_name=be.name, seed=seed,

@@ -14,6 +14,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ctrplan.kinematics import make_backend
 from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.planning.ik import IKResult, backend_tip_jacobian, solve_ik
@@ -39,6 +40,7 @@ class PlanningContext:
     margin_mm: float
     margin_source: dict
     jacobian: Callable | None = None
+    exact_checker: ConfigurationChecker | None = None  # the exact model with the scene's margin
 
     @property
     def space(self) -> BoxSpace:
@@ -49,18 +51,30 @@ class PlanningContext:
         return float(self.scene.settings.resolution_mm)
 
 
-def planning_context(scene: Scene, backend: Backend, compile_now: bool = True) -> PlanningContext:
-    """The `PlanningContext` of ``scene`` with ``backend``, as `ctrplan.planning.plan` sets it up
-    (kernels compiled first when ``compile_now``)."""
-    loaded, exact = backend, CosseratBackend(scene.robot)
+def planning_context(scene: Scene, backend: Backend, model: str | None = None,
+                     compile_now: bool = True) -> PlanningContext:
+    """The `PlanningContext` of ``scene`` with ``backend`` (PINN weights ``model``, None: the
+    default), as `ctrplan.planning.plan` sets it up (kernels compiled first when ``compile_now``).
+    The exact model is the Cosserat solver; behind a surrogate it starts its shooting from the
+    surrogate's predicted initial states (the ``hybrid`` backend: the same exact solutions in fewer
+    Newton iterations, rows the guess cannot bring home retried cold)."""
+    loaded = backend
+    if backend.exact:
+        exact = backend
+    elif backend.name == "pinn":
+        exact = make_backend("hybrid", scene.robot, model)
+    else:
+        exact = CosseratBackend(scene.robot)
     if not is_certified(scene.robot):  # never a configuration that snaps
         backend, exact = backend.checking_stability(), exact.checking_stability()
     if compile_now:
-        compile_kernels([backend] if backend.exact else [backend, exact], scene.start, scene.settings.points)
+        compile_kernels([backend] if backend is exact else [backend, exact], scene.start,
+                        scene.settings.points)
     planning_be, margin, source = planning_backend(scene, backend)
     checker = ConfigurationChecker(scene, planning_be, margin_mm=margin)
     return PlanningContext(scene, loaded, backend, exact, checker, margin, source,
-                           backend_tip_jacobian(planning_be, checker.space))
+                           backend_tip_jacobian(planning_be, checker.space),
+                           ConfigurationChecker(scene, exact, world=checker.world))
 
 
 def check_states(ctx: PlanningContext, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -100,6 +114,17 @@ def check_edges(ctx: PlanningContext, qa: np.ndarray, qb: np.ndarray) -> np.ndar
         bad = np.unique(edge[~valid])
         ok[bad] = False
     return ok
+
+
+def exact_end_check(ctx: PlanningContext, target: TargetRegion, path_q: np.ndarray) -> tuple[bool, bool]:
+    """A quick look at the end of a path with the exact model (the scene's margin): whether its
+    waypoints and the states between them at the planner's resolution are all valid (one batched
+    call), and whether the exact tip of its last state lies in ``target``. A filter before the full
+    validation (`validate`), which also refines where the backbone moves fast."""
+    states = np.vstack([path_q, edge_states(ctx, path_q[:-1], path_q[1:])[0]])
+    valid, body = ctx.exact_checker.validate(states)
+    tip = ctx.scene.to_scene(body.positions_mm[len(path_q) - 1, -1])
+    return bool(valid.all()), bool(np.isfinite(tip).all() and target.contains(tip))
 
 
 def inverse_kinematics(ctx: PlanningContext, seeds: np.ndarray, targets_scene: np.ndarray, tol_mm: float,

@@ -86,7 +86,8 @@ def context_for(source: Source) -> PlanningContext:
         from ctrplan.scene import load_scene
 
         scene = load_scene(source.scene_file)
-        _CONTEXTS[source] = planning_context(scene, make_backend(source.backend, scene.robot, source.model))
+        backend = make_backend(source.backend, scene.robot, source.model)
+        _CONTEXTS[source] = planning_context(scene, backend, source.model)
     return _CONTEXTS[source]
 
 
@@ -102,9 +103,9 @@ def check_job(job: dict) -> dict:
     if job["kind"] == "warm":
         time.sleep(0.5)
         return {}
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     out = _grow_job(ctx, job) if job["kind"] == "grow" else _seed_job(ctx, job)
-    return {**out, "seconds": time.perf_counter() - t0}
+    return {**out, "seconds": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
 
 
 def _grow_job(ctx: PlanningContext, job: dict) -> dict:
@@ -222,7 +223,9 @@ class _Graph:
 
 @dataclass
 class BuildStats:
-    """Work of this run of a build: jobs, states checked (candidates + edge interiors), seconds."""
+    """Work of this run of a build: jobs (seed jobs among them, and the nodes their paths gave),
+    candidate states and the valid ones, edges checked and the valid ones, seconds the workers spent
+    in jobs (wall clock and CPU)."""
 
     jobs: int = 0
     seeds: int = 0
@@ -232,6 +235,7 @@ class BuildStats:
     edges_checked: int = 0
     edges_valid: int = 0
     worker_s: float = 0.0
+    worker_cpu_s: float = 0.0
 
 
 class Grower:
@@ -302,6 +306,7 @@ class Grower:
             self._integrate_grow(book, result)
         self.stats.jobs += 1
         self.stats.worker_s += float(result["seconds"])
+        self.stats.worker_cpu_s += float(result["cpu_s"])
 
     def _integrate_seed(self, result: dict) -> None:
         """A seed path's states after the start become nodes chained by edges (node 0 first)."""

@@ -3,11 +3,12 @@
 A query (`RoadmapPlanner.query`) takes the connected nodes whose tips lie nearest the target
 (KD-tree on the stored tips), moves copies of them into the target by a few batched IK iterations,
 checks the short connecting edges of the cheapest candidates (start-to-node distance along the tree
-plus the edge) in one batched call, and returns the tree path to the best valid one plus its IK state.
-``query_time_s`` covers exactly that; the exact re-validation (`RoadmapPlanner.answer`) is timed
-separately. When the exact model rejects a path, the next candidate is tried (local repair: its
-time counts as query time), and a path whose exact tip misses the target gets the exact goal
-correction of the single-query planner.
+plus the edge) in one batched call, checks the end of the best valid one (its last waypoints) with the
+exact model -- where a roadmap path fails exactly, it fails near the anatomy it ends in -- and returns
+the tree path to it plus its IK state; a path whose exact tip misses the target gets the exact goal
+correction of the single-query planner. ``query_time_s`` covers all that; the exact re-validation of
+the whole path (`RoadmapPlanner.answer`) is timed separately. When it rejects a path, the next
+candidate is tried (local repair: that time counts as query time).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from ctrplan.planning.roadmap._adapter import (
     PlanningContext,
     check_edges,
     check_states,
+    exact_end_check,
     exact_goal_state,
     inverse_kinematics,
     tip_directions,
@@ -39,6 +41,8 @@ IK_ITERATIONS = 8
 CHECK_BATCH = 4
 #: Candidates whose exact validation may fail before the query gives up.
 MAX_ATTEMPTS = 3
+#: Waypoints at the end of a candidate path checked with the exact model before it is chosen.
+EXACT_TAIL = 3
 
 
 @dataclass
@@ -93,9 +97,12 @@ class RoadmapPlanner:
         order = np.argsort(cost)
         return nodes[order], q[order], cost[order]
 
-    def connect(self, target: TargetRegion, skip: int = 0) -> tuple[np.ndarray | None, int]:
-        """The path to the first valid connection (from the ``skip``-th candidate on) and the index
-        of the candidate used (None and -1 if none)."""
+    def connect(self, target: TargetRegion, scene, skip: int = 0) -> tuple[np.ndarray | None, int]:
+        """The path to the first candidate (from the ``skip``-th on) whose connecting edge is valid for
+        the planning backend and whose last `EXACT_TAIL` waypoints pass the exact model (a short
+        exact check: where a roadmap path fails exactly it fails near the anatomy it ends in); a path
+        whose exact tip misses the target gets the exact goal correction. Returns the path and the
+        index of its candidate (None and -1 if none)."""
         nodes, q, _ = self.candidates(target)
         for a in range(skip, len(nodes), CHECK_BATCH):
             b = min(a + CHECK_BATCH, len(nodes))
@@ -103,9 +110,11 @@ class RoadmapPlanner:
             edges = np.zeros(b - a, dtype=bool)
             if valid.any():
                 edges[valid] = check_edges(self.ctx, self.roadmap.q[nodes[a:b][valid]], q[a:b][valid])
-            if edges.any():
-                i = a + int(np.argmax(edges))
-                return np.vstack([self.roadmap.path_to(int(nodes[i])), q[i]]), i
+            for i in a + np.flatnonzero(edges):
+                path = np.vstack([self.roadmap.path_to(int(nodes[i])), q[i]])
+                free, tip_in = exact_end_check(self.ctx, target, path[-EXACT_TAIL:])
+                if free:
+                    return (path if tip_in else exact_goal_state(self.ctx, scene, path)), int(i)
         return None, -1
 
     def answer(self, target: TargetRegion) -> QueryResult:
@@ -115,7 +124,7 @@ class RoadmapPlanner:
         t0 = time.perf_counter()
         skip = 0  # rejected attempts and their validations count as query time (local repair)
         while res.attempts < MAX_ATTEMPTS:
-            path, used = self.connect(target, skip)
+            path, used = self.connect(target, scene, skip)
             if path is None:
                 nearest = float(self.tree.query(target.center)[0])
                 res.message = (f"no roadmap state connects to the target (the nearest roadmap tip is "
@@ -125,10 +134,6 @@ class RoadmapPlanner:
             res.attempts += 1
             tv = time.perf_counter()
             vp = validate(self.ctx, scene, path)
-            if vp.report.collision_free and not vp.report.tip_in_target:
-                path = exact_goal_state(self.ctx, scene, path)
-                tv = time.perf_counter()
-                vp = validate(self.ctx, scene, path)
             if vp.report.ok:
                 res.query_time_s = tv - t0
                 res.validation_time_s = time.perf_counter() - tv
