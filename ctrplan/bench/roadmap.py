@@ -134,9 +134,11 @@ def plot(records: list[dict[str, Any]], path) -> None:
     road = [r for r in records if r["planner"] == ROADMAP_PLANNER]
     single = [r for r in records if r["planner"] == "rrtconnect"]
     validated = [r["validation_s"] for r in road if r["solved"]]
-    series = {("roadmap query", 0): np.array([r["planning_time_s"] for r in road]) * 1e3,
-              ("roadmap exact validation", 0): np.array(validated) * 1e3}
+    scene = road[0]["scene_name"]
+    series = {("roadmap query", scene): np.array([r["planning_time_s"] for r in road]) * 1e3,
+              ("roadmap exact validation", scene): np.array(validated) * 1e3}
     if single:
-        series["single-query RRTConnect", 0] = np.array([r["planning_time_s"] for r in single]) * 1e3
+        series["single-query RRTConnect", scene] = np.array([r["planning_time_s"] for r in single]) * 1e3
     timing_boxplot({k: v for k, v in series.items() if len(v)}, path,
-                   title=f"{road[0]['scene_name']}: {len(road)} random targets", group_name="")
+                   title=f"{len(road)} random targets in the target region (tolerance "
+                         f"{road[0]['tolerance_mm']:g} mm)", group_name="scene")

@@ -54,6 +54,7 @@ def build_command(
     stable states only); the build is saved every minute and at the end, with the fingerprints of
     scene, robot and model.
     """
+    from ctrplan.bench import limit_threads
     from ctrplan.bench.fanout import check_workers, open_pool
     from ctrplan.dataio import check_output_dir, output_dir
     from ctrplan.planning.roadmap.build import Source, build, planning_context, register_context
@@ -87,6 +88,8 @@ def build_command(
             status(f"{info['nodes']:,} nodes ({info['connected']:,} connected), {st.edges_valid:,} edges, "
                    f"{st.jobs} jobs", info["elapsed_s"])
 
+        if workers > 1 or ray:  # the main process only makes jobs and adds results: one thread
+            limit_threads()
         with open_pool(workers, ray) as pool:
             rm = build(ctx, source, out, pool, time_limit_s=limit_s, seed=seed, workers=workers,
                        executor=executor, progress=progress)
