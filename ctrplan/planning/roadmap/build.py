@@ -98,9 +98,13 @@ def register_context(source: Source, ctx: PlanningContext) -> None:
 
 def check_job(job: dict) -> dict:
     """A worker's job (``job["kind"]``): ``grow`` (`_grow_job`), ``seed`` (`_seed_job`) or ``warm``
-    (build the context, then hold the worker a moment so that the next warm job goes to another)."""
+    (build the context and check one edge from the start, which compiles or loads every kernel a grow
+    job uses, then hold the worker a moment so that the next warm job goes to another)."""
     ctx = context_for(job["source"])
     if job["kind"] == "warm":
+        start = ctx.scene.start[None]
+        _grow_job(ctx, {"cand": np.vstack([start, start]), "edge_cand": np.zeros(1, dtype=int),
+                        "edge_q": start + 1e-3})
         time.sleep(0.5)
         return {}
     t0, c0 = time.perf_counter(), time.process_time()
