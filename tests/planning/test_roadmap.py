@@ -137,3 +137,26 @@ def test_cli_answers_every_target_row(built, tmp_path, capsys):
     assert_safe(np.array(first["path"]), np.array([37.2, -27.2, 181.6]), 3.0)
     assert sorted(p.name for p in out.iterdir()) == ["obstacles.ply", "path_001.json", "path_002.json"]
     assert json.loads((out / "path_001.json").read_text())["solved"] is True
+
+
+@pytest.mark.parametrize("args, what", [(["--time-limit", "0"], "--time-limit: must be a positive duration"),
+                                        (["--workers", "99"], "--workers: 99 workers but only"),
+                                        (["--workers", "0"], "--workers: need at least 1")])
+def test_roadmap_build_bad_options_are_one_line_exit_2(tmp_path, capsys, args, what):
+    out = tmp_path / "rm"
+    assert main(["roadmap", "build", str(OPEN), "--out", str(out), *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and what in err[0]
+    assert not out.exists()
+
+
+def test_roadmap_build_refuses_to_continue_a_foreign_roadmap(built, capsys):
+    """A folder holding open.yaml's roadmap is not continued for pipe.yaml: one line, exit 2, the
+    folder untouched."""
+    _, _, folder, _ = built
+    before = {f.name: f.read_bytes() for f in folder.iterdir()}
+    args = ["roadmap", "build", str(SCENES / "pipe.yaml"), "--out", str(folder), "--time-limit", "5s"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "roadmap built for another scene" in err[0]
+    assert {f.name: f.read_bytes() for f in folder.iterdir()} == before
