@@ -133,6 +133,7 @@ def test_cli_answers_every_target_row(built, tmp_path, capsys):
     assert first["solved"] and not second["solved"]
     assert first["target_mm"] == [37.2, -27.2, 181.6] and second["path"] == []
     assert first["validated"]["collision_free"] and first["query_time_s"] > 0
+    assert 0 < first["validated"]["max_position_error_mm"] < 5  # the PINN against the exact model
     assert np.asarray(doc["base_pose"]).shape == (4, 4)
     assert_safe(np.array(first["path"]), np.array([37.2, -27.2, 181.6]), 3.0)
     assert sorted(p.name for p in out.iterdir()) == ["obstacles.ply", "path_001.json", "path_002.json"]
