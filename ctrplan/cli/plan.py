@@ -23,6 +23,7 @@ from ctrplan.cli import app
 from ctrplan.cli.options import ModelOpt, check_max_states, load_backend, parse_duration
 from ctrplan.cli.progress import StatusLine
 from ctrplan.dataio import check_output_dir
+from ctrplan.errors import InputError
 from ctrplan.kinematics import DEFAULT_PLANNING_BACKEND, PLANNING_ORDER
 from ctrplan.planning.planners import PLANNERS
 from ctrplan.robot import Robot
@@ -56,43 +57,63 @@ def ompl_messages_to_logging() -> Iterator[None]:
                     log.debug("%s", message.rstrip())
 
 
+PlanBackendOpt = Annotated[str, typer.Option(
+    "--backend", metavar="NAME",
+    help=f"Kinematics backend for planning: {' | '.join(PLANNING_ORDER)} (default: "
+         f"{DEFAULT_PLANNING_BACKEND}; an error, not a fallback, if the PINN cannot be used). The path "
+         "is always re-validated with the exact Cosserat model.")]
+
+PlanRobotOpt = Annotated[str | None, typer.Option(
+    "--robot", metavar="R.yaml", show_default=False,
+    help="Robot file or built-in name that replaces the scene's `robot:` (the scene's start must "
+         "fit it: `ctrplan scene check --robot R.yaml --fix OUT.yaml` finds one).")]
+
+PlannerOpt = Annotated[str | None, typer.Option(
+    "--planner", metavar="NAME", show_default=False,
+    help=f"OMPL planner: {' | '.join(PLANNERS)} (default: the scene's, rrtconnect).")]
+
+PlanTimeLimitOpt = Annotated[str | None, typer.Option(
+    "--time-limit", metavar="DURATION", show_default=False,
+    help="Planning time T, e.g. 10s or 2m; a bare number is seconds (default: the scene's, 10): sets "
+         "the work budget --max-states takes by default (what T buys on the reference machine) and "
+         "the wall-clock guard (30 x T) that stops a search on a slow or overloaded machine and "
+         "says so.")]
+
+PlanMaxStatesOpt = Annotated[int | None, typer.Option(
+    "--max-states", metavar="N", show_default=False,
+    help="Work budget: configurations the planning backend evaluates for goal sampling and search "
+         "(default: the scene's max_states, else from --time-limit). It decides the result: with "
+         "--seed the same path on any machine load.")]
+
+PlanSeedOpt = Annotated[int | None, typer.Option(
+    "--seed", metavar="N", show_default=False, min=0,
+    help="Random seed (OMPL and goal sampling).")]
+
+PlanOutOpt = Annotated[Path | None, typer.Option(
+    "--out", metavar="DIR", show_default=False,
+    help="Write path.json, trajectory.csv (solved plans), obstacles.ply, plan.png and plan.html "
+         "into DIR.")]
+
+PlanJsonOpt = Annotated[bool, typer.Option(
+    "--json", help="Print one JSON summary on stdout (progress and summary go to stderr).")]
+
+RoadmapOpt = Annotated[Path | None, typer.Option(
+    "--roadmap", metavar="DIR", show_default=False,
+    help="Answer from the roadmap in DIR (`ctrplan roadmap build`) instead of a single-query search; "
+         "--out then writes obstacles.ply and path_<row>.json per target.")]
+
+TargetsOpt = Annotated[Path | None, typer.Option(
+    "--targets", metavar="TARGETS.csv", show_default=False,
+    help="With --roadmap: answer every row (header x,y,z,tolerance_mm; scene frame, mm) instead of "
+         "the scene's target.")]
+
+
 @app.command("plan")
-def plan_command(
-    scene: SceneArg,
-    backend: Annotated[str, typer.Option(
-        "--backend", metavar="NAME",
-        help=f"Kinematics backend for planning: {' | '.join(PLANNING_ORDER)} (default: "
-             f"{DEFAULT_PLANNING_BACKEND}; an error, not a fallback, if the PINN cannot be used). The path "
-             "is always re-validated with the exact Cosserat model.")] = DEFAULT_PLANNING_BACKEND,
-    model: ModelOpt = None,
-    robot: Annotated[str | None, typer.Option(
-        "--robot", metavar="R.yaml", show_default=False,
-        help="Robot file or built-in name that replaces the scene's `robot:` (the scene's start must "
-             "fit it: `ctrplan scene check --robot R.yaml --fix OUT.yaml` finds one).")] = None,
-    planner: Annotated[str | None, typer.Option(
-        "--planner", metavar="NAME", show_default=False,
-        help=f"OMPL planner: {' | '.join(PLANNERS)} (default: the scene's, rrtconnect).")] = None,
-    time_limit: Annotated[str | None, typer.Option(
-        "--time-limit", metavar="DURATION", show_default=False,
-        help="Planning time T, e.g. 10s or 2m; a bare number is seconds (default: the scene's, 10): sets "
-             "the work budget --max-states takes by default (what T buys on the reference machine) and "
-             "the wall-clock guard (30 x T) that stops a search on a slow or overloaded machine and "
-             "says so.")] = None,
-    max_states: Annotated[int | None, typer.Option(
-        "--max-states", metavar="N", show_default=False,
-        help="Work budget: configurations the planning backend evaluates for goal sampling and search "
-             "(default: the scene's max_states, else from --time-limit). It decides the result: with "
-             "--seed the same path on any machine load.")] = None,
-    seed: Annotated[int | None, typer.Option(
-        "--seed", metavar="N", show_default=False, min=0,
-        help="Random seed (OMPL and goal sampling).")] = None,
-    out: Annotated[Path | None, typer.Option(
-        "--out", metavar="DIR", show_default=False,
-        help="Write path.json, trajectory.csv (solved plans), obstacles.ply, plan.png and plan.html "
-             "into DIR.")] = None,
-    json_out: Annotated[bool, typer.Option(
-        "--json", help="Print one JSON summary on stdout (progress and summary go to stderr).")] = False,
-) -> None:
+def plan_command(scene: SceneArg, backend: PlanBackendOpt = DEFAULT_PLANNING_BACKEND, model: ModelOpt = None,
+                 robot: PlanRobotOpt = None, planner: PlannerOpt = None,
+                 time_limit: PlanTimeLimitOpt = None, max_states: PlanMaxStatesOpt = None,
+                 seed: PlanSeedOpt = None, out: PlanOutOpt = None, json_out: PlanJsonOpt = False,
+                 roadmap: RoadmapOpt = None, targets: TargetsOpt = None) -> None:
     """Plan a motion of the robot's tip into the scene's target region.
 
     Exit code 0: solved and confirmed collision-free by the exact Cosserat model; 1: not solved in
@@ -100,6 +121,15 @@ def plan_command(
     """
     from rich.console import Console
 
+    if targets is not None and roadmap is None:
+        raise InputError("--targets: needs --roadmap DIR (the single-query planner answers the scene's "
+                         "target)")
+    if roadmap is not None:
+        from ctrplan.cli.roadmap import plan_from_roadmap
+
+        plan_from_roadmap(scene, roadmap, targets, backend=backend, model=model, out=out, json_out=json_out,
+                          robot=None if robot is None else Robot.load(robot))
+        return
     time_limit = parse_duration(time_limit, "s")
     check_max_states(max_states)
     if out is not None:

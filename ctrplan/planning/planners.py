@@ -1,7 +1,8 @@
 """The one table of OMPL planners ctrplan runs, by name (as OMPL's Python demos allocate theirs).
 
 Adding a planner is one row of `PLANNERS`: the CLI help (``plan --planner``, ``bench plan --planner``),
-the benchmark's default set, the docs script (update_readme.py) and the name in OMPL's logs all read it. A scene file
+the benchmark's default set, the docs script (update_readme.py) and the name in OMPL's logs all read
+it. A scene file
 names its planner as a string (``planner: {planner: ...}``, the model layer knows no planners); it is
 checked against this table where the scene is used for planning (`scene_planner`: ``plan``,
 ``scene check``), with the file and line of the name.
