@@ -103,9 +103,9 @@ def run_batch(batch: tuple[RunSpec, ...]) -> dict[str, Any]:
 def run_all(specs: list[RunSpec], *, workers: int = 1, ray_address: str | None = None,
             tick: Callable[[int, int], None] | None = None) -> list[dict[str, Any]]:
     """The records of ``specs`` (in their order), run in `batches` on the executor of
-    `ctrplan.bench.fanout.run_jobs`; ``tick(runs done, runs)`` after every batch (runs done: about,
+    `ctrplan.parallel.run_jobs`; ``tick(runs done, runs)`` after every batch (runs done: about,
     where batches of different sizes finish out of order)."""
-    from ctrplan.bench.fanout import run_jobs
+    from ctrplan.parallel import run_jobs
 
     jobs = batches(specs, workers)
 
@@ -186,7 +186,7 @@ def check_rates(scene_file: str, backend: str, *, states: int = RATE_STATES, bat
     verdicts. Times depend on the machine and its load."""
     import time
 
-    from ctrplan.bench import single_core
+    from ctrplan.machine import single_core
     from ctrplan.planning import ConfigurationChecker, PlanningModel, compile_kernels
 
     scene, be, exact = (context or RunContext()).get(scene_file, backend)

@@ -267,10 +267,10 @@ def bench_roadmap(
     roadmap rows in the Planner Arena database."""
     from rich.console import Console
 
-    from ctrplan.bench import machine_info
     from ctrplan.bench import roadmap as roadmap_bench
     from ctrplan.bench.ompl_log import write_database, write_logs
     from ctrplan.dataio import check_output_dir, output_dir
+    from ctrplan.machine import machine_info
     from ctrplan.planning.roadmap._adapter import planning_context
     from ctrplan.planning.roadmap.query import RoadmapPlanner
     from ctrplan.planning.roadmap.store import fingerprints, load_roadmap

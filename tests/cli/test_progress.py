@@ -78,11 +78,13 @@ def test_bench_kinematics_prints_plain_counts_from_the_caller(tmp_path, capsys, 
 
 
 def test_bench_plan_prints_plain_run_counts(tmp_path, capsys, monkeypatch):
-    """Runs are counted as they finish; the second run takes far longer than the interval, so the
-    count after the first is written (by the caller or the timer thread)."""
+    """Runs are counted as their batches (runs of one scene and backend) finish; the second batch takes
+    far longer than the interval, so the count after the first is written (by the caller or the timer
+    thread)."""
     monkeypatch.setattr(progress, "PROGRESS_EVERY_S", 0.001)
-    rc = main(["bench", "plan", str(SCENES / "open.yaml"), "--backend", "cosserat", "--planner", "rrtconnect",
-               "--runs", "2", "--time-limit", "5", "--out", str(tmp_path / "b"), "--json"])
+    rc = main(["bench", "plan", str(SCENES / "open.yaml"), str(SCENES / "pipe.yaml"), "--backend", "cosserat",
+               "--planner", "rrtconnect", "--runs", "1", "--time-limit", "5", "--out", str(tmp_path / "b"),
+               "--json"])
     assert rc == 0
     captured = capsys.readouterr()
     json.loads(captured.out)
