@@ -22,14 +22,14 @@ LAYERS = [
     [("bench", "benchmarks: kinematics and planning runs, Planner Arena logs, plots")],
     [("design", "design task, search space, proven evaluation, Optuna study, outputs, report")],
     [("viz", "plan plot, offline HTML viewer, PINN figures")],
-    [("planning", "OMPL space, validity, IK goal, planner table, exact validation"),
+    [("planning", "planning model, validity, IK goal, planner table, roadmaps, validation"),
      ("training", "eq. 9 in torch, samples, losses, trainer, fine-tuning")],
     [("calibration", "measured data, fitting causes, selection, diagnosis, experiments")],
     [("collision", "capsule chain vs FCL"), ("broadphase", "distance grid"),
      ("stability", "snap-free sweeps, certificates")],
     [("kinematics", "Backend, Backbone; cosserat (numba shooting), pinn, hybrid, model files")],
     [("model", "robot (frozen), effects, measurement, scene, segmentation, scene_labels")],
-    [("base", "errors, yamlio, dataio, memory, machine info and worker pools")],
+    [("base", "errors, yamlio, dataio, memory, machine (machine info), parallel (worker pools)")],
 ]
 NOTE = (4, "planning never imports training; training may import calibration")  # under layer 4 (0-based)
 COLOURS = ["#dbe9f6", "#e3f1dc", "#fbe7cf", "#f3dcef", "#fff4c2", "#e8e2f7", "#d9f2ee", "#fde0dc",
