@@ -208,14 +208,22 @@ def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends, with_en
         _backbones_dense(q, out_frac, net, lengths, states, at_ends, with_ends)
         return
     nb, nt = q.shape[0], lengths.shape[0]
+    if nb == 0:
+        return
     ns, i_p = 2 * nt + 9, 2 + 2 * nt
+    # the first row's layout once for both passes (a planner's single-state call has one row)
+    first = node_layout(q[0], intervals, lengths, straight, EI)
     # the network only at the nodes the requested points need (and with ``with_ends`` at `at_ends`')
-    need, node_frac = _needed_nodes(q, out_frac, intervals, lengths, straight, EI, with_ends)
+    need, node_frac = _needed_nodes(q, out_frac, intervals, lengths, straight, EI, with_ends, first[0],
+                                    first[5])
     y = _network_at_nodes(q, need, node_frac, net, ns)
     fl = np.empty((intervals, ns))
     fr_ = np.empty((intervals, ns))
     for b in range(nb):  # the layout again: cheaper than keeping ragged per-segment tables
-        nodes, seg_of, present, kc, bend, end_node = node_layout(q[b], intervals, lengths, straight, EI)
+        if b == 0:
+            nodes, seg_of, present, kc, bend, end_node = first
+        else:
+            nodes, seg_of, present, kc, bend, end_node = node_layout(q[b], intervals, lengths, straight, EI)
         ends = q[b, :nt] + lengths
         yb = y[b]
         fl[:] = 0.0
@@ -260,17 +268,22 @@ def _backbones_dense(q, out_frac, net, lengths, states, at_ends, with_ends):
 
 
 @njit(cache=True)
-def _needed_nodes(q, out_frac, intervals, lengths, straight, EI, with_ends):
+def _needed_nodes(q, out_frac, intervals, lengths, straight, EI, with_ends, first_nodes, first_end_node):
     """Which of the ``intervals + 1`` nodes of each configuration the requested points need ``need``
     (B, intervals + 1): those bracketing a point (the node itself for a point on a node), and with
-    ``with_ends`` the tube ends and s = 0; and the nodes' arc fractions ``node_frac`` (B, intervals + 1)."""
+    ``with_ends`` the tube ends and s = 0; and the nodes' arc fractions ``node_frac`` (B, intervals + 1).
+    ``first_nodes``, ``first_end_node``: the first row's `node_layout` nodes and end nodes (computed
+    by the caller, which needs them too)."""
     nb, n = q.shape[0], out_frac.shape[0]
     nt = lengths.shape[0]
     m = intervals
     need = np.zeros((nb, m + 1), dtype=np.bool_)
     node_frac = np.empty((nb, m + 1))
     for b in range(nb):
-        nodes, _, _, _, _, end_node = node_layout(q[b], intervals, lengths, straight, EI)
+        if b == 0:
+            nodes, end_node = first_nodes, first_end_node
+        else:
+            nodes, _, _, _, _, end_node = node_layout(q[b], intervals, lengths, straight, EI)
         node_frac[b] = nodes / nodes[-1]
         if with_ends:
             need[b, 0] = True
