@@ -142,7 +142,8 @@ def plan_command(scene: SceneArg, backend: PlanBackendOpt = DEFAULT_PLANNING_BAC
     from ctrplan.viz.plan_outputs import plan_document, write_plan_outputs
 
     ou.setLogLevel(ou.LOG_WARN)
-    sc = load_scene(scene, robot=None if robot is None else Robot.load(robot))
+    # the start is checked by plan() with the scene checks (naming the nearest valid start)
+    sc = load_scene(scene, check_start=False, robot=None if robot is None else Robot.load(robot))
     console = Console(stderr=json_out, highlight=False)
     err = Console(stderr=True, highlight=False)
 

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import os
 from contextlib import nullcontext
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 from rich.console import Console
 
@@ -60,7 +62,8 @@ def check(
     robot: RobotOpt = None,
     fix: Annotated[Path | None, typer.Option(
         "--fix", metavar="OUT.yaml",
-        help="Write the scene with the nearest valid start found to OUT.yaml.")] = None,
+        help="Write the scene with the nearest valid start found (or its own, if valid) and the --robot "
+             "to OUT.yaml.")] = None,
     seed: Annotated[int, typer.Option("--seed", min=0, help="Seed of the reachability samples.")] = 0,
 ) -> None:
     """Check that a scene is usable before planning: units, target, reach, start.
@@ -69,8 +72,9 @@ def check(
     the wrong scale (metres or micrometres against the robot's length), a target inside an obstacle,
     a target no configuration reaches from the base pose (sampled, then inverse kinematics), a start
     outside the domain, in collision (naming what it hits), not converged or unstable -- with the
-    nearest valid start found. With --fix, a scene whose only problem is its start is written to
-    OUT.yaml with that start (paths made relative to OUT.yaml) and the command exits 0.
+    nearest valid start found. With --fix, a usable scene, or one whose only problem is its start, is
+    written to OUT.yaml with a valid start and the --robot (paths made relative to OUT.yaml) and the
+    command exits 0.
     """
     from ctrplan.planning.scene_check import check_scene
     from ctrplan.robot import Robot
@@ -83,17 +87,17 @@ def check(
         report = check_scene(scene, seed=seed)
     for key, fact in report.facts.items():
         typer.echo(f"{key}: {fact}")
+    start = scene.start if report.usable else report.fixed_start
+    fixable = fix is not None and start is not None and all(p.kind == "start" for p in report.problems)
     for problem in report.problems:
-        typer.echo(f"ctrplan: error: {problem.message}", err=True)
+        typer.echo(f"ctrplan: {'fixed' if fixable else 'error'}: {problem.message}", err=True)
     if report.usable:
         typer.echo(f"{scene_file}: usable")
-        return
-    if fix is not None and report.fixed_start is not None:
-        write_fixed(scene_file, fix, report.fixed_start, robot)
-        if all(p.kind == "start" for p in report.problems):
-            typer.echo(f"wrote {fix} with the start {report.fixed_start.round(4).tolist()}")
-            return
-    raise typer.Exit(2)
+    if fixable:
+        write_fixed(scene_file, fix, start, robot)
+        typer.echo(f"wrote {fix} with the start {np.asarray(start).round(4).tolist()}")
+    if not (report.usable or fixable):
+        raise typer.Exit(2)
 
 
 def write_fixed(scene_file: Path, out: Path, start, robot: str | None) -> None:
@@ -107,7 +111,8 @@ def write_fixed(scene_file: Path, out: Path, start, robot: str | None) -> None:
     data = relocated(load_yaml(scene_file), out)
     data["start"] = [round(float(v), 6) for v in start]
     if robot is not None:
-        data["robot"] = robot if robot in BUILTIN_ROBOTS else str(Path(robot).resolve())
+        data["robot"] = robot if robot in BUILTIN_ROBOTS else \
+            os.path.relpath(Path(robot).resolve(), out.parent.resolve())
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(out) as fh:
         fh.write(f"# {scene_file} with the start found by `ctrplan scene check --fix`.\n" + dump_yaml(data))

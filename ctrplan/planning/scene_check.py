@@ -98,12 +98,14 @@ def _check_scale(scene: Scene, robot_mm: float, report: SceneCheck) -> None:
     report.facts["obstacles"] = f"{len(scene.obstacles)}, spanning {extent:.1f} mm"
     if extent < SCALE_TOO_SMALL * robot_mm:
         report.problems.append(SceneProblem(
-            "scale", f"obstacles: they span {extent:.3g} mm but the robot is {robot_mm:.0f} mm long: "
-                     f"meshes in metres? (give them 'scale: 1000')"))
+            "scale", f"{scene.where('obstacles')}: they span {extent:.3g} mm but the robot is "
+                     f"{robot_mm:.0f} mm long: meshes in metres? (multiply their 'scale:' by 1000; none "
+                     f"means 1)"))
     elif extent > SCALE_TOO_LARGE * robot_mm:
         report.problems.append(SceneProblem(
-            "scale", f"obstacles: they span {extent:.3g} mm but the robot is {robot_mm:.0f} mm long: "
-                     f"meshes in micrometres? (give them 'scale: 0.001')"))
+            "scale", f"{scene.where('obstacles')}: they span {extent:.3g} mm but the robot is "
+                     f"{robot_mm:.0f} mm long: meshes in micrometres? (multiply their 'scale:' by 0.001; "
+                     f"none means 1)"))
 
 
 def _check_target_inside(scene: Scene, report: SceneCheck) -> None:
@@ -114,7 +116,8 @@ def _check_target_inside(scene: Scene, report: SceneCheck) -> None:
     target = scene.target
     depth_needed = float(np.max(target.semi_axes))
     for obstacle in scene.obstacles:
-        mesh = obstacle.to_trimesh()
+        mesh = obstacle.to_trimesh().copy()
+        mesh.merge_vertices()  # STL files repeat each vertex per triangle: closed only once merged
         if not mesh.is_watertight:
             continue  # an open surface has no inside
         pq = trimesh.proximity.ProximityQuery(mesh)

@@ -53,6 +53,27 @@ def test_a_target_inside_an_obstacle_is_named(tmp_path, capsys):
     assert code == 2 and any("inside the obstacle 'tumour_capsule'" in e for e in err), err
 
 
+def test_a_target_inside_a_mesh_file_is_named(tmp_path, capsys):
+    """An STL file repeats each vertex per triangle: the obstacle is closed only once they are
+    merged, and a target 6 mm deep inside it must be found as for a primitive."""
+    trimesh.creation.icosphere(subdivisions=3, radius=6.0).export(tmp_path / "capsule.stl")
+    text = OPEN.replace("obstacles:\n", "obstacles:\n- {name: tumour_capsule, mesh: capsule.stl, "
+                                        "position: [37.2, -27.2, 181.6]}\n")
+    code, err, _ = check(scene_file(tmp_path, text), capsys)
+    assert code == 2 and any("inside the obstacle 'tumour_capsule'" in e for e in err), err
+
+
+def test_fix_writes_a_usable_scene_with_the_robot_relative_to_it(tmp_path, capsys):
+    robot = tmp_path / "robots" / "mine.yaml"
+    robot.parent.mkdir()
+    robot.write_text((SCENES.parent / "ctrplan" / "data" / "nominal.yaml").read_text())
+    out = tmp_path / "fixed" / "scene.yaml"
+    code, err, stdout = check(scene_file(tmp_path, OPEN), capsys, "--robot", str(robot), "--fix", str(out))
+    assert code == 0 and not err and "usable" in stdout, err
+    assert "robot: ../robots/mine.yaml" in out.read_text()
+    assert load_scene(out).robot.fingerprint == load_scene(scene_file(tmp_path, OPEN)).robot.fingerprint
+
+
 def test_a_target_behind_the_plate_is_out_of_reach(tmp_path, capsys):
     text = OPEN.replace("point: [37.2, -27.2, 181.6]", "point: [0.0, 0.0, -60.0]")
     code, err, _ = check(scene_file(tmp_path, text), capsys)
