@@ -59,26 +59,29 @@ RATE_SPREAD_MM = 10.0
 
 
 class RunContext:
-    """Scenes, planning backends and exact backends of a job's runs, each built once (a PINN warms up
-    its compiled kernels, a scene builds its BVH): later runs of the job reuse them."""
+    """Scenes with their collision worlds, planning backends and exact backends of a job's runs, each
+    built once (a PINN warms up its compiled kernels, a scene builds its BVH and loads its distance
+    grid): later runs of the job reuse them."""
 
     def __init__(self) -> None:
-        self._exact: dict[str, tuple[Any, Any]] = {}
+        self._exact: dict[str, tuple[Any, Any, Any]] = {}
         self._planning: dict[tuple[str, str], Any] = {}
 
-    def get(self, scene_file: str, backend: str) -> tuple[Any, Any, Any]:
-        """Scene, planning backend and exact backend of ``scene_file`` and ``backend``."""
+    def get(self, scene_file: str, backend: str) -> tuple[Any, Any, Any, Any]:
+        """Scene, planning backend, exact backend and collision world of ``scene_file`` and
+        ``backend``."""
+        from ctrplan.collision import CollisionWorld
         from ctrplan.kinematics import CosseratBackend, make_backend
         from ctrplan.scene import load_scene
 
         if scene_file not in self._exact:
             scene = load_scene(scene_file)
-            self._exact[scene_file] = (scene, CosseratBackend(scene.robot))
-        scene, exact = self._exact[scene_file]
+            self._exact[scene_file] = (scene, CosseratBackend(scene.robot), CollisionWorld.from_scene(scene))
+        scene, exact, world = self._exact[scene_file]
         key = (scene_file, backend)
         if key not in self._planning:
             self._planning[key] = exact if backend == exact.name else make_backend(backend, scene.robot)
-        return scene, self._planning[key], exact
+        return scene, self._planning[key], exact, world
 
 
 def batches(specs: list[RunSpec], workers: int = 1) -> list[tuple[RunSpec, ...]]:
@@ -126,10 +129,10 @@ def run_one(spec: RunSpec, context: RunContext | None = None) -> dict[str, Any]:
 
     from ctrplan.planning import plan
 
-    scene, backend, exact = (context or RunContext()).get(spec.scene, spec.backend)
+    scene, backend, exact, world = (context or RunContext()).get(spec.scene, spec.backend)
     ou.setLogLevel(ou.LOG_ERROR)
     result = plan(scene, backend, planner=spec.planner, time_limit_s=spec.time_limit_s,
-                  max_states=spec.max_states, seed=spec.seed, exact=exact)
+                  max_states=spec.max_states, seed=spec.seed, exact=exact, world=world)
     counters = result.details.get("counters", {})
     total = float(result.planning_time_s)
     kin, col = float(counters.get("kinematics_s", 0.0)), float(counters.get("collision_s", 0.0))
@@ -189,8 +192,8 @@ def check_rates(scene_file: str, backend: str, *, states: int = RATE_STATES, bat
     from ctrplan.machine import single_core
     from ctrplan.planning import ConfigurationChecker, PlanningModel, compile_kernels
 
-    scene, be, exact = (context or RunContext()).get(scene_file, backend)
-    model = PlanningModel.build(scene, be, exact)
+    scene, be, exact, world = (context or RunContext()).get(scene_file, backend)
+    model = PlanningModel.build(scene, be, exact, world)
     space = model.space
     y = space.to_coords(scene.start) + np.random.default_rng(seed).normal(
         scale=RATE_SPREAD_MM, size=(states, space.dimension))

@@ -225,8 +225,9 @@ def _reach(task: DesignTask, scene: Scene, checker, record: dict, seed: int) -> 
                               f"solutions reached the target, closest {st.closest_mm:.2f} mm)")
             continue
         t = time.perf_counter()
-        result = plan(_target_scene(scene, target), exact, exact=exact, time_limit_s=task.plan_time_s,
-                      max_states=task.plan_states, seed=out["seed"], goal_hints=np.stack(sampler.goals))
+        result = plan(_target_scene(scene, target), exact, exact=exact, world=checker.world,
+                      time_limit_s=task.plan_time_s, max_states=task.plan_states, seed=out["seed"],
+                      goal_hints=np.stack(sampler.goals))
         plan_s += time.perf_counter() - t
         out.update(stage="plan", message=result.message, reached=bool(result.solved),
                    planning_time_s=result.planning_time_s, kinematics_calls=result.kinematics_calls,

@@ -89,14 +89,17 @@ class PlanningModel:
     margin_source: dict = field(default_factory=dict)
 
     @classmethod
-    def build(cls, scene: Scene, backend: Backend, exact: Backend | None = None) -> PlanningModel:
+    def build(cls, scene: Scene, backend: Backend, exact: Backend | None = None,
+              world: CollisionWorld | None = None) -> PlanningModel:
         """The model of a plan: the stability decision made and applied to ``backend`` and ``exact``
-        (default: the Cosserat model, or ``backend`` if it is exact), and the planning margins."""
+        (default: the Cosserat model, or ``backend`` if it is exact), the planning margins, and the
+        scene's collision world (``world`` if already built for these obstacles)."""
         decision = StabilityDecision.for_robot(scene.robot)
         exact = exact or (backend if backend.exact and backend.robot is scene.robot
                           else CosseratBackend(scene.robot))
         planning, margin, source = planning_backend(scene, decision.apply(backend))
-        return cls(scene, planning, decision.apply(exact), decision, CollisionWorld.from_scene(scene),
+        world = world or CollisionWorld.from_scene(scene)
+        return cls(scene, planning, decision.apply(exact), decision, world,
                    margin, int(scene.settings.points), BoxSpace.for_scene(scene), source)
 
     @classmethod

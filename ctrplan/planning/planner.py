@@ -26,6 +26,7 @@ from ompl import base as ob
 from ompl import geometric as og
 from ompl import util as ou
 
+from ctrplan.collision import CollisionWorld
 from ctrplan.errors import InputError
 from ctrplan.kinematics import make_backend
 from ctrplan.kinematics.backbone import Backbone
@@ -547,7 +548,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
          time_limit_s: float | None = None, max_states: int | None = None, seed: int | None = None,
          progress: Progress = _quiet,
          exact: Backend | None = None, repair: bool | None = None,
-         goal_hints: np.ndarray | None = None) -> PlanResult:
+         goal_hints: np.ndarray | None = None, world: CollisionWorld | None = None) -> PlanResult:
     """Plan a collision-free motion from the scene's start to its target, then validate it exactly.
 
     With an approximate backend (the PINN) the capsules get extra radius while planning: its
@@ -562,6 +563,8 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     starts; a plan that takes longer than ``time_limit_s`` says so. Bad input (an unknown planner,
     a start in collision) raises `InputError` naming the parameter. ``goal_hints`` (K, 2N): goal
     configurations known already (e.g. from a reachability screen), where goal sampling starts.
+    ``world``: the scene's collision world if already built (a design study plans many targets in
+    one anatomy); by default it is built here.
     """
     s = scene.settings
     planner, _ = scene_planner(scene, planner)
@@ -572,7 +575,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     progress("compile")  # loading a backend compiles its kernels too
     t_compile = time.perf_counter()
     scene.robot.calibration.refuse(scene.robot.name, "plan")
-    model = PlanningModel.build(scene, resolve_backend(backend, scene.robot), exact)
+    model = PlanningModel.build(scene, resolve_backend(backend, scene.robot), exact, world)
     start_bb = compile_kernels(model, progress)
     compile_s = time.perf_counter() - t_compile
     progress("start")  # the collision world: its distance grid and kernels on first use
