@@ -356,8 +356,9 @@ class Diagnosis:
                                     f"cause of the library beats it on the splits"}[j["cause"]]]
         lines = [f"cause: {' + '.join(self.causes)}"]
         if j["ties"]:
-            lines.append(f"  tie: {', '.join(j['ties'])} fit as well (held-out and BIC within their "
-                         "uncertainty); the data do not tell them apart: the fewest parameters is named, "
+            lines.append(f"  tie: {', '.join(j['ties'])} fit as well (neither is better on the held-out "
+                         "rows, and the training BIC is within its margin or its preference does not "
+                         "repeat there); the data do not tell them apart: the fewest parameters is named, "
                          "tentatively" + ("; experiment.csv lists configurations that separate them"
                                           if self.experiment is not None else ""))
         if j["unstable"]:

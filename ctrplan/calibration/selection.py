@@ -13,7 +13,9 @@ named.
   beat), and from the best single that beats the nominal model only with an implausible value: of
   the ``pairs`` partners a score test ranks first, those whose linearised fit could lower the BIC
   are fitted in that order; the first significant against the set it grew from is kept, up to
-  ``max_causes`` causes;
+  ``max_causes`` causes; each set of a grown set of three or more less one cause is fitted too
+  (against the best of its own subsets): a cause added early can stand in for a later one and fade
+  to nothing once that is in;
 * **contenders**: significant, against the nominal model and against the set they grew from, and not
   beaten on the main split by another contender; each is refitted on ``resamples`` other splits
   (warm-started from its main fit) and scored against the nominal model there;
@@ -24,8 +26,9 @@ named.
 * **named**: among the stable candidates that no stable candidate beats, one with the fewest
   causes -- never a subset a larger set beats, and a single cause at the noise before a pair; among
   the sets of that size the data cannot tell apart (training
-  BIC, or the fit without the parameter penalty, within ``bic_margin`` of the lowest BIC's) the one
-  with the fewest parameters, then the lowest pooled held-out error. **Ties**: the others of them.
+  BIC, or the fit without the parameter penalty, within ``bic_margin`` of the lowest BIC's, or a
+  preference of the training rows that the held-out rows do not repeat: `_replicates`) the one with
+  the fewest parameters, then the lowest pooled held-out error. **Ties**: the others of them.
 """
 
 from __future__ import annotations
@@ -328,6 +331,32 @@ class Selector:
             if better is None:
                 break
             chosen = better
+        if len(chosen.causes) > 2:
+            self._prune(chosen, split, cands, nom_err, nom_bic)
+
+    def _prune(self, grown: Candidate, split: Split, cands: dict[frozenset[str], Candidate],
+               nom_err: np.ndarray, nom_bic: float) -> None:
+        """Fit each set of ``grown`` less one cause that growing skipped (a cause added early may
+        stand in for one added later, and fade to nothing once it is in): `choose` then names the
+        smaller set unless the larger beats it."""
+        opt = self.opt
+        value = {p.name: v for p, v in zip(grown.fit.params, grown.fit.x, strict=True)}
+        for cause in grown.causes:
+            rest = tuple(c for c in grown.causes if c != cause)
+            key = frozenset(rest)
+            if key in cands:
+                continue
+            effect = make_effect("+".join(rest))
+            start = self.previous.get(key, np.array([value[p.name] for p in effect.params(self.robot)]))
+            fit = self._fit(effect, split, start, opt.resample_nfev if key in self.previous else opt.max_nfev)
+            err = self._heldout_err(fit, split.heldout)
+            g = self.groups[split.heldout]
+            ref = min((cands[key - {c}] for c in rest if key - {c} in cands), key=lambda c: c.fit.bic,
+                      default=None)
+            nominal = judge(fit, err, nom_err, nom_bic, opt, g)
+            main = nominal if ref is None else judge(fit, err, ref.heldout_err, ref.fit.bic, opt, g)
+            cands[key] = Candidate(fit=fit, reference="nominal" if ref is None else ref.name, main=main,
+                                   nominal=nominal)
 
     # ---- other splits --------------------------------------------------------------------------------
     def _resample(self, sel: Selection) -> None:
@@ -380,12 +409,41 @@ def choose(sel: Selection, opt: DiagnoseOptions) -> None:
     low = min(same, key=lambda c: c.fit.bic)
     # the data cannot tell these apart: none beats another on the held-out rows, and the training BIC
     # or the fit itself (BIC less the parameter penalty: extra parameters that buy nothing) is within
-    # the margin of the lowest BIC's
+    # the margin of the lowest BIC's, or the held-out rows do not repeat the training preference
+    # (neighbouring rows of a sweep share their residuals: the training BIC can count more
+    # independent evidence than the rows hold)
     alike = [c for c in same if c.fit.bic <= low.fit.bic + opt.bic_margin
-             or _misfit(c.fit) <= _misfit(low.fit) + opt.bic_margin]
+             or _misfit(c.fit) <= _misfit(low.fit) + opt.bic_margin or not _replicates(low, c)]
     best = min(alike, key=lambda c: (c.fit.k, float(np.mean(c.pooled()))))   # fewest parameters wins
     sel.chosen = best
     sel.ties = [c for c in alike if c is not best]
+
+
+#: Held-out evidence (BIC units: n log of the mean-squared-error ratio) that must point the way the
+#: training BIC does: 2, "positive evidence" (Kass & Raftery 1995).
+HELD_OUT_EVIDENCE = 2.0
+
+
+def _replicates(a: Candidate, b: Candidate) -> bool:
+    """Whether the held-out rows of every split repeat the training rows' preference of ``a`` over
+    ``b``: n log(MSE_b / MSE_a) over their n held-out residuals (3 per tube error) is at least
+    `HELD_OUT_EVIDENCE`. A real difference shows on rows the fits never saw; one that comes from
+    fitting noise, or from residuals that neighbouring rows of a sweep share (the training BIC then
+    counts more independent evidence than the rows hold), does not."""
+    ea, eb = _heldout(a), _heldout(b)
+    if ea.shape != eb.shape:
+        return True     # not scored on the same rows: the training BIC decides
+    ok = np.isfinite(ea) & np.isfinite(eb)
+    if not ok.any():
+        return True
+    n = 3 * int(ok.sum())
+    ratio = float(np.mean(eb[ok] ** 2)) / max(float(np.mean(ea[ok] ** 2)), 1e-300)
+    return n * float(np.log(ratio)) >= HELD_OUT_EVIDENCE
+
+
+def _heldout(c: Candidate) -> np.ndarray:
+    """Held-out tip errors (R, T) of every split ``c`` was scored on, main first, mm."""
+    return np.concatenate([s.heldout_err for s in [c.main, *c.resamples]])
 
 
 def _misfit(fit: FitResult) -> float:

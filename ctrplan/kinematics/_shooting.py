@@ -660,3 +660,26 @@ def solve_many(Q, X0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, wei
         iters[b] = it
         resid[b] = r
         stab[b] = st
+
+
+@njit(cache=True, parallel=True)
+def solve_chains(Q, X0, warm, starts, s_frac, lengths, straight, kappa, EI, GJ, force, weight, loaded,
+                 h_multi, h_single, tol, max_iter, with_stability, states, tips, state0, X, conv, iters,
+                 resid, stab):
+    """`solve_one` along consecutive rows of a path (B, 2N), in chains ``starts[c]:starts[c + 1]``
+    run in parallel: a chain's first row starts from ``X0`` (when ``warm``), every later row from the
+    solution of the row before it (continuation; cold where that did not converge)."""
+    for c in prange(starts.shape[0] - 1):
+        for b in range(starts[c], starts[c + 1]):
+            follow = b > starts[c] and conv[b - 1]
+            x0 = X[b - 1] if follow else X0[b]
+            if follow and b - 1 > starts[c] and conv[b - 2]:
+                x0 = 2.0 * X[b - 1] - X[b - 2]    # extrapolated along the path
+            x, cv, it, r, st = solve_one(Q[b], x0, follow or warm, s_frac, lengths, straight, kappa, EI,
+                                         GJ, force, weight, loaded, h_multi, h_single, tol, max_iter,
+                                         with_stability, states[b], tips[b], state0[b])
+            X[b, :] = x
+            conv[b] = cv
+            iters[b] = it
+            resid[b] = r
+            stab[b] = st

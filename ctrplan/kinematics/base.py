@@ -126,6 +126,13 @@ class Backend(ABC):
         With ``check``, joints are validated against the robot (`Robot.check_joints`).
         """
 
+    def forward_path(self, q: np.ndarray, points: Points = DEFAULT_POINTS, *,
+                     guess: np.ndarray | None = None, check: bool = True) -> Backbone:
+        """Backbones of consecutive configurations along a densely sampled path (K, 2N), as `forward`
+        (``guess``: initial states of the rows, where a solver cannot do better): a shooting solver
+        starts each row from its predecessor's solution. Default: `forward`."""
+        return self.forward(q, points, guess=guess, check=check)
+
     def body(self, q: np.ndarray, points: Points, *, guess: np.ndarray | None = None,
              check: bool = True) -> Body:
         """The `Body` of configurations q (B, 2N) at ``points`` (as `forward`): a planner's validity

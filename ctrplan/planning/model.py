@@ -44,6 +44,15 @@ class StabilityDecision:
     def for_robot(cls, robot: Robot) -> StabilityDecision:
         return cls(is_certified(robot))
 
+    @property
+    def continuation(self) -> bool:
+        """Whether an exact solve may start from a neighbour's solution or a surrogate's guess: on a
+        certified robot the equilibrium branch has no fold in the domain, so every start reaches the
+        state a cold solve reaches. Otherwise checks start cold: continuation along a path could
+        follow a branch on past where the cold solution is unstable, and call a snapping state
+        safe."""
+        return self.certified
+
     def apply(self, backend: Backend) -> Backend:
         """``backend`` as planning and validation must use it: testing stability per state unless the
         robot is certified (a surrogate, which cannot test it, is returned as it is)."""

@@ -111,7 +111,9 @@ def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolutio
     ``clearance_stride`` k > 1 the clearance (an FCL distance, 1-2 ms) is measured only at every k-th
     and the last state, the others get the boolean collision check (one batched call). The exact
     backend computes elastic stability unless the robot is certified (`StabilityDecision`): an
-    unstable state fails like a colliding one.
+    unstable state fails like a colliding one. On a certified robot the exact states are solved by
+    continuation along the path (`Backend.forward_path`, from the planning backend's guess); on any
+    other each starts cold (`StabilityDecision.continuation`).
     """
     t0 = time.perf_counter()
     scene = model.scene
@@ -120,16 +122,24 @@ def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolutio
     margin = s.margin_mm if margin_mm is None else float(margin_mm)
     exact = model.exact
     dense = model.space.densify(path_q, resolution)
-    ebb = exact.forward(dense, points=model.points, check=False)
+    planned = model.backend is not exact
+    pbb = model.backend.forward(dense, points=model.points, check=False) if planned else None
+    warm = model.stability.continuation
+    if warm:   # from the planning backend's guess, each row from its predecessor
+        ebb = exact.forward_path(dense, points=model.points, check=False,
+                                 guess=None if pbb is None else warm_start(pbb))
+    else:
+        ebb = exact.forward(dense, points=model.points, check=False)
     bound = float(np.min(ebb.radius_mm)) + margin
-    dense, ebb = refine_steps(model.space, exact, dense, ebb, bound)
+    refined, ebb = refine_steps(model.space, exact, dense, ebb, bound, warm=warm)
+    if planned and len(refined) != len(dense):
+        pbb = model.backend.forward(refined, points=model.points, check=False)
+    dense = refined
     report = Validation(backend=exact.name, states=len(dense), step_bound_mm=bound,
                         max_step_mm=float(np.max(backbone_steps(ebb), initial=0.0)))
     report.converged = bool(ebb.converged.all())
     report.stable = bool(ebb.stable.all())
-    pbb = None
-    if model.backend is not exact:
-        pbb = model.backend.forward(dense, points=model.points, check=False)
+    if pbb is not None:
         _position_errors(report, pbb, ebb)
     checker = RobotCollisionChecker(model.world, scene.base_pose, model.points, margin)
     _collisions_and_clearance(report, checker, ebb, clearance_stride)
@@ -141,6 +151,13 @@ def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolutio
                                 and angle <= scene.target.angle_tolerance_rad + 1e-12)
     report.time_s = time.perf_counter() - t0
     return ValidatedPath(dense, ebb, pbb, report, model.world)
+
+
+def warm_start(bb: Backbone) -> np.ndarray:
+    """Initial states (B, 2N + 9) of ``bb`` to warm-start an exact solve of the same joints (the
+    planning backend's guess: a third fewer shooting iterations; rows it did not give start from
+    zero torsion)."""
+    return np.where(np.isfinite(bb.initial_state), bb.initial_state, 0.0)
 
 
 def _position_errors(report: Validation, pbb: Backbone, ebb: Backbone) -> None:
@@ -224,7 +241,7 @@ def _stack(parts: list[Backbone], order: np.ndarray) -> Backbone:
 
 
 def refine_steps(space: BoxSpace, exact: Backend, dense: np.ndarray, bb: Backbone, bound_mm: float,
-                 max_split: int = 64, rounds: int = 4) -> tuple[np.ndarray, Backbone]:
+                 max_split: int = 64, rounds: int = 4, warm: bool = False) -> tuple[np.ndarray, Backbone]:
     """Insert states between consecutive rows of ``dense`` (K, 2N) until no backbone point moves more
     than ``bound_mm`` between two of them.
 
@@ -232,7 +249,9 @@ def refine_steps(space: BoxSpace, exact: Backend, dense: np.ndarray, bb: Backbon
     no larger than the capsule radius an obstacle of any thickness that the robot sweeps through
     touches a checked capsule (twice the needed safety, for curved motion). Segments whose ends did
     not converge are left alone (they already fail); at most ``max_split`` pieces per segment and
-    round. Returns the refined joints and their exact backbones (one batched call per round)."""
+    round. Returns the refined joints and their exact backbones (one batched call per round; with
+    ``warm`` (`StabilityDecision.continuation`) each new state starts from its left neighbour's
+    solution)."""
     points = bb.s_mm.shape[1]
     for _ in range(rounds):
         step = backbone_steps(bb)
@@ -246,7 +265,9 @@ def refine_steps(space: BoxSpace, exact: Backend, dense: np.ndarray, bb: Backbon
             new_q.append(space.interpolate(dense[k], dense[k + 1], np.arange(1, n) / n))
             slot.append(k + np.arange(1, n) / n)
         extra_q = np.concatenate(new_q)
-        extra = exact.forward(extra_q, points=points, check=False)
+        left = np.floor(np.concatenate(slot)).astype(int)
+        extra = exact.forward(extra_q, points=points, check=False,
+                              guess=warm_start(bb)[left] if warm else None)
         order = np.argsort(np.concatenate([np.arange(len(dense), dtype=float), *slot]), kind="stable")
         dense = np.concatenate([dense, extra_q])[order]
         bb = _stack([bb, extra], order)

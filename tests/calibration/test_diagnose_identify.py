@@ -196,16 +196,22 @@ def test_a_tie_gets_an_experiment_that_names_the_true_cause(tmp_path, capsys):
     the domain, stable, where the two predict tips furthest apart. "Measured" with the same independent
     model and appended, the rows name stiffness_ratio alone."""
     rng = np.random.default_rng(SEED)
-    q = sweep(90, rng, moving=(3, 4))
     path = tmp_path / "lab.csv"
-    LabData(q=q, tips_mm=_torsion_lab(q, 0.45, rng), clean_mm=q, sigma_mm=0.1).write_csv(path)
-    out = tmp_path / "first"
     args = ["--json", "--candidates", "stiffness_ratio,transmission", "--pairs", "0",
             "--experiment-rows", "15"]
-    assert main(["diagnose", str(path), "--out", str(out), *args]) == 0
-    j = json.loads(capsys.readouterr().out)
-    assert {j["cause"], *j["ties"]} == {"stiffness_ratio", "transmission"}, j["candidates"]
-    assert j["cause"] == "stiffness_ratio"        # the fewest parameters
+    for draw in range(3):   # a sweep that happens to tell them apart is drawn again (about 1 in 8)
+        q = sweep(90, rng, moving=(3, 4))
+        LabData(q=q, tips_mm=_torsion_lab(q, 0.45, rng), clean_mm=q, sigma_mm=0.1).write_csv(path)
+        out = tmp_path / f"draw{draw}"
+        assert main(["diagnose", str(path), "--out", str(out), *args]) == 0
+        j = json.loads(capsys.readouterr().out)
+        assert j["cause"] == "stiffness_ratio"    # the fewest parameters, or the better fit
+        if j["ties"]:
+            break
+        # told apart: the training BIC prefers the true cause by more than its margin
+        fit = {c["cause"]: c for c in j["candidates"]}
+        assert fit["transmission"]["bic"] > fit["stiffness_ratio"]["bic"] + 10.0, j["candidates"]
+    assert j["ties"] == ["transmission"], j["candidates"]
     lines = (out / "experiment.csv").read_text().splitlines()
     head = lines[0].split(",")
     assert head == ["beta1", "beta2", "beta3", "alpha1", "alpha2", "alpha3", "difference_mm", "versus"]

@@ -100,7 +100,7 @@ def test_straight_line_through_the_ball_collides_under_exact_validation(open_sce
     assert not rep.collision_free and rep.colliding_states
     assert rep.first_collision["obstacles"] == ["ball"]
     assert rep.min_clearance_mm == 0.0
-    assert rep.max_position_error_mm == 0.0  # planning backend = exact model
+    assert rep.max_position_error_mm < 1e-6  # planning backend = exact model (to solver tolerance)
 
 
 class WrongBackend(CosseratBackend):
