@@ -135,11 +135,15 @@ class BoxSpace:
     def densify(self, path_q: np.ndarray, resolution: float) -> np.ndarray:
         """Path (K, 2N) with extra states so consecutive states are <= ``resolution`` apart."""
         path_q = np.atleast_2d(np.asarray(path_q, dtype=float))
-        out = [path_q[:1]]
-        for a, b in zip(path_q[:-1], path_q[1:], strict=True):
-            n = max(1, int(np.ceil(float(self.distance(a, b)) / resolution)))
-            out.append(self.interpolate(a, b, np.arange(1, n + 1) / n))
-        return np.concatenate(out)
+        y = self.to_coords(path_q)
+        n = np.maximum(1, np.ceil(np.linalg.norm(np.diff(y, axis=0), axis=1) / resolution)).astype(int)
+        return np.concatenate([path_q[:1], self.along(path_q, *split_segments(n, ends=True))])
+
+    def along(self, path_q: np.ndarray, segment: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Joints (M, 2N) at fractions ``t`` (M,) of the straight coordinate lines of the segments
+        ``segment`` (M,) (index k: from row k to row k + 1) of a path (K, 2N)."""
+        y = self.to_coords(path_q)
+        return self.to_joints(y[segment] + t[:, None] * (y[segment + 1] - y[segment]))
 
     # ---- OMPL ----------------------------------------------------------------------------------
     def make_ompl_space(self):
@@ -176,3 +180,14 @@ class BoxSpace:
         y = self.clip(self.to_coords(q))
         for i in range(self.dimension):
             state[i] = float(y[i])
+
+
+def split_segments(pieces: np.ndarray, ends: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The states that cut each segment k of a path into ``pieces[k]`` equal parts: their segment
+    indices and fractions j / pieces[k], j = 1 .. pieces[k] - 1 (with ``ends``, up to pieces[k]: the
+    segment's end too), in path order."""
+    pieces = np.asarray(pieces, dtype=int)
+    count = pieces if ends else pieces - 1
+    segment = np.repeat(np.arange(len(pieces)), count)
+    j = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count) + 1
+    return segment, j / pieces[segment]

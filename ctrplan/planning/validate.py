@@ -23,7 +23,7 @@ from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
 from ctrplan.planning.goal import tip_tangents
 from ctrplan.planning.model import PlanningModel
-from ctrplan.planning.space import BoxSpace
+from ctrplan.planning.space import BoxSpace, split_segments
 from ctrplan.scene import Scene
 
 
@@ -112,8 +112,8 @@ def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolutio
     and the last state, the others get the boolean collision check (one batched call). The exact
     backend computes elastic stability unless the robot is certified (`StabilityDecision`): an
     unstable state fails like a colliding one. On a certified robot the exact states are solved by
-    continuation along the path (`Backend.forward_path`, from the planning backend's guess); on any
-    other each starts cold (`StabilityDecision.continuation`).
+    continuation along the path (`Backend.forward_path`); on any other each starts cold
+    (`StabilityDecision.continuation`).
     """
     t0 = time.perf_counter()
     scene = model.scene
@@ -123,18 +123,12 @@ def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolutio
     exact = model.exact
     dense = model.space.densify(path_q, resolution)
     planned = model.backend is not exact
-    pbb = model.backend.forward(dense, points=model.points, check=False) if planned else None
     warm = model.stability.continuation
-    if warm:   # from the planning backend's guess, each row from its predecessor
-        ebb = exact.forward_path(dense, points=model.points, check=False,
-                                 guess=None if pbb is None else warm_start(pbb))
-    else:
-        ebb = exact.forward(dense, points=model.points, check=False)
+    solve = exact.forward_path if warm else exact.forward
+    ebb = solve(dense, points=model.points, check=False)
     bound = float(np.min(ebb.radius_mm)) + margin
-    refined, ebb = refine_steps(model.space, exact, dense, ebb, bound, warm=warm)
-    if planned and len(refined) != len(dense):
-        pbb = model.backend.forward(refined, points=model.points, check=False)
-    dense = refined
+    dense, ebb = refine_steps(model.space, exact, dense, ebb, bound, warm=warm)
+    pbb = model.backend.forward(dense, points=model.points, check=False) if planned else None
     report = Validation(backend=exact.name, states=len(dense), step_bound_mm=bound,
                         max_step_mm=float(np.max(backbone_steps(ebb), initial=0.0)))
     report.converged = bool(ebb.converged.all())
@@ -250,8 +244,8 @@ def refine_steps(space: BoxSpace, exact: Backend, dense: np.ndarray, bb: Backbon
     touches a checked capsule (twice the needed safety, for curved motion). Segments whose ends did
     not converge are left alone (they already fail); at most ``max_split`` pieces per segment and
     round. Returns the refined joints and their exact backbones (one batched call per round; with
-    ``warm`` (`StabilityDecision.continuation`) each new state starts from its left neighbour's
-    solution)."""
+    ``warm`` (`StabilityDecision.continuation`) each new state starts from its neighbours' solutions,
+    interpolated)."""
     points = bb.s_mm.shape[1]
     for _ in range(rounds):
         step = backbone_steps(bb)
@@ -259,18 +253,16 @@ def refine_steps(space: BoxSpace, exact: Backend, dense: np.ndarray, bb: Backbon
         pieces = np.clip(pieces, 1, max_split)
         if pieces.max(initial=1) <= 1:
             break
-        new_q, slot = [], []
-        for k in np.flatnonzero(pieces > 1):
-            n = pieces[k]
-            new_q.append(space.interpolate(dense[k], dense[k + 1], np.arange(1, n) / n))
-            slot.append(k + np.arange(1, n) / n)
-        extra_q = np.concatenate(new_q)
-        left = np.floor(np.concatenate(slot)).astype(int)
-        extra = exact.forward(extra_q, points=points, check=False,
-                              guess=warm_start(bb)[left] if warm else None)
-        order = np.argsort(np.concatenate([np.arange(len(dense), dtype=float), *slot]), kind="stable")
+        left, t = split_segments(pieces)
+        extra_q = space.along(dense, left, t)
+        guess = None
+        if warm:   # between the neighbours' solutions, as the new state lies between their joints
+            init, w = warm_start(bb), t[:, None]
+            guess = (1.0 - w) * init[left] + w * init[left + 1]
+        solved = exact.forward(extra_q, points=points, check=False, guess=guess)
+        order = np.argsort(np.concatenate([np.arange(len(dense), dtype=float), left + t]), kind="stable")
         dense = np.concatenate([dense, extra_q])[order]
-        bb = _stack([bb, extra], order)
+        bb = _stack([bb, solved], order)
     return dense, bb
 
 

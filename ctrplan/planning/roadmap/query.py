@@ -7,8 +7,8 @@ plus the edge) in one batched call, checks the end of the best valid one (its la
 exact model -- where a roadmap path fails exactly, it fails near the anatomy it ends in -- and returns
 the tree path to it plus its IK state; a path whose exact tip misses the target gets the exact goal
 correction of the single-query planner. ``query_time_s`` covers all that; the exact re-validation of
-the whole path (`RoadmapPlanner.answer`, with the planning backend's error against the exact model
-along it) is timed separately.
+the whole path (`RoadmapPlanner.answer`) is timed separately (the planning backend's error against
+the exact model along the path is added to its report afterwards, untimed: a report, not a check).
 When it rejects a path, the next candidate is tried (local repair: that time counts as query time).
 """
 
@@ -23,6 +23,7 @@ from scipy.spatial import cKDTree
 
 from ctrplan.planning.roadmap._adapter import (
     PlanningContext,
+    add_model_error,
     check_edges,
     check_states,
     exact_end_check,
@@ -138,9 +139,11 @@ class RoadmapPlanner:
             if vp.report.ok:
                 res.query_time_s = tv - t0
                 res.validation_time_s = time.perf_counter() - tv
+                add_model_error(self.ctx, vp)  # a report, not a check: after the clock
                 res.solved, res.path, res.validated, res.dense = True, path, vp.report, vp
                 res.message = "solved" + ("" if res.attempts == 1 else f" (attempt {res.attempts})")
                 return res
+            add_model_error(self.ctx, vp)  # a rejected path is reported too
             res.validated, res.dense = vp.report, vp
             skip = used + 1
         res.query_time_s = time.perf_counter() - t0
