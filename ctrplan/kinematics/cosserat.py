@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
 
-import numba
 import numpy as np
 
 import ctrplan.kinematics._shooting as kernel
@@ -75,6 +74,12 @@ class RodArrays:
                    weight=mass_per_mm[:, None] * np.asarray(robot.loads.gravity_m_s2, dtype=float)[None, :])
 
 
+#: Chains `CosseratBackend.forward_path` splits a path into: a constant, so that the backbones (equal
+#: to solver tolerance however split) are the same bits on every machine, whatever its thread count;
+#: four keep two cores busy with one cold start each.
+PATH_CHAINS = 4
+
+
 class CosseratBackend(Backend):
     """Shooting solver for the Cosserat-rod model of N = 1…4 tubes with gravity and a tip force from
     ``robot.loads``.
@@ -133,10 +138,10 @@ class CosseratBackend(Backend):
 
     def forward_path(self, q: np.ndarray, points: Points = DEFAULT_POINTS, *,
                      guess: np.ndarray | None = None, check: bool = True) -> Backbone:
-        """Each row after the first of a few chains (one per thread) starts from the solution of the
-        row before it: along a densely sampled path about half the shooting iterations of cold
-        starts, on every core."""
-        return self._solve(q, points, guess, check, chains=2 * numba.get_num_threads())
+        """Each row after the first of `PATH_CHAINS` chains (run in parallel) starts from the
+        solutions of the rows before it: along a densely sampled path about 40 % of the shooting
+        iterations of cold starts, on every core."""
+        return self._solve(q, points, guess, check, chains=PATH_CHAINS)
 
     def _solve(self, q: np.ndarray, points: Points, guess: np.ndarray | None, check: bool,
                chains: int) -> Backbone:
