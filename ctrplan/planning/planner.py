@@ -407,14 +407,16 @@ def compile_kernels(model: PlanningModel, progress: Progress = _quiet) -> Backbo
     or loads from its cache every kernel a plan uses before the planning clock starts. Returns the
     exact backbone of the start (the start check uses it: the start is solved once).
     ``progress("compile", done=k, total=n)`` counts the n kernel sets (a backend's single-query and
-    batched ones), k of them ready."""
+    batched ones, and the exact backend's along a path where validation uses it), k of them ready."""
     q = np.asarray(model.scene.start, dtype=float)
     backends = [model.backend] if model.backend is model.exact else [model.backend, model.exact]
-    calls = [(be, batch) for be in backends for batch in (q, np.stack([q, q]))]  # single, batched
+    calls = [(be.forward, batch) for be in backends for batch in (q, np.stack([q, q]))]  # single, batched
+    if model.stability.continuation:
+        calls.append((model.exact.forward_path, np.stack([q, q])))
     bb = None
-    for done, (be, batch) in enumerate(calls):
+    for done, (forward, batch) in enumerate(calls):
         progress("compile", done=done, total=len(calls))
-        out = be.forward(batch, points=model.points, check=False)
+        out = forward(batch, points=model.points, check=False)
         if batch.ndim == 1:
             bb = out
     progress("compile", done=len(calls), total=len(calls))
