@@ -14,7 +14,13 @@ at spacing <= ``cell_mm / 2``; every axis point is within half that spacing of a
 
 a lower bound of the margin-reduced clearance of the axis. A capsule of radius r (the robot's margin
 included) is *certainly free* -- further than r plus its margin from every obstacle -- when that bound
-exceeds r; only the other capsules go to FCL, which stays the judge of every contact.
+exceeds r; only the other capsules go to FCL, which stays the judge of every free verdict.
+
+The same cells bound d from above: a stored value v < 255 means d(c) < (v + 1) * step (rounding was
+down; a negative d stored as 0), so ``d(x) < (v + 1) * step + |x - c|`` at any point x. A capsule is
+*certainly in contact* when that bound, at a point of its axis and any of the 8 cell centres around
+it, is below r: some obstacle is then nearer than r plus its margin to the axis, which is what FCL
+reports as a contact. A planner's rejected states mostly end there, without FCL (`capsule_contact`).
 
 The grid is built once per set of obstacles (compiled; seconds for the skull-base anatomy) and cached
 in memory and, when it took long to build, on disk in the user cache directory (``$CTRPLAN_CACHE_DIR``, else
@@ -185,6 +191,38 @@ def _point_bound(x, y, z, lo, cell, step, band, values):
         return band  # outside the grid: at least band from every obstacle
     ex, ey, ez = (fx - ix - 0.5) * cell, (fy - iy - 0.5) * cell, (fz - iz - 0.5) * cell
     return values[ix, iy, iz] * step - math.sqrt(ex * ex + ey * ey + ez * ez)
+
+
+@njit(cache=True)
+def _point_upper_bound(x, y, z, lo, cell, step, values):
+    """Upper bound (mm) of the distance from point (x, y, z) to the obstacles, from the 8 cell centres
+    around it (inf where none of them is within the band)."""
+    fx, fy, fz = (x - lo[0]) / cell - 0.5, (y - lo[1]) / cell - 0.5, (z - lo[2]) / cell - 0.5
+    i0, j0, k0 = int(math.floor(fx)), int(math.floor(fy)), int(math.floor(fz))
+    best = np.inf
+    for ix in range(max(i0, 0), min(i0 + 2, values.shape[0])):
+        for iy in range(max(j0, 0), min(j0 + 2, values.shape[1])):
+            for iz in range(max(k0, 0), min(k0 + 2, values.shape[2])):
+                v = values[ix, iy, iz]
+                if v < _LEVELS:
+                    ex, ey, ez = fx - ix, fy - iy, fz - iz
+                    best = min(best, (v + 1) * step + cell * math.sqrt(ex * ex + ey * ey + ez * ez))
+    return best
+
+
+@njit(cache=True)
+def capsule_contact(a, b, radius, lo, cell, step, values, spacing):
+    """Whether the capsule of axis a -> b (3,) and ``radius`` (mm) is certainly in contact with an
+    obstacle (see the module docstring): the upper bound at axis samples ``spacing`` apart is below
+    the radius. False says nothing (FCL decides)."""
+    dx, dy, dz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    k = max(1, int(math.ceil(math.sqrt(dx * dx + dy * dy + dz * dz) / spacing)))
+    for j in range(k + 1):
+        t = j / k
+        if _point_upper_bound(a[0] + t * dx, a[1] + t * dy, a[2] + t * dz, lo, cell, step, values) \
+                < radius - 1e-9:
+            return True
+    return False
 
 
 @njit(cache=True)

@@ -27,7 +27,13 @@ import fcl
 import numpy as np
 from numba import njit
 
-from ctrplan.broadphase import DistanceGrid, _capsule_lower_bounds, grid_for, primitive_bounds
+from ctrplan.broadphase import (
+    DistanceGrid,
+    _capsule_lower_bounds,
+    capsule_contact,
+    grid_for,
+    primitive_bounds,
+)
 from ctrplan.scene import Obstacle, Scene, transform_points
 
 
@@ -147,12 +153,14 @@ def _to_world(positions, radius, T, margin):
 def _near_in_order(p, radii, finite, lo, cell, step, band, values, spacing):
     """Per row of world polylines ``p`` (B, N, 3) with capsule radii (B, N-1): the capsules the
     distance grid cannot clear, likeliest contact (smallest lower bound) first, as ``order`` (B, N-1)
-    with ``count`` (B,) valid entries per row (rows that are not finite: none)."""
+    with ``count`` (B,) valid entries per row (rows that are not finite: none), and whether the grid
+    shows one of them certainly in contact (B,) (`capsule_contact`; FCL need not test that row)."""
     nb, m = radii.shape
     lower = np.empty((nb, m))
     _capsule_lower_bounds(p, radii, lo, cell, step, band, values, spacing, lower)
     order = np.empty((nb, m), dtype=np.int64)
     count = np.zeros(nb, dtype=np.int64)
+    hit = np.zeros(nb, dtype=np.bool_)
     for b in range(nb):
         if not finite[b]:
             continue
@@ -166,15 +174,20 @@ def _near_in_order(p, radii, finite, lo, cell, step, band, values, spacing):
                 order[b, j] = i
                 k += 1
         count[b] = k
-    return order, count
+        for j in range(k):
+            i = order[b, j]
+            if capsule_contact(p[b, i], p[b, i + 1], radii[b, i], lo, cell, step, values, spacing):
+                hit[b] = True
+                break
+    return order, count, hit
 
 
 @njit(cache=True)
 def _world_and_near(positions, radius, T, margin, lo, cell, step, band, values, spacing):
     """`_to_world` then `_near_in_order`, in one compiled call (the planner's hot path)."""
     p, radii, finite = _to_world(positions, radius, T, margin)
-    order, count = _near_in_order(p, radii, finite, lo, cell, step, band, values, spacing)
-    return p, radii, finite, order, count
+    order, count, hit = _near_in_order(p, radii, finite, lo, cell, step, band, values, spacing)
+    return p, radii, finite, order, count, hit
 
 
 @njit(cache=True)
@@ -210,13 +223,16 @@ def _pack_frames(centres, R, length, radii):
 @njit(cache=True)
 def _one_backbone(positions, radius, T, margin, lo, cell, step, band, values, spacing, aabb_lo, aabb_hi):
     """`_world_and_near` then `_candidate_frames` for a single backbone (N, 3) with radii (N,) in
-    one compiled call (the planner's single-state hot path): whether it is finite, and the frames and
-    pairs of the capsules the broadphase cannot clear (none: the backbone is free)."""
+    one compiled call (the planner's single-state hot path): whether it is finite, whether the grid
+    shows a contact, and the frames and pairs of the capsules the broadphase cannot clear (none: the
+    backbone is free, or certainly not)."""
     n = positions.shape[0]
-    p, radii, finite, order, count = _world_and_near(positions.reshape((1, n, 3)), radius.reshape((1, n)),
-                                                     T, margin, lo, cell, step, band, values, spacing)
-    frames, pairs = _candidate_frames(p[0], radii[0], order[0, :count[0]], aabb_lo, aabb_hi)
-    return finite[0], frames, pairs
+    p, radii, finite, order, count, hit = _world_and_near(
+        positions.reshape((1, n, 3)), radius.reshape((1, n)), T, margin, lo, cell, step, band, values,
+        spacing)
+    k = 0 if hit[0] else count[0]
+    frames, pairs = _candidate_frames(p[0], radii[0], order[0, :k], aabb_lo, aabb_hi)
+    return finite[0], hit[0], frames, pairs
 
 
 def segment_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -602,9 +618,11 @@ class RobotCollisionChecker:
         self.margin_mm = float(margin_mm)
         self.chain = CapsuleChain(self.points - 1)
         warm_kernels()
-        #: backbones checked, and how many of them the broadphase could not clear alone (went to FCL)
+        #: backbones checked, how many of them the broadphase could not clear alone (went to FCL), and
+        #: how many the grid showed certainly in contact (no FCL)
         self.checks = 0
         self.narrow_checks = 0
+        self.grid_contacts = 0
 
     @classmethod
     def for_scene(cls, scene: Scene, points: int | None = None, margin_mm: float | None = None,
@@ -624,12 +642,15 @@ class RobotCollisionChecker:
         if grid is None or not len(self.world):
             return bool(self.free_batch(positions[None], radius[None])[0])
         self.checks += 1
-        finite, frames, pairs = _one_backbone(np.ascontiguousarray(positions, dtype=float),
+        finite, hit, frames, pairs = _one_backbone(np.ascontiguousarray(positions, dtype=float),
                                               np.ascontiguousarray(radius, dtype=float), self.base_pose,
                                               self.margin_mm, grid.lo, grid.cell_mm, grid.step_mm,
                                               grid.band_mm, grid.values, grid.spacing_mm, self.world.aabb_lo,
                                               self.world.aabb_hi)
         if not finite:
+            return False
+        if hit:
+            self.grid_contacts += 1
             return False
         if len(frames):
             self.narrow_checks += 1
@@ -643,8 +664,8 @@ class RobotCollisionChecker:
         The broadphase runs on the whole batch at once; FCL then tests each row's remaining capsules,
         likeliest contact first, rows in order. With ``stop_at_first``, rows after the first collision
         are left not free."""
-        p, radii, finite, caps, count = self._world_and_near(np.ascontiguousarray(positions, dtype=float),
-                                                             np.ascontiguousarray(radius, dtype=float))
+        p, radii, finite, caps, count, hit = self._world_and_near(
+            np.ascontiguousarray(positions, dtype=float), np.ascontiguousarray(radius, dtype=float))
         cleared = finite & (count == 0)
         if cleared.all():
             self.checks += len(cleared)
@@ -652,8 +673,9 @@ class RobotCollisionChecker:
         free = np.zeros(len(finite), dtype=bool)
         for i in range(len(finite)):
             self.checks += 1
-            if cleared[i] or not finite[i]:
+            if cleared[i] or not finite[i] or hit[i]:
                 ok = bool(cleared[i])
+                self.grid_contacts += int(hit[i])
             else:
                 self.narrow_checks += 1
                 ok = not self.chain.capsules_collide(self.world, p[i], radii[i], caps[i, :count[i]])
@@ -664,8 +686,9 @@ class RobotCollisionChecker:
 
     def _world_and_near(self, positions: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, ...]:
         """Backbones (B, N, 3) robot frame with tube radii (B, N) -> world points (B, N, 3), capsule
-        radii with the margin (B, N-1), finite rows (B,), and the capsules the broadphase cannot
-        clear, likeliest contact first (B, N-1), with their count (B,) (see `CollisionWorld.near`)."""
+        radii with the margin (B, N-1), finite rows (B,), the capsules the broadphase cannot
+        clear, likeliest contact first (B, N-1), with their count (B,) (see `CollisionWorld.near`),
+        and the rows the grid shows certainly in contact (B,) (none without a grid)."""
         grid = self.world.grid
         if grid is not None and len(self.world):
             return _world_and_near(positions, radius, self.base_pose, self.margin_mm, grid.lo, grid.cell_mm,
@@ -674,7 +697,7 @@ class RobotCollisionChecker:
         near, priority = self.world.near(p, radii)
         near &= finite[:, None]
         order = np.argsort(np.where(near, priority, np.inf), axis=1, kind="stable")
-        return p, radii, finite, order, near.sum(axis=1)
+        return p, radii, finite, order, near.sum(axis=1), np.zeros(len(finite), dtype=bool)
 
     def contacts(self, positions: np.ndarray, radius: np.ndarray) -> list[tuple[int, str]]:
         """(segment, obstacle) pairs in contact for one backbone (with the margin)."""

@@ -169,6 +169,7 @@ def run_one(spec: RunSpec, context: RunContext | None = None) -> dict[str, Any]:
         "kinematics_calls": calls,
         "collision_checks": int(counters.get("collision_checks", 0)),
         "narrow_checks": int(counters.get("narrow_checks", 0)),
+        "grid_contacts": int(counters.get("grid_contacts", 0)),
         "fcl_tests": int(counters.get("fcl_tests", 0)),
         "checks_per_s": _round(calls / total if total > 0 else 0.0, 1),
         "path_states": int(len(result.path)),

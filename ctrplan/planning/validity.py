@@ -30,12 +30,14 @@ from ctrplan.scene import Scene
 @dataclass
 class Counters:
     """Work done so far: configurations sent to the backend, backend calls, collision checks (and of
-    those, the ones the broadphase could not decide alone; FCL narrow-phase tests)."""
+    those, the ones the broadphase could not decide alone, the ones its grid showed in contact; FCL
+    narrow-phase tests)."""
 
     kinematics_calls: int = 0
     kinematics_batches: int = 0
     collision_checks: int = 0
     narrow_checks: int = 0
+    grid_contacts: int = 0
     fcl_tests: int = 0
     motions: int = 0
     valid_motions: int = 0
@@ -201,6 +203,7 @@ class ConfigurationChecker:
         c.collision_s += time.perf_counter() - t1
         c.collision_checks += states
         c.narrow_checks = self.collision.narrow_checks
+        c.grid_contacts = self.collision.grid_contacts
         c.fcl_tests = self.collision.chain.tests
         self._count_kinematics(t1 - t0, states if new else 0)
 

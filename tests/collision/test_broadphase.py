@@ -5,6 +5,7 @@ cached on disk, and the planner's validity answers are the same with and without
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import fcl
 import numpy as np
@@ -12,7 +13,7 @@ import pytest
 import trimesh
 
 from ctrplan import broadphase
-from ctrplan.broadphase import DistanceGrid, geometry_key, grid_for
+from ctrplan.broadphase import DistanceGrid, capsule_contact, geometry_key, grid_for
 from ctrplan.collision import CollisionWorld, RobotCollisionChecker
 from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.space import BoxSpace
@@ -139,6 +140,43 @@ def test_point_bounds_are_lower_bounds_and_tight(kind):
     slack = math.sqrt(3) * grid.cell_mm + grid.step_mm + 1e-9
     assert (bound >= np.minimum(d, grid.band_mm) - slack).all()
     assert (d < 1.0).sum() > 150  # many points near the geometry
+
+
+@pytest.mark.parametrize("kind", ["skull", "primitives"])
+def test_point_upper_bounds_are_upper_bounds_and_tight(kind):
+    """Where the grid has a value within its band: d(x) <= bound <= d(x) + sqrt(3) cell + one step."""
+    obstacles = skull_parts() if kind == "skull" else primitives()
+    grid = DistanceGrid.build(obstacles)
+    mesh = trimesh.util.concatenate([o.to_trimesh() for o in obstacles])
+    rng = np.random.default_rng(8)
+    x = mesh.sample(800, seed=3) + rng.normal(scale=1.0, size=(800, 3))
+    upper = np.array([broadphase._point_upper_bound(*xi, grid.lo, grid.cell_mm, grid.step_mm, grid.values)
+                      for xi in x])
+    d = exact_distance(obstacles, x)
+    known = np.isfinite(upper)
+    assert known.mean() > 0.9
+    assert (upper[known] >= d[known] - 1e-9).all()
+    assert (upper[known] <= d[known] + math.sqrt(3) * grid.cell_mm + grid.step_mm + 1e-9).all()
+
+
+@pytest.mark.parametrize("kind", ["skull", "plate", "primitives", "margins"])
+def test_grid_contacts_are_fcl_contacts(kind):
+    """`capsule_contact` (the grid's upper bound) only reports contacts FCL reports too -- obstacle
+    margins included -- and finds most of them."""
+    rng = np.random.default_rng(9)
+    if kind == "margins":
+        obstacles = [replace(o, margin_mm=m) for o, m in zip(skull_parts(), (0.3, 0.0, 1.0), strict=True)]
+    else:
+        obstacles = {"skull": skull_parts, "plate": lambda: [plate()], "primitives": primitives}[kind]()
+    world = CollisionWorld(obstacles)
+    grid = world.grid
+    a, b, r = random_capsules(obstacles, 600, rng)
+    hits = np.array([fcl_collides(world, a[i], b[i], r[i]) for i in range(len(r))])
+    sure = np.array([capsule_contact(a[i], b[i], r[i], grid.lo, grid.cell_mm, grid.step_mm, grid.values,
+                                     grid.spacing_mm) for i in range(len(r))])
+    assert 50 < hits.sum() < len(r) - 50
+    assert hits[sure].all(), "the grid reported a contact FCL does not"
+    assert sure[hits].mean() > 0.5
 
 
 def test_non_finite_backbones_are_never_cleared():
