@@ -617,6 +617,11 @@ class RobotCollisionChecker:
         self.points = int(points)
         self.margin_mm = float(margin_mm)
         self.chain = CapsuleChain(self.points - 1)
+        grid = world.grid
+        #: the grid's arguments of the compiled broadphase, bound once (None without a grid)
+        self._grid_args = None if grid is None or not len(world) else (
+            self.base_pose, self.margin_mm, grid.lo, grid.cell_mm, grid.step_mm, grid.band_mm, grid.values,
+            grid.spacing_mm)
         warm_kernels()
         #: backbones checked, how many of them the broadphase could not clear alone (went to FCL), and
         #: how many the grid showed certainly in contact (no FCL)
@@ -638,15 +643,12 @@ class RobotCollisionChecker:
         """Boolean check of one backbone: positions (N, 3) robot frame, tube radius (N,) mm; NaN
         positions are not free. With the broadphase grid: one compiled call, then FCL on the capsules
         it cannot clear (the planner's single-state hot path)."""
-        grid = self.world.grid
-        if grid is None or not len(self.world):
+        if self._grid_args is None:
             return bool(self.free_batch(positions[None], radius[None])[0])
         self.checks += 1
-        finite, hit, frames, pairs = _one_backbone(np.ascontiguousarray(positions, dtype=float),
-                                              np.ascontiguousarray(radius, dtype=float), self.base_pose,
-                                              self.margin_mm, grid.lo, grid.cell_mm, grid.step_mm,
-                                              grid.band_mm, grid.values, grid.spacing_mm, self.world.aabb_lo,
-                                              self.world.aabb_hi)
+        finite, hit, frames, pairs = _one_backbone(
+            np.ascontiguousarray(positions, dtype=float), np.ascontiguousarray(radius, dtype=float),
+            *self._grid_args, self.world.aabb_lo, self.world.aabb_hi)
         if not finite:
             return False
         if hit:
@@ -689,10 +691,8 @@ class RobotCollisionChecker:
         radii with the margin (B, N-1), finite rows (B,), the capsules the broadphase cannot
         clear, likeliest contact first (B, N-1), with their count (B,) (see `CollisionWorld.near`),
         and the rows the grid shows certainly in contact (B,) (none without a grid)."""
-        grid = self.world.grid
-        if grid is not None and len(self.world):
-            return _world_and_near(positions, radius, self.base_pose, self.margin_mm, grid.lo, grid.cell_mm,
-                                   grid.step_mm, grid.band_mm, grid.values, grid.spacing_mm)
+        if self._grid_args is not None:
+            return _world_and_near(positions, radius, *self._grid_args)
         p, radii, finite = _to_world(positions, radius, self.base_pose, self.margin_mm)
         near, priority = self.world.near(p, radii)
         near &= finite[:, None]

@@ -668,7 +668,8 @@ def solve_chains(Q, X0, warm, starts, s_frac, lengths, straight, kappa, EI, GJ, 
                  resid, stab):
     """`solve_one` along consecutive rows of a path (B, 2N), in chains ``starts[c]:starts[c + 1]``
     run in parallel: a chain's first row starts from ``X0`` (when ``warm``), every later row from the
-    solution of the row before it (continuation; cold where that did not converge)."""
+    solution of the row before it (continuation; cold where that did not converge), extrapolated
+    linearly from the two rows before it where both converged."""
     for c in prange(starts.shape[0] - 1):
         for b in range(starts[c], starts[c + 1]):
             follow = b > starts[c] and conv[b - 1]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from functools import lru_cache
 from typing import ClassVar, NamedTuple
 
@@ -140,6 +141,12 @@ class Backend(ABC):
         bb = self.forward(q, points, guess=guess, check=check)
         return Body(bb.positions_mm, bb.radius_mm, bb.stable,
                     bb.initial_state if self.warm_startable else None)
+
+    def body_query(self, points: Points) -> Callable[[np.ndarray], Body]:
+        """`body` at fixed ``points`` for joints (B, 2N) known to lie in the domain (no checks, no warm
+        start), prepared once: a planner asks for the same points hundreds of thousands of times, one
+        configuration at a time, and a backend may bind everything but q here. Default: `body`."""
+        return lambda q: self.body(q, points, check=False)
 
     def describe(self) -> dict:
         """Settings that shape this backend's backbones (JSON-ready), reported next to its timings."""

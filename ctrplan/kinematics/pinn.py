@@ -6,6 +6,7 @@ configuration.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -177,6 +178,19 @@ class PinnBackend(Backend):
                                               self._compiled, self._rod, self._loaded,
                                               self.robot.outer_radii_mm)
         return Body(pos, radius, finite)
+
+    def body_query(self, points: Points) -> Callable[[np.ndarray], Body]:
+        """`body` with the fractions, weights and rod arrays bound once (the planner's hot path)."""
+        args = (self._writable_fractions(points), self._intervals, self._compiled, self._rod, self._loaded,
+                self.robot.outer_radii_mm)
+        offset = self._offset if self._has_offset else None
+
+        def query(q: np.ndarray) -> Body:
+            qm = np.ascontiguousarray(q if offset is None else q + offset, dtype=float)
+            with one_blas_thread():
+                return Body(*body_points(qm, *args))
+
+        return query
 
     def tip_and_tangent(self, q: np.ndarray, *, check: bool = True
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -13,6 +13,7 @@ design uses goes through it (`exact_backend`), so a caller cannot forget it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -164,6 +165,16 @@ class RegionMarginBackend(Backend):
              check: bool = True) -> Body:
         pos, radius, usable, init = self.inner.body(q, points, guess=guess, check=check)
         return Body(pos, radius + self._margins(arc_fractions(points)), usable, init)
+
+    def body_query(self, points: int | np.ndarray) -> Callable[[np.ndarray], Body]:
+        inner = self.inner.body_query(points)
+        margins = self._margins(arc_fractions(points))
+
+        def query(q: np.ndarray) -> Body:
+            pos, radius, usable, init = inner(q)
+            return Body(pos, radius + margins, usable, init)
+
+        return query
 
     def _margins(self, s_fraction: np.ndarray) -> np.ndarray:
         """`region_margins_mm` at arc fractions (P,) of l1, once per set of fractions (a planner asks

@@ -128,9 +128,8 @@ class BoxSpace:
 
     def interpolate(self, q1: np.ndarray, q2: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Joints at fractions t (K,) of the straight coordinate line from q1 to q2: (K, 2N)."""
-        y1, y2 = self.to_coords(q1), self.to_coords(q2)
-        t = np.asarray(t, dtype=float)[:, None]
-        return self.to_joints(y1 + t * (y2 - y1))
+        t = np.asarray(t, dtype=float)
+        return self.along(np.stack([q1, q2]), np.zeros(len(t), dtype=int), t)
 
     def densify(self, path_q: np.ndarray, resolution: float) -> np.ndarray:
         """Path (K, 2N) with extra states so consecutive states are <= ``resolution`` apart."""

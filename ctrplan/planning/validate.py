@@ -147,10 +147,9 @@ def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolutio
     return ValidatedPath(dense, ebb, pbb, report, model.world)
 
 
-def warm_start(bb: Backbone) -> np.ndarray:
-    """Initial states (B, 2N + 9) of ``bb`` to warm-start an exact solve of the same joints (the
-    planning backend's guess: a third fewer shooting iterations; rows it did not give start from
-    zero torsion)."""
+def _initial_states(bb: Backbone) -> np.ndarray:
+    """Initial states (B, 2N + 9) of the exact backbones ``bb``, zero where a row did not converge:
+    the two neighbours' of a refining state, interpolated, start its solve (`refine_steps`)."""
     return np.where(np.isfinite(bb.initial_state), bb.initial_state, 0.0)
 
 
@@ -257,7 +256,7 @@ def refine_steps(space: BoxSpace, exact: Backend, dense: np.ndarray, bb: Backbon
         extra_q = space.along(dense, left, t)
         guess = None
         if warm:   # between the neighbours' solutions, as the new state lies between their joints
-            init, w = warm_start(bb), t[:, None]
+            init, w = _initial_states(bb), t[:, None]
             guess = (1.0 - w) * init[left] + w * init[left + 1]
         solved = exact.forward(extra_q, points=points, check=False, guess=guess)
         order = np.argsort(np.concatenate([np.arange(len(dense), dtype=float), left + t]), kind="stable")

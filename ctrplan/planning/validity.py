@@ -76,8 +76,9 @@ class ConfigurationChecker:
         #: joints and scene-frame tips of recently found valid states (seeds for goal sampling)
         self.valid_q: list[np.ndarray] = []
         self.valid_tips: list[np.ndarray] = []
-        #: arc fractions checked in turn (see `_stages`)
+        #: arc fractions checked in turn (see `_stages`), and the backend's prepared query of each
         self.stages = self._stages()
+        self._stage_queries = tuple(self.backend.body_query(stage) for stage in self.stages)
 
     @property
     def scene(self) -> Scene:
@@ -183,11 +184,11 @@ class ConfigurationChecker:
 
     def _validate_one(self, q1: np.ndarray) -> tuple[bool, Body]:
         """`validate` of a single configuration (1, 2N) without per-row arrays (the planner's hot
-        path): the same stages, each checked by `RobotCollisionChecker.is_free`."""
+        path): the same stages (`Backend.body_query`), each checked by `RobotCollisionChecker.is_free`."""
         first = None
-        for stage in self.stages:
+        for query in self._stage_queries:
             t0 = time.perf_counter()
-            body = self.backend.body(q1, stage, check=False)
+            body = query(q1)
             t1 = time.perf_counter()
             free = bool(body.usable[0]) and self.collision.is_free(body.positions_mm[0], body.radius_mm[0])
             self._count(t0, t1, 1, first is None)
