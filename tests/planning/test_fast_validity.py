@@ -68,6 +68,13 @@ def test_a_body_is_the_backbone_a_collision_check_needs(skullbase, pinn_checker)
         np.testing.assert_array_equal(body.usable, bb.stable)
     planning, plain = pinn_checker.backend, pinn_checker.backend.inner
     assert (planning.body(q, stage).radius_mm - plain.body(q, stage).radius_mm).min() > 0  # the bound
+    # the prepared single-state query (the planner's hot path) is `body`, bit for bit
+    for be in (planning, plain, CosseratBackend(skullbase.robot)):
+        query = be.body_query(stage)
+        for qi in q[:10]:
+            got, want = query(qi[None]), be.body(qi[None], stage, check=False)
+            for a, b in zip(got[:3], want[:3], strict=True):
+                np.testing.assert_array_equal(a, b)
 
 
 def test_contacts_on_the_proximal_half_alone_are_found():
