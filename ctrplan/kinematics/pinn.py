@@ -172,12 +172,7 @@ class PinnBackend(Backend):
              check: bool = True) -> Body:
         """The network at the nodes the points need and nothing else (no tube ends, no s = 0): a
         planner's single-state checks spend most of their time here. One thread (no chunking)."""
-        _, qm = self._joints(q, check)
-        with one_blas_thread():
-            pos, radius, finite = body_points(qm, self._writable_fractions(points), self._intervals,
-                                              self._compiled, self._rod, self._loaded,
-                                              self.robot.outer_radii_mm)
-        return Body(pos, radius, finite)
+        return self.body_query(points)(self._joints(q, check)[0])
 
     def body_query(self, points: Points) -> Callable[[np.ndarray], Body]:
         """`body` with the fractions, weights and rod arrays bound once (the planner's hot path)."""
