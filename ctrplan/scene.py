@@ -35,7 +35,7 @@ file, the key and the line (`ctrplan.yamlio`). Layout::
       alpha1_deg: [-60, 60]               # keys: beta3_mm, beta3_minus_beta2_mm, beta2_minus_beta1_mm,
                                           #       alpha1_deg, alpha2_deg, alpha3_deg
     planner:                              # defaults, all optional (see `PlannerSettings`)
-      planner: rrtconnect                 # one of ctrplan.planning.planners.PLANNERS
+      planner: corridor                   # one of ctrplan.planning.planners.PLANNERS
       time_limit_s: 10
       seed: null
       margin_mm: 0.2                      # added to the capsule radii (planning and validation)
@@ -283,7 +283,7 @@ class PlannerSettings:
         repair: try to repair a path that collides under the exact model.
     """
 
-    planner: str = "rrtconnect"
+    planner: str = "corridor"
     time_limit_s: float = 10.0
     max_states: int | None = None
     seed: int | None = None

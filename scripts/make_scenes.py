@@ -483,7 +483,7 @@ def skullbase_scene(p: dict, name: str, description: str, backend) -> dict:
         "obstacles": obstacles,
         "target": {"ellipsoid": dict(TARGET)},
         "start": _yaml_q(q_start),
-        "planner": {"planner": "rrtconnect", "time_limit_s": 10.0, "margin_mm": 0.2, "points": 40,
+        "planner": {"planner": "corridor", "time_limit_s": 10.0, "margin_mm": 0.2, "points": 40,
                     "resolution_mm": 1.0, "mm_per_rad": 40.0, "range_mm": 10.0},
     }
 

@@ -70,7 +70,7 @@ PlanRobotOpt = Annotated[str | None, typer.Option(
 
 PlannerOpt = Annotated[str | None, typer.Option(
     "--planner", metavar="NAME", show_default=False,
-    help=f"OMPL planner: {' | '.join(PLANNERS)} (default: the scene's, rrtconnect).")]
+    help=f"Planner: {' | '.join(PLANNERS)} (default: the scene's, corridor).")]
 
 PlanTimeLimitOpt = Annotated[str | None, typer.Option(
     "--time-limit", metavar="DURATION", show_default=False,

@@ -111,6 +111,7 @@ class PlanningProblem:
     sampler: GoalSampler
     validity: ValidityChecker
     motion_validator: BatchMotionValidator
+    start: np.ndarray | None = None  # joints (2N,) mm, rad
     box: Any = field(init=False)
 
     def __post_init__(self) -> None:
@@ -168,7 +169,8 @@ def problem_for(checker: ConfigurationChecker, *, start: np.ndarray | None = Non
         goal.setState(gs)
         goal.setThreshold(1e-6)
     pdef.setGoal(goal)
-    return PlanningProblem(scene, checker, space, si, pdef, goal, sampler, validity, mv)
+    return PlanningProblem(scene, checker, space, si, pdef, goal, sampler, validity, mv,
+                           np.asarray(start, dtype=float))
 
 
 def _path_q(problem: PlanningProblem, path) -> np.ndarray:
@@ -237,7 +239,7 @@ def _fix_goal_set(problem: PlanningProblem, budget: SearchBudget) -> None:
 def _setup_planner(spec: PlannerSpec, problem: PlanningProblem, range_mm: float | None) -> Any:
     """The OMPL planner of ``spec`` on ``problem``: its range, and a path-length objective if it
     optimises."""
-    pl = spec.make(problem.si, range_mm)
+    pl = spec.make(problem.si, range_mm, problem)
     if spec.optimizing:
         problem.pdef.setOptimizationObjective(ob.PathLengthOptimizationObjective(problem.si))
     pl.setProblemDefinition(problem.pdef)

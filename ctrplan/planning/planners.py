@@ -26,19 +26,29 @@ class PlannerSpec:
         fixed_goal_set: drains every goal sample whenever it (re)starts a batch (BIT*): give it a
             fixed set of goal configurations before the search.
         benchmarked: in the default set of ``ctrplan bench plan``.
+        own: ctrplan's own ``ob.Planner`` (`ctrplan.planning.corridor`), built from the whole
+            `PlanningProblem` (it checks batches of states with its checker), not an OMPL class.
     """
 
     ompl_name: str
     optimizing: bool = False
     fixed_goal_set: bool = False
     benchmarked: bool = False
+    own: bool = False
 
-    def make(self, si: Any, range_mm: float | None = None) -> Any:
+    def make(self, si: Any, range_mm: float | None = None, problem: Any = None) -> Any:
         """The planner on the OMPL ``SpaceInformation`` ``si``, its maximum edge length set to
-        ``range_mm`` (planning metric, mm) where it has one (None: OMPL's default). OMPL is imported
-        here, not with this module: the CLI help reads the table without loading OMPL."""
+        ``range_mm`` (planning metric, mm) where it has one (None: OMPL's default, a fifth of the
+        box's diagonal). An ``own`` planner needs the `PlanningProblem` ``problem`` of ``si``. OMPL
+        is imported here, not with this module: the CLI help reads the table without loading OMPL."""
         from ompl import geometric as og
 
+        if self.own:
+            from ctrplan.planning.corridor import CorridorRRTConnect
+
+            if problem is None or problem.si is not si:
+                raise ValueError(f"{self.ompl_name} is built from the PlanningProblem of si")
+            return CorridorRRTConnect.for_problem(problem, range_mm)
         planner = getattr(og, self.ompl_name)(si)
         if range_mm is not None and hasattr(planner, "setRange"):
             planner.setRange(float(range_mm))
@@ -47,6 +57,7 @@ class PlannerSpec:
 
 #: The planners by ctrplan name.
 PLANNERS: dict[str, PlannerSpec] = {
+    "corridor": PlannerSpec("CorridorRRTConnect", benchmarked=True, own=True),
     "rrtconnect": PlannerSpec("RRTConnect", benchmarked=True),
     "rrt": PlannerSpec("RRT", benchmarked=True),
     "rrtstar": PlannerSpec("RRTstar", optimizing=True, benchmarked=True),
@@ -80,6 +91,7 @@ def scene_planner(scene, name: str | None = None) -> tuple[str, PlannerSpec]:
     return name, planner_spec(name, scene.where("planner.planner"))
 
 
-def make_planner(name: str, si: Any) -> Any:
-    """An OMPL geometric planner by ctrplan name (see `PLANNERS`)."""
-    return planner_spec(name).make(si)
+def make_planner(name: str, si: Any, problem: Any = None) -> Any:
+    """A planner on ``si`` by ctrplan name (see `PLANNERS`; ctrplan's own need the `PlanningProblem`
+    ``problem`` of ``si``)."""
+    return planner_spec(name).make(si, problem=problem)

@@ -28,6 +28,7 @@ from ctrplan.planning import (
     solve_ik,
     validate_path,
 )
+from ctrplan.planning.corridor import CorridorRRTConnect
 from ctrplan.planning.ik import fd_tip_jacobian
 from ctrplan.planning.planners import PLANNERS
 from ctrplan.planning.validity import bisection_order
@@ -175,8 +176,9 @@ def test_python_api_with_any_ompl_planner(open_scene, exact):
     assert problem.pdef.hasExactSolution()
     assert_safe_open_path(open_scene, exact, problem.solution())
     for name, spec in PLANNERS.items():
-        made = make_planner(name, problem.si)
-        assert isinstance(made, getattr(og, spec.ompl_name)) and made.getSpaceInformation() == problem.si
+        made = make_planner(name, problem.si, problem)
+        cls = CorridorRRTConnect if spec.own else getattr(og, spec.ompl_name)
+        assert isinstance(made, cls) and made.getSpaceInformation() == problem.si
 
 
 # ---- CLI ------------------------------------------------------------------------------------------
@@ -195,7 +197,7 @@ def test_cli_plan_end_to_end(tmp_path, capsys):
     for key in ("solved", "planner", "backend", "planning_time_s", "kinematics_calls", "path", "tip_mm",
                 "target_mm", "goal_tolerance_mm", "base_pose", "validated"):
         assert key in doc
-    assert doc["solved"] and doc["planner"] == "rrtconnect" and doc["backend"] == "cosserat"
+    assert doc["solved"] and doc["planner"] == "corridor" and doc["backend"] == "cosserat"
     v = doc["validated"]
     assert v["backend"] == "cosserat" and v["collision_free"] is True
     assert v["min_clearance_mm"] > 0 and v["max_position_error_mm"] == 0.0
@@ -296,7 +298,7 @@ def test_cli_missing_mesh_and_malformed_scene(mini_dir, capsys):
     (mini_dir / "s.yaml").write_text(MINI)
     rc, out, err = run_cli(["plan", str(mini_dir / "s.yaml"), "--planner", "prm"], capsys)
     assert rc == 2 and out == "" and err.count("\n") == 1
-    assert "planner: unknown planner 'prm' (choose from rrtconnect, rrt, rrtstar" in err
+    assert "planner: unknown planner 'prm' (choose from corridor, rrtconnect, rrt, rrtstar" in err
 
 
 def test_cli_unreachable_target(mini_dir, capsys):
