@@ -278,7 +278,7 @@ class PlannerSettings:
             ``mm_per_rad``).
         mm_per_rad: metric weight of a tube rotation against a translation.
         range_mm: maximum edge length of tree planners (None: OMPL default, 20 % of the extent).
-        simplify: shortcut and smooth the path after solving.
+        simplify: shortcut the path after solving (`ctrplan.planning.shortcut`).
         goal_samples: goal configurations produced per inverse-kinematics batch.
         repair: try to repair a path that collides under the exact model.
     """

@@ -205,12 +205,13 @@ class TipGoal(ob.GoalSampleableRegion):
     """OMPL goal region: the tip inside the target region; samples come from a `GoalSampler`.
 
     ``sampleGoal`` hands out the goals found so far in turn and runs a new IK batch once all have
-    been handed out -- at most once every ``refill_states`` states the checker evaluates (always
-    while none is known), never once ``budget`` (a `SearchBudget`) is exhausted and at most
-    ``max_batches`` times. Counting work, not seconds, keeps a seeded search the same under any
-    load. ``maxSampleCount`` only promises more samples when such a batch may run, so planners that
-    drain all goal samples up front (BIT*) terminate. With nothing to give, ``sampleGoal`` writes an
-    out-of-bounds state, which OMPL's goal sampling rejects.
+    been handed out -- at most once every ``refill_states`` states the checker evaluates since the
+    last batch, the batches sampled before the search included (always while none is known), never
+    once ``budget`` (a `SearchBudget`) is exhausted and at most ``max_batches`` times. Counting work,
+    not seconds, keeps a seeded search the same under any load. ``maxSampleCount`` only promises more
+    samples when such a batch may run, so planners that drain all goal samples up front (BIT*)
+    terminate. With nothing to give, ``sampleGoal`` writes an out-of-bounds state, which OMPL's goal
+    sampling rejects.
     """
 
     def __init__(self, si, sampler: GoalSampler, max_batches: int = 200, refill_states: int = 2000,
@@ -225,7 +226,7 @@ class TipGoal(ob.GoalSampleableRegion):
         self.setThreshold(1e-9)
         self.calls = 0
         self.handed_out = 0
-        self._last_refill: int | None = None  # the checker's state count at the last refill
+        self._last_refill: int | None = None  # the checker's state count at the last batch
 
     def _may_refill(self) -> bool:
         if self.sampler.stats.batches >= self.max_batches:
@@ -235,6 +236,12 @@ class TipGoal(ob.GoalSampleableRegion):
         states = self.checker.counters.kinematics_calls
         return (not self.sampler.goals or self._last_refill is None
                 or states - self._last_refill >= self.refill_states)
+
+    def sample_batch(self) -> list[np.ndarray]:
+        """Run one IK batch of the sampler now (the goals sampled before a search too: the next
+        batch follows ``refill_states`` states after it); returns the new goals."""
+        self._last_refill = self.checker.counters.kinematics_calls
+        return self.sampler.sample_batch()
 
     def distanceGoal(self, state) -> float:  # noqa: N802 - OMPL API
         q = self.space.state_to_q(state)
@@ -247,8 +254,7 @@ class TipGoal(ob.GoalSampleableRegion):
         self.calls += 1
         goals = self.sampler.goals
         if self.handed_out >= len(goals) and self._may_refill():
-            self._last_refill = self.checker.counters.kinematics_calls
-            self.sampler.sample_batch()
+            self.sample_batch()
             goals = self.sampler.goals
         if not goals:
             for i in range(self.space.dimension):

@@ -23,7 +23,6 @@ from typing import Any
 
 import numpy as np
 from ompl import base as ob
-from ompl import geometric as og
 from ompl import util as ou
 
 from ctrplan.collision import CollisionWorld
@@ -38,6 +37,7 @@ from ctrplan.planning.ik import backend_tip_jacobian, solve_ik
 from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.planners import PlannerSpec, scene_planner
 from ctrplan.planning.scene_check import check_scene
+from ctrplan.planning.shortcut import shortcut_path
 from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate_planned_path
 from ctrplan.planning.validity import BatchMotionValidator, ConfigurationChecker, ValidityChecker
 from ctrplan.scene import Scene
@@ -216,12 +216,13 @@ def _hooked(checker: ConfigurationChecker, hook: Callable[[], None]) -> Iterator
         checker.hook = None
 
 
-def _sample_goals(sampler: GoalSampler, budget: SearchBudget) -> None:
+def _sample_goals(goal: TipGoal, budget: SearchBudget) -> None:
     """Goal configurations first: they tell early whether the target is reachable at all."""
+    sampler = goal.sampler
     for _ in range(6):
         if sampler.goals or budget.exhausted():
             break
-        sampler.sample_batch()
+        goal.sample_batch()
         if sampler.stats.batches >= 2 and sampler.stats.ik_reached == 0 and not sampler.goals:
             break
 
@@ -232,7 +233,7 @@ def _fix_goal_set(problem: PlanningProblem, budget: SearchBudget) -> None:
     sampler = problem.sampler
     while (len(sampler.goals) < 8 and budget.share_used() < 0.5 and not budget.exhausted()
            and sampler.stats.batches < 12):
-        sampler.sample_batch()
+        problem.goal.sample_batch()
     problem.goal.max_batches = sampler.stats.batches
 
 
@@ -248,17 +249,18 @@ def _setup_planner(spec: PlannerSpec, problem: PlanningProblem, range_mm: float 
 
 
 def _simplified_path(problem: PlanningProblem, simplify: bool, timings: dict) -> np.ndarray:
-    """The solution as joints (K, 2N), shortcut first if ``simplify``."""
-    path = problem.pdef.getSolutionPath()
-    if simplify:
-        simp = og.PathSimplifier(problem.si, problem.pdef.getGoal())
-        t_simp = time.perf_counter()
-        # shortcuts between random vertex pairs; full `simplify` (B-spline smoothing) costs
-        # seconds with an exact backend and adds many vertices
-        simp.reduceVertices(path)
-        simp.collapseCloseVertices(path)
-        timings["simplify_s"] = time.perf_counter() - t_simp
-    return _path_q(problem, path)
+    """The solution as joints (K, 2N), shortcut first if ``simplify`` (`shortcut_path`: batched,
+    lazy checks at the motion validator's resolution)."""
+    path_q = _path_q(problem, problem.pdef.getSolutionPath())
+    if not simplify:
+        return path_q
+    t_simp = time.perf_counter()
+    box, checker = problem.box, problem.checker
+    cut = shortcut_path(box.to_coords(path_q), lambda y: checker.validate(box.to_joints(y))[0],
+                        problem.motion_validator.resolution)
+    timings["simplify_s"] = time.perf_counter() - t_simp
+    timings["simplify_states"] = cut.states
+    return path_q[cut.vertices]
 
 
 def _failure_message(problem: PlanningProblem, budget: SearchBudget, to_configuration: bool) -> str:
@@ -308,7 +310,7 @@ def search(checker: ConfigurationChecker, *, start: np.ndarray | None = None, pl
             problem.goal.budget = budget
             problem.goal.refill_states = max(1, round(REFILL_SHARE * budget.max_states))
             progress("goal", elapsed=0.0, states=0, max_states=budget.max_states)
-            _sample_goals(sampler, budget)
+            _sample_goals(problem.goal, budget)
         timings = {"goal_sampling_s": budget.elapsed()}
 
         def outcome(path_q: np.ndarray | None, status: str, exact: bool, message: str) -> SearchOutcome:
@@ -468,9 +470,11 @@ def exact_goal(path_q: np.ndarray, checker: ConfigurationChecker) -> np.ndarray:
 def _replanner(checker: ConfigurationChecker, seed: int | None, hints: np.ndarray,
                time_s: float) -> tuple[Callable[..., np.ndarray | None], dict]:
     """``replan(start_q, goal_q)`` for `repair_path`: RRTConnect searches with ``checker`` (of the
-    exact model) sharing one work budget (what ``time_s`` buys with the exact model; each search gets
-    what is left, at least a tenth) and one wall-clock guard; and the budget's record
-    (``max_states``, ``states``, ``cut_short``), updated by every search."""
+    exact model), not shortcut (a shortcut hugs the obstacles: with the exact model's bare margin,
+    one checked at the planner's resolution can fail the finer exact validation), sharing one work
+    budget (what ``time_s`` buys with the exact model; each search gets what is left, at least a
+    tenth) and one wall-clock guard; and the budget's record (``max_states``, ``states``,
+    ``cut_short``), updated by every search."""
     total = states_for(checker.backend.name, time_s)
     guard_end = time.perf_counter() + GUARD_FACTOR * time_s
     record = {"max_states": total, "states": 0, "cut_short": False}
@@ -479,7 +483,8 @@ def _replanner(checker: ConfigurationChecker, seed: int | None, hints: np.ndarra
         left = max(total - record["states"], total // 10)
         limit = max(guard_end - time.perf_counter(), 0.5 * GUARD_FACTOR) / GUARD_FACTOR
         out = search(checker, start=start_q, goal_q=goal_q, planner="rrtconnect", time_limit_s=limit,
-                     max_states=left, seed=seed, goal_hints=hints if goal_q is None else None)
+                     max_states=left, seed=seed, goal_hints=hints if goal_q is None else None,
+                     simplify=False)
         record["states"] += out.budget["states"]
         record["cut_short"] = record["cut_short"] or out.budget["cut_short"]
         return out.path_q
