@@ -111,7 +111,8 @@ class IKResult:
 
 def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets: np.ndarray, *,
              tol_mm: float = 0.05, max_iterations: int = 40, damping: float = 1.0,
-             max_step: float = 15.0, rotation_weight: float = 1.0) -> IKResult:
+             max_step: float = 15.0, rotation_weight: float = 1.0,
+             enough: Callable[[IKResult], bool] | None = None, check_after: int = 8) -> IKResult:
     """Move every seed (B, 2N) so its tip reaches its target (B, 3) (robot frame, mm) -- or, with a
     tip-pose Jacobian (``FDTipJacobian(tangent_weight_mm=w)``), its pose target (B, 6) ``(tip, w *
     tangent)``; the error (and ``tol_mm``) is then the norm of both together.
@@ -119,7 +120,9 @@ def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets:
     Levenberg-style: a step is kept only if it lowers that seed's error; otherwise the damping of
     the seed grows. Each iteration is one call of ``jacobian`` for all seeds still running.
     ``rotation_weight`` > 1 makes tube rotations costlier than translations in the least-squares
-    step (insertion-first solutions, which stay closer to a seed's shape).
+    step (insertion-first solutions, which stay closer to a seed's shape). ``enough``: asked once,
+    after ``check_after`` iterations, with the result so far; True ends the solve there (e.g. a goal
+    sampler that found what it needs among the seeds done), False lets it run on unchanged.
     """
     seeds = np.atleast_2d(np.asarray(seeds, dtype=float))
     targets = np.asarray(targets, dtype=float)
@@ -138,9 +141,16 @@ def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets:
     warm = bool(getattr(jacobian, "warm", False))
     best_init = None
     it = 0
+
+    def result() -> IKResult:
+        return IKResult(space.to_joints(best_y), best_tip, best_err, best_err <= tol_mm, it)
+
     for it in range(1, max_iterations + 1):  # noqa: B007 - reported
         idx = np.flatnonzero(active)
         if idx.size == 0:
+            break
+        if enough is not None and it == check_after + 1 and enough(result()):
+            it = check_after
             break
         if warm and best_init is not None:
             g = best_init[idx]
@@ -185,4 +195,4 @@ def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets:
         n = np.linalg.norm(dy, axis=1, keepdims=True)
         dy *= np.minimum(1.0, max_step / np.maximum(n, 1e-12))
         y[idx] = space.clip(best_y[idx] + dy)
-    return IKResult(space.to_joints(best_y), best_tip, best_err, best_err <= tol_mm, it)
+    return result()

@@ -43,11 +43,14 @@ def ball_gap(bb) -> float:
 
 
 def test_a_structure_margin_invalidates_a_close_path_and_the_replan_keeps_it(open_scene, exact):
-    first = plan(open_scene, exact, seed=0, time_limit_s=5.0)
-    assert first.solved, first.message
+    # a path that passes near the ball: of a few plans, the closest (a margin just beyond a far
+    # path's gap would swallow the target, and no path could keep it)
+    firsts = [plan(open_scene, exact, seed=seed, time_limit_s=5.0) for seed in range(4)]
+    assert all(p.solved for p in firsts), [p.message for p in firsts]
+    first = min(firsts, key=lambda p: ball_gap(p.dense.exact))
     robot_margin = open_scene.settings.margin_mm
     gap0 = ball_gap(first.dense.exact)
-    assert gap0 >= robot_margin - 1e-6
+    assert robot_margin - 1e-6 <= gap0 < 20.0
     # a margin on the ball that the first path does not keep (its required clearance exceeds gap0)
     margin = gap0 - robot_margin + 1.0
     guarded = with_ball_margin(open_scene, margin)
