@@ -142,14 +142,14 @@ def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets:
     best_init = None
     it = 0
 
-    def result() -> IKResult:
-        return IKResult(space.to_joints(best_y), best_tip, best_err, best_err <= tol_mm, it)
+    def result(iterations: int) -> IKResult:
+        return IKResult(space.to_joints(best_y), best_tip, best_err, best_err <= tol_mm, iterations)
 
     for it in range(1, max_iterations + 1):  # noqa: B007 - reported
         idx = np.flatnonzero(active)
         if idx.size == 0:
             break
-        if enough is not None and it == check_after + 1 and enough(result()):
+        if enough is not None and it == check_after + 1 and enough(result(check_after)):
             it = check_after
             break
         if warm and best_init is not None:
@@ -195,4 +195,4 @@ def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets:
         n = np.linalg.norm(dy, axis=1, keepdims=True)
         dy *= np.minimum(1.0, max_step / np.maximum(n, 1e-12))
         y[idx] = space.clip(best_y[idx] + dy)
-    return result()
+    return result(it)

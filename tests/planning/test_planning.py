@@ -72,6 +72,39 @@ def test_ik_reaches_reachable_targets(exact):
     assert sp.contains(res.q).all()
 
 
+def test_ik_asked_enough_stops_there_or_changes_nothing(exact):
+    """``enough`` is asked once, after ``check_after`` iterations, with the result so far: True ends
+    the solve exactly as ``max_iterations=check_after`` would; False leaves it bit for bit as without
+    the question."""
+    robot = exact.robot
+    sp = BoxSpace.for_robot(robot)
+    targets = exact.forward(robot.sample_joints(6, 5), points=2, check=False).tip_mm
+    seeds = robot.sample_joints(6, 6)
+    jac = fd_tip_jacobian(lambda q, points=2: exact.forward(q, points=points, check=False), sp)
+    asked = []
+
+    def ask(answer):
+        def enough(partial):
+            asked.append(partial.iterations)
+            return answer
+        return enough
+
+    def solve(**kw):
+        return solve_ik(jac, sp, seeds, targets, tol_mm=0.05, **kw)
+
+    full = solve(max_iterations=12)
+    never = solve(max_iterations=12, enough=ask(False), check_after=3)
+    for field in ("q", "tip", "error_mm", "success"):
+        np.testing.assert_array_equal(getattr(full, field), getattr(never, field))
+    assert full.iterations == never.iterations > 3
+    short = solve(max_iterations=3)
+    stopped = solve(max_iterations=12, enough=ask(True), check_after=3)
+    np.testing.assert_array_equal(stopped.q, short.q)
+    np.testing.assert_array_equal(stopped.error_mm, short.error_mm)
+    assert stopped.iterations == short.iterations == 3
+    assert asked == [3, 3]  # once per solve, with check_after iterations done
+
+
 def test_goal_sampler_gives_valid_goals_in_the_region(open_scene, exact):
     checker = ConfigurationChecker(PlanningModel.of(open_scene, exact))
     sampler = GoalSampler(checker, open_scene.target, np.random.default_rng(0), start=open_scene.start)
