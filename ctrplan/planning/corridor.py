@@ -103,7 +103,8 @@ class CorridorRRTConnect(ob.Planner):
     Args:
         si: OMPL space information (its state space is ``checker.space``'s).
         checker: validity of states (cached) and batches of edge states.
-        start: start joints (2N,) mm, rad.
+        start: start joints (2N,) mm, rad (the problem definition's: its ``getStartState`` crashes
+            in the OMPL 2 Python bindings here).
         range_mm: longest extension (planning metric).
         resolution_mm: spacing of the checked states along an edge (the motion validator's).
         rng: numpy generator (seed it for repeatable searches).
@@ -116,10 +117,8 @@ class CorridorRRTConnect(ob.Planner):
         self.start = np.asarray(start, dtype=float)
         self.range_mm, self.resolution_mm = float(range_mm), float(resolution_mm)
         self.max_batch = int(max_batch)
-        self._tries, self._successes = 1, 1  # extension attempts and successes (a prior of one each)
         self.sampler = CorridorSampler(self.space, rng)
         self._state = si.allocState()
-        self._drawn = 0
 
     @classmethod
     def for_problem(cls, problem, range_mm: float | None = None) -> CorridorRRTConnect:
@@ -188,8 +187,8 @@ class CorridorRRTConnect(ob.Planner):
             starts = np.vstack([tree.y[last][None], ends[:-1]])
             ok = self._edges_valid(starts, ends)
             n = len(ok) if ok.all() else int(np.argmin(ok))
-            for row in ends[:n]:
-                last = int(tree.add(row[None], np.array([last]))[0])
+            if n:  # a chain: each state's parent is the one before
+                last = int(tree.add(ends[:n], np.concatenate([[last], tree.size + np.arange(n - 1)]))[-1])
             if n < len(ok):
                 return False, last
             k, chunk = stop, 2 * chunk
@@ -221,11 +220,12 @@ class CorridorRRTConnect(ob.Planner):
     def solve(self, ptc):  # noqa: D102 - OMPL API
         goal = self.getProblemDefinition().getGoal()
         self._start_y = self.space.clip(self.space.to_coords(self.start))
+        self._tries, self._successes = 1, 1  # extension attempts and successes (a prior of one each)
+        self._drawn = 0  # goal samples drawn
         starts, goals = _Tree(self.space.dimension), _Tree(self.space.dimension)
         if not self._valid(self._start_y[None])[0]:
             return ob.PlannerStatus(ob.PlannerStatus.INVALID_START)
         starts.add(self._start_y[None], np.array([-1]))
-        self._drawn = 0
         active, other = starts, goals
         while not ptc():
             if not goals.size or self._drawn < goals.size / 2:

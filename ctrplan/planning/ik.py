@@ -181,18 +181,27 @@ def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets:
         active[~np.isfinite(best_err)] = False
         if idx.size == 0:
             break
-        e = targets[idx] - best_tip[idx]
-        yb = best_y[idx]
-        J = best_J[idx] * wcol[None, None, :]
-        for _ in range(3):  # active set: drop coordinates at a bound that the step pushes outwards
-            A = J @ J.transpose(0, 2, 1) + (lam[idx] ** 2)[:, None, None] * np.eye(k)[None]
-            dy = (J.transpose(0, 2, 1) @ np.linalg.solve(A, e[:, :, None]))[:, :, 0]
-            blocked = ((yb <= space.lower + 1e-9) & (dy < 0)) | ((yb >= space.upper - 1e-9) & (dy > 0))
-            if not blocked.any():
-                break
-            J[np.broadcast_to(blocked[:, None, :], J.shape)] = 0.0
-        dy = dy * wcol[None, :]
-        n = np.linalg.norm(dy, axis=1, keepdims=True)
-        dy *= np.minimum(1.0, max_step / np.maximum(n, 1e-12))
+        dy = _damped_step(space, best_y[idx], best_J[idx], targets[idx] - best_tip[idx], lam[idx], wcol,
+                          max_step)
         y[idx] = space.clip(best_y[idx] + dy)
     return result(it)
+
+
+def _damped_step(space: BoxSpace, y: np.ndarray, J: np.ndarray, e: np.ndarray, lam: np.ndarray,
+                 wcol: np.ndarray, max_step: float) -> np.ndarray:
+    """Damped least-squares steps (B, D) from box coordinates y (B, D) with Jacobians J (B, k, D)
+    towards errors e (B, k), damping lam (B,); coordinates weighted by ``wcol`` (D,) (dy = wcol * dz);
+    coordinates at a bound the step pushes outwards are dropped (an active set, up to 3 passes);
+    each step at most ``max_step`` long (mm, planning metric)."""
+    J = J * wcol[None, None, :]
+    eye = np.eye(J.shape[1])[None]
+    for _ in range(3):
+        A = J @ J.transpose(0, 2, 1) + (lam ** 2)[:, None, None] * eye
+        dy = (J.transpose(0, 2, 1) @ np.linalg.solve(A, e[:, :, None]))[:, :, 0]
+        blocked = ((y <= space.lower + 1e-9) & (dy < 0)) | ((y >= space.upper - 1e-9) & (dy > 0))
+        if not blocked.any():
+            break
+        J[np.broadcast_to(blocked[:, None, :], J.shape)] = 0.0
+    dy = dy * wcol[None, :]
+    n = np.linalg.norm(dy, axis=1, keepdims=True)
+    return dy * np.minimum(1.0, max_step / np.maximum(n, 1e-12))

@@ -54,12 +54,12 @@ class _Shortcuts:
         length = np.linalg.norm(y[None, :, :] - y[:, None, :], axis=2)
         self.pieces = np.maximum(1, np.ceil(length / resolution)).astype(int)
         i, j = np.triu_indices(k, 1)
-        span = j - i
+        edge = j - i <= MAX_SPAN
+        i, j = i[edge], j[edge]
         self.weights = np.full((k, k), np.inf)  # edge lengths (+ penalty); inf: no edge or refuted
-        usable = span <= MAX_SPAN
-        self.weights[i[usable], j[usable]] = length[i[usable], j[usable]] + EDGE_PENALTY_MM
-        self.open = {(int(a), int(b)) for a, b in zip(i, j, strict=True)
-                     if 1 < b - a <= MAX_SPAN and self.pieces[a, b] > 1}
+        self.weights[i, j] = length[i, j] + EDGE_PENALTY_MM
+        shortcut = (j - i > 1) & (self.pieces[i, j] > 1)  # moves with interior states to check
+        self.open = set(zip(i[shortcut].tolist(), j[shortcut].tolist(), strict=True))
         self.checked: dict[tuple[int, int], int] = {}
         self.order: dict[tuple[int, int], list[int]] = {}
 
@@ -111,6 +111,7 @@ def shortcut_path(y: np.ndarray, valid: Callable[[np.ndarray], np.ndarray], reso
     if len(y) < 3:
         return out
     cuts = _Shortcuts(y, resolution)
+    path = _shortest(cuts.weights)
     edges = sorted(cuts.open)  # first round: the midpoint of every shortcut
     while edges:
         batches = [cuts.next_states(e) for e in edges]
@@ -121,5 +122,5 @@ def shortcut_path(y: np.ndarray, valid: Callable[[np.ndarray], np.ndarray], reso
         cuts.record(edges, ok, counts)
         path = _shortest(cuts.weights)
         edges = [e for e in zip(path[:-1], path[1:], strict=True) if e in cuts.open]
-    out.vertices = np.asarray(_shortest(cuts.weights))
+    out.vertices = np.asarray(path)
     return out
