@@ -1,5 +1,6 @@
 """The machine a run measures on, and how a process runs on it: a description of the machine (for
-benchmark and design records) and pinning to one core with single-threaded numba, torch and BLAS."""
+benchmark and design records) and pinning to one core (or a few) with numba on as many threads and
+torch and BLAS on one."""
 
 from __future__ import annotations
 
@@ -43,38 +44,45 @@ def machine_info() -> dict[str, Any]:
     }
 
 
-def limit_threads() -> Callable[[], None]:
-    """numba, torch and BLAS to one thread in this process; returns a function that restores them."""
+def limit_threads(numba_threads: int = 1) -> Callable[[], None]:
+    """torch and BLAS to one thread in this process, numba to ``numba_threads``; returns a function
+    that restores them."""
     import numba
     import torch
 
-    numba_threads, torch_threads = numba.get_num_threads(), torch.get_num_threads()
-    numba.set_num_threads(1)
+    numba_before, torch_before = numba.get_num_threads(), torch.get_num_threads()
+    numba.set_num_threads(numba_threads)
     torch.set_num_threads(1)
     blas = threadpool_limits(limits=1)  # BLAS threads would only fight over the one core
 
     def restore() -> None:
         blas.restore_original_limits()
-        numba.set_num_threads(numba_threads)
-        torch.set_num_threads(torch_threads)
+        numba.set_num_threads(numba_before)
+        torch.set_num_threads(torch_before)
 
     return restore
 
 
 @contextmanager
-def single_core() -> Iterator[int | None]:
-    """Pin this process to one CPU core and numba/torch/BLAS to one thread; restore all on exit.
-
-    Yields the core number, or None where CPU affinity is not supported (macOS, Windows).
-    """
+def pinned_cores(cores: int = 1) -> Iterator[list[int] | None]:
+    """Pin this process to ``cores`` CPU cores (the highest-numbered it may use), numba to as many
+    threads (a plan's batched kinematics runs in blocks across them), torch and BLAS to one; restore
+    all on exit. Yields the cores, or None where CPU affinity is not supported (macOS, Windows)."""
     affinity = os.sched_getaffinity(0) if hasattr(os, "sched_setaffinity") else None
-    core = max(affinity) if affinity else None
-    if core is not None:
-        os.sched_setaffinity(0, {core})
-    restore_threads = limit_threads()
+    chosen = sorted(affinity)[-cores:] if affinity else None
+    if chosen:
+        os.sched_setaffinity(0, set(chosen))
+    restore_threads = limit_threads(len(chosen) if chosen else cores)
     try:
-        yield core
+        yield chosen
     finally:
         restore_threads()
         if affinity:
             os.sched_setaffinity(0, affinity)
+
+
+@contextmanager
+def single_core() -> Iterator[int | None]:
+    """`pinned_cores` with one core: yields the core number, or None where affinity is not supported."""
+    with pinned_cores(1) as chosen:
+        yield chosen[0] if chosen else None

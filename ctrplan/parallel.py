@@ -5,8 +5,10 @@ takes jobs one at a time (`Pool.submit`) and hands back whichever finishes first
 for callers that choose the next job from earlier results (an optimiser); `run_jobs` runs a fixed list
 and returns the results in spec order, so a run is the same document whichever executor ran it.
 Every worker runs single-threaded (numba, torch, BLAS) and local workers are pinned one per core, so
-per-job timings are one-core timings. Workers ignore Ctrl-C: the caller gets it and `open_pool` stops
-them, so an interrupted run ends with one line, not one traceback per worker.
+per-job timings are one-core timings; a single local worker may be given more cores (``threads``:
+numba's blocked kernels use them, the latency of a job alone on the machine). Workers ignore Ctrl-C:
+the caller gets it and `open_pool` stops them, so an interrupted run ends with one line, not one
+traceback per worker.
 
 What jobs share within a worker (a loaded task, a collision world) is a context object the pool
 builds once per worker from a ``context`` factory and passes to every job: ``fn(context, spec)``.
@@ -26,7 +28,7 @@ from contextlib import ExitStack, contextmanager
 from typing import Any, TypeVar
 
 from ctrplan.errors import InputError
-from ctrplan.machine import limit_threads, single_core
+from ctrplan.machine import limit_threads, pinned_cores
 
 Spec = TypeVar("Spec")
 Job = Callable[[Any], dict]
@@ -78,14 +80,22 @@ def available_cores() -> list[int]:
     return list(range(os.cpu_count() or 1))
 
 
-def check_workers(workers: int, ray_address: str | None = None) -> None:
-    """`InputError` unless ``workers`` is 1 .. the number of cores (any number >= 1 on Ray)."""
+def check_workers(workers: int, ray_address: str | None = None, threads: int = 1) -> None:
+    """`InputError` unless ``workers`` is 1 .. the number of cores (any number >= 1 on Ray), and
+    ``threads`` (cores of one job) is 1, or up to the number of cores for a single local worker."""
     if workers < 1:
         raise InputError(f"workers: need at least 1, got {workers}")
     cores = len(available_cores())
     if not ray_address and workers > cores:
         raise InputError(f"workers: {workers} workers but only {cores} cores available "
                          f"(one run per core keeps the timings honest)")
+    if threads < 1:
+        raise InputError(f"threads: need at least 1, got {threads}")
+    if threads > 1 and (workers > 1 or ray_address):
+        raise InputError(f"threads: {threads} cores per run needs one local worker (--workers 1, no "
+                         f"Ray): workers run on one core each")
+    if threads > cores:
+        raise InputError(f"threads: {threads} cores per run but only {cores} cores available")
 
 
 class Pool(ABC):
@@ -260,10 +270,11 @@ def _ray_session(address: str, workers: int | None) -> Iterator[None]:
 
 @contextmanager
 def open_pool(workers: int = 1, ray_address: str | None = None,
-              context: Callable[[], Any] | None = None) -> Iterator[Pool]:
+              context: Callable[[], Any] | None = None, threads: int = 1) -> Iterator[Pool]:
     """A `Pool`: Ray tasks if ``ray_address`` (``auto``, ``HOST:PORT``, ``ray://HOST:PORT``, or
     ``local`` for a private local instance with ``workers`` CPUs), else ``workers`` local processes,
-    else (``workers == 1``) this process pinned to one core. Jobs still in flight when the block
+    else (``workers == 1``) this process pinned to ``threads`` cores (`pinned_cores`; a job alone on
+    the machine may use more than one, see `check_workers`). Jobs still in flight when the block
     ends by an exception (Ctrl-C) are stopped.
 
     With ``context`` (a picklable callable, e.g. a class) every worker builds its context once,
@@ -277,7 +288,7 @@ def open_pool(workers: int = 1, ray_address: str | None = None,
         elif workers > 1:
             pool = LocalPool(workers, context)
         else:
-            stack.enter_context(single_core())
+            stack.enter_context(pinned_cores(threads))
             pool = InlinePool(context)
         ok = False
         try:
@@ -290,11 +301,11 @@ def open_pool(workers: int = 1, ray_address: str | None = None,
 
 def run_jobs(fn: Callable[..., dict], specs: Sequence[Spec], *, workers: int = 1,
              ray_address: str | None = None, context: Callable[[], Any] | None = None,
-             tick: Tick = _quiet_tick) -> list[dict]:
-    """``fn`` over ``specs`` on the executor of `open_pool` (with its ``context``); results in spec
-    order."""
+             tick: Tick = _quiet_tick, threads: int = 1) -> list[dict]:
+    """``fn`` over ``specs`` on the executor of `open_pool` (with its ``context`` and ``threads``);
+    results in spec order."""
     results: list[dict | None] = [None] * len(specs)
-    with open_pool(workers, ray_address, context) as pool:
+    with open_pool(workers, ray_address, context, threads) as pool:
         for spec in specs:
             pool.submit(fn, spec)
         for done in range(1, len(specs) + 1):

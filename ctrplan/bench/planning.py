@@ -104,7 +104,7 @@ def run_batch(batch: tuple[RunSpec, ...]) -> dict[str, Any]:
 
 
 def run_all(specs: list[RunSpec], *, workers: int = 1, ray_address: str | None = None,
-            tick: Callable[[int, int], None] | None = None) -> list[dict[str, Any]]:
+            tick: Callable[[int, int], None] | None = None, threads: int = 1) -> list[dict[str, Any]]:
     """The records of ``specs`` (in their order), run in `batches` on the executor of
     `ctrplan.parallel.run_jobs`; ``tick(runs done, runs)`` after every batch (runs done: about,
     where batches of different sizes finish out of order)."""
@@ -116,7 +116,8 @@ def run_all(specs: list[RunSpec], *, workers: int = 1, ray_address: str | None =
         if tick is not None:
             tick(sum(map(len, jobs[:done])), len(specs))
 
-    results = run_jobs(run_batch, jobs, workers=workers, ray_address=ray_address, tick=jobs_done)
+    results = run_jobs(run_batch, jobs, workers=workers, ray_address=ray_address, tick=jobs_done,
+                       threads=threads)
     by_spec = {spec: record for job, result in zip(jobs, results, strict=True)
                for spec, record in zip(job, result["records"], strict=True)}
     return [by_spec[spec] for spec in specs]

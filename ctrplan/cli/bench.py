@@ -193,6 +193,10 @@ PlanOutOpt = Annotated[Path, typer.Option(
     "--out", help="Directory for results.json, the OMPL logs, benchmark.db and plots.")]
 WorkersOpt = workers_option("Local worker processes, one per core (1: in this process).")
 RayOpt = ray_option("Run on a Ray cluster at this address ('local' starts one here; needs the 'ray' extra).")
+ThreadsOpt = Annotated[int, typer.Option(
+    "--threads", help="Cores each run may use (numba threads for batched kinematics; more than 1 needs "
+                      "--workers 1): 1 gives one-core timings, the cores of the machine the latency of "
+                      "a plan alone on it.")]
 
 
 @bench_app.command("plan")
@@ -200,7 +204,7 @@ def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
          planner: PlannersOpt = PLAN_PLANNERS, runs: RunsOpt = 20,
          time_limit: PlanTimeLimitOpt = None, max_states: MaxStatesOpt = None, seed: PlanSeedOpt = 0,
          out: PlanOutOpt = Path("runs/bench_plan"), as_json: JsonSummaryOpt = False, workers: WorkersOpt = 1,
-         ray: RayOpt = None) -> None:
+         ray: RayOpt = None, threads: ThreadsOpt = 1) -> None:
     """Planning benchmark: every backend x planner on each scene, N seeded runs each.
 
     Reports success (confirmed by the exact model), the planning-time distribution, the time split
@@ -215,7 +219,7 @@ def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
     for name in backends:
         if name not in BACKENDS:
             raise InputError(f"--backend: unknown backend {name!r} (choose from {', '.join(BACKENDS)})")
-    flags = {"planner": "--planner", "workers": "--workers", "ray": "--ray"}
+    flags = {"planner": "--planner", "workers": "--workers", "ray": "--ray", "threads": "--threads"}
     for name in planners:
         try:
             planner_spec(name)
@@ -226,7 +230,7 @@ def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
     time_limit = parse_duration(time_limit, "s")
     check_max_states(max_states)
     try:
-        check_workers(workers, ray)
+        check_workers(workers, ray, threads)
     except InputError as exc:
         raise as_option(exc, flags) from None
     limits = planning_bench.prepare(scenes, backends, time_limit)
@@ -241,12 +245,14 @@ def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
             bar.refresh()
 
         try:
-            records = planning_bench.run_all(specs, workers=workers, ray_address=ray, tick=tick)
+            records = planning_bench.run_all(specs, workers=workers, ray_address=ray, tick=tick,
+                                             threads=threads)
         except InputError as exc:
             raise as_option(exc, flags) from None
     rates = [planning_bench.check_rates(f, b) for f, _ in limits for b in backends]  # one state vs a batch
     out = output_dir(out)
-    executor = f"ray {ray}" if ray else f"{workers} local worker(s), one core each"
+    executor = f"ray {ray}" if ray else \
+        f"{workers} local worker(s), {'one core' if threads == 1 else f'{threads} cores'} each"
     doc, logs, plots = write_plan_results(records, out, limits, {
         "backends": backends, "planners": planners, "runs": runs, "first_seed": seed,
         "max_states": max_states, "executor": executor, "wall_time_s": round(time.perf_counter() - t0, 1)},

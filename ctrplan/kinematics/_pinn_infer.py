@@ -369,14 +369,9 @@ def backbone_fields(qm, out_frac, lengths, outer_radii, residual_weights, states
 
 
 @njit(cache=True)
-def body_points(q, out_frac, intervals, net, rod, loaded, outer_radii):
-    """What a collision check needs, from the network at the nodes the points need only (no tube
-    ends, no s = 0): positions (B, P, 3) mm and outer radius (B, P) mm at arc fractions ``out_frac``
-    (P,) of l1, and whether each row is finite (B,). Arguments as `backbones`."""
-    nt = rod[0].shape[0]
-    i_p = 2 + 2 * nt
-    states = np.empty((q.shape[0], out_frac.shape[0], 2 * nt + 9))
-    backbones(q, out_frac, intervals, net, rod, loaded, states, states, False)
+def _body_fields(q, out_frac, rod, outer_radii, states):
+    """Positions (B, P, 3) mm, outer radius (B, P) mm and finite rows (B,) of `backbones`' states."""
+    i_p = 2 + 2 * rod[0].shape[0]
     positions = np.ascontiguousarray(states[:, :, i_p:i_p + 3])
     finite = np.ones(q.shape[0], dtype=np.bool_)
     for b in range(q.shape[0]):
@@ -385,3 +380,44 @@ def body_points(q, out_frac, intervals, net, rod, loaded, outer_radii):
                 finite[b] = False
     _, _, radius = _along(q, out_frac, rod[0], outer_radii)
     return positions, radius, finite
+
+
+@njit(cache=True)
+def body_points(q, out_frac, intervals, net, rod, loaded, outer_radii):
+    """What a collision check needs, from the network at the nodes the points need only (no tube
+    ends, no s = 0): positions (B, P, 3) mm and outer radius (B, P) mm at arc fractions ``out_frac``
+    (P,) of l1, and whether each row is finite (B,). Arguments as `backbones`."""
+    states = np.empty((q.shape[0], out_frac.shape[0], 2 * rod[0].shape[0] + 9))
+    backbones(q, out_frac, intervals, net, rod, loaded, states, states, False)
+    return _body_fields(q, out_frac, rod, outer_radii, states)
+
+
+@njit(cache=True, parallel=True)
+def body_points_blocks(q, out_frac, intervals, net, rod, loaded, outer_radii, blocks):
+    """`body_points` with the rows split into ``blocks`` contiguous blocks, run in parallel where
+    numba has threads. The blocks are fixed, so the result does not depend on the number of threads;
+    it agrees with `body_points`' to float32 rounding (BLAS sums a row differently for some batch
+    sizes)."""
+    nb = q.shape[0]
+    states = np.empty((nb, out_frac.shape[0], 2 * rod[0].shape[0] + 9))
+    size = (nb + blocks - 1) // blocks
+    for c in prange(blocks):
+        a = c * size
+        b = min(nb, a + size)
+        if a < b:
+            backbones(q[a:b], out_frac, intervals, net, rod, loaded, states[a:b], states[a:b], False)
+    return _body_fields(q, out_frac, rod, outer_radii, states)
+
+
+@njit(cache=True, parallel=True)
+def infer_blocks(q, frac, net, out, blocks):
+    """`infer` (``net``: its weights tuple) with the rows split into ``blocks`` contiguous blocks, run
+    in parallel where numba has threads; the blocks are fixed, so the result does not depend on the
+    number of threads."""
+    nb = q.shape[0]
+    size = (nb + blocks - 1) // blocks
+    for c in prange(blocks):
+        a = c * size
+        b = min(nb, a + size)
+        if a < b:
+            infer(q[a:b], frac[a:b], *net, out[a:b])

@@ -39,24 +39,38 @@ MAX_BATCH = 8
 
 class CorridorSampler:
     """Samples (n, D) in box coordinates: a mixture of points about the segments from ``start`` to
-    ``goals`` (share ``share``, Gaussian of ``width_mm``) and uniform points in the box."""
+    ``goals`` (share ``share``, Gaussian of ``width_mm``) and uniform points in the box. The random
+    numbers are drawn `BLOCK` rows at a time (a search asks for a few samples at a time, and each
+    call of the generator costs microseconds whatever its size)."""
+
+    BLOCK = 256
 
     def __init__(self, space: BoxSpace, rng: np.random.Generator, share: float = CORRIDOR_SHARE,
                  width_mm: float = CORRIDOR_WIDTH_MM):
         self.space, self.rng = space, rng
         self.share, self.width_mm = float(share), float(width_mm)
+        self._next = self._rows = 0  # next unused row of the block, rows in it
+
+    def _draw(self, n: int) -> None:
+        rng, space = self.rng, self.space
+        self._box = rng.uniform(space.lower, space.upper, size=(n, space.dimension))
+        self._near = rng.uniform(size=n) < self.share
+        self._which = rng.uniform(size=n)  # which goal: floor(which * goals)
+        self._t = rng.uniform(size=(n, 1))
+        self._noise = rng.normal(scale=self.width_mm, size=(n, space.dimension))
+        self._next, self._rows = 0, n
 
     def sample(self, n: int, start: np.ndarray, goals: np.ndarray) -> np.ndarray:
         """``n`` samples; ``start`` (D,), ``goals`` (G, D) box coordinates (none: uniform only)."""
-        space, rng = self.space, self.rng
-        y = rng.uniform(space.lower, space.upper, size=(n, space.dimension))
+        if self._next + n > self._rows:
+            self._draw(max(n, self.BLOCK))
+        rows = slice(self._next, self._next + n)
+        self._next += n
+        y = self._box[rows].copy()
         if len(goals):
-            near = rng.uniform(size=n) < self.share
-            k = int(near.sum())
-            g = goals[rng.integers(len(goals), size=k)]
-            t = rng.uniform(size=(k, 1))
-            noise = rng.normal(scale=self.width_mm, size=(k, y.shape[1]))
-            y[near] = space.clip(start + t * (g - start) + noise)
+            near = self._near[rows]
+            g = goals[(self._which[rows][near] * len(goals)).astype(int)]
+            y[near] = self.space.clip(start + self._t[rows][near] * (g - start) + self._noise[rows][near])
         return y
 
 

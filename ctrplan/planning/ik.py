@@ -10,10 +10,12 @@ differences through a single batched backend call.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend, tangent_of
@@ -127,10 +129,11 @@ def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets:
     seeds = np.atleast_2d(np.asarray(seeds, dtype=float))
     targets = np.asarray(targets, dtype=float)
     k = targets.shape[-1]  # 3: tip position; 6: tip pose
-    targets = np.broadcast_to(targets, (seeds.shape[0], k))
+    targets = np.ascontiguousarray(np.broadcast_to(targets, (seeds.shape[0], k)))
     b = seeds.shape[0]
-    M = space.joint_from_coords
+    M = np.ascontiguousarray(space.joint_from_coords, dtype=float)
     wcol = np.where(space.is_rotation, 1.0 / float(rotation_weight), 1.0)  # dy = wcol * dz
+    lower, upper = np.asarray(space.lower, dtype=float), np.asarray(space.upper, dtype=float)
     y = space.clip(space.to_coords(seeds))
     lam = np.full(b, float(damping))
     best_err = np.full(b, np.inf)
@@ -158,50 +161,85 @@ def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets:
             tips, Jq, ok = jacobian(space.to_joints(y[idx]), guess=g)
         else:
             tips, Jq, ok = jacobian(space.to_joints(y[idx]))
+        better = _lm_iteration(idx, np.ascontiguousarray(tips, dtype=float),
+                               np.ascontiguousarray(Jq, dtype=float), np.asarray(ok, dtype=np.bool_), targets,
+                               M, wcol, lower, upper, float(max_step), float(tol_mm), y, lam, best_err,
+                               best_y, best_tip, best_J, active)
         init = getattr(jacobian, "last_initial_state", None) if warm else None
-        err = np.linalg.norm(targets[idx] - tips, axis=1)
-        err = np.where(ok & np.isfinite(err), err, np.inf)
-        better = err < best_err[idx]
-        # accept improvements, grow damping on failures
-        acc, rej = idx[better], idx[~better]
-        best_err[acc] = err[better]
-        best_y[acc] = y[acc]
-        best_tip[acc] = tips[better]
-        best_J[acc] = (Jq @ M[None])[better]
         if init is not None:
             if best_init is None:
                 best_init = np.full((b, init.shape[1]), np.nan)
-            best_init[acc] = init[better]
-        lam[acc] *= 0.5
-        lam[rej] *= 4.0
-        done = best_err[idx] <= tol_mm
-        active[idx[done]] = False
-        active[idx[lam[idx] > 1e6]] = False
-        idx = np.flatnonzero(active & np.isfinite(best_err))
-        active[~np.isfinite(best_err)] = False
-        if idx.size == 0:
+            best_init[idx[better]] = init[better]
+        if not active.any():
             break
-        dy = _damped_step(space, best_y[idx], best_J[idx], targets[idx] - best_tip[idx], lam[idx], wcol,
-                          max_step)
-        y[idx] = space.clip(best_y[idx] + dy)
     return result(it)
 
 
-def _damped_step(space: BoxSpace, y: np.ndarray, J: np.ndarray, e: np.ndarray, lam: np.ndarray,
-                 wcol: np.ndarray, max_step: float) -> np.ndarray:
-    """Damped least-squares steps (B, D) from box coordinates y (B, D) with Jacobians J (B, k, D)
-    towards errors e (B, k), damping lam (B,); coordinates weighted by ``wcol`` (D,) (dy = wcol * dz);
-    coordinates at a bound the step pushes outwards are dropped (an active set, up to 3 passes);
-    each step at most ``max_step`` long (mm, planning metric)."""
-    J = J * wcol[None, None, :]
-    eye = np.eye(J.shape[1])[None]
+def compile_ik(dimension: int, joints: int) -> None:
+    """Compile (or load from numba's cache) the kernels of `solve_ik` for a ``dimension``-coordinate
+    box of ``joints`` joints, on one dummy seed: before a planning clock starts, not inside it."""
+    seed = np.zeros((1, dimension))
+    _lm_iteration(np.zeros(1, dtype=np.int64), np.zeros((1, 3)), np.zeros((1, 3, joints)),
+                  np.ones(1, dtype=np.bool_), np.ones((1, 3)), np.zeros((joints, dimension)),
+                  np.ones(dimension), seed[0] - 1.0, seed[0] + 1.0, 1.0, 0.05, seed.copy(), np.ones(1),
+                  np.full(1, np.inf), seed.copy(), np.zeros((1, 3)), np.zeros((1, 3, dimension)),
+                  np.ones(1, dtype=np.bool_))
+
+
+@njit(cache=True)
+def _lm_iteration(idx, tips, Jq, ok, targets, M, wcol, lower, upper, max_step, tol_mm,
+                  y, lam, best_err, best_y, best_tip, best_J, active):
+    """One Levenberg iteration of `solve_ik` for the running seeds ``idx`` (R,), in place: each
+    seed's new tip (R, k), joint Jacobian (R, k, 2N) and ``ok`` (R,) at its iterate ``y[idx]``; an
+    improvement is kept (``best_*``, damping halved), otherwise the damping grows 4x; seeds within
+    ``tol_mm``, with damping above 1e6 or without any finite error stop (``active``); the others
+    take a `_damped_step` from their best iterate, clipped to the box [lower, upper] (D,). Returns
+    which seeds improved (R,)."""
+    better = np.zeros(idx.size, dtype=np.bool_)
+    for r in range(idx.size):
+        i = idx[r]
+        e2 = 0.0
+        for c in range(targets.shape[1]):
+            d = targets[i, c] - tips[r, c]
+            e2 += d * d
+        err = math.sqrt(e2) if ok[r] else math.inf
+        if err < best_err[i]:  # NaN compares False: not an improvement
+            better[r] = True
+            best_err[i] = err
+            best_y[i] = y[i]
+            best_tip[i] = tips[r]
+            best_J[i] = Jq[r] @ M
+            lam[i] *= 0.5
+        else:
+            lam[i] *= 4.0
+        if best_err[i] <= tol_mm or lam[i] > 1e6 or not math.isfinite(best_err[i]):
+            active[i] = False
+            continue
+        dy = _damped_step(best_y[i], best_J[i], targets[i] - best_tip[i], lam[i], wcol, lower, upper,
+                          max_step)
+        y[i] = np.minimum(np.maximum(best_y[i] + dy, lower), upper)
+    return better
+
+
+@njit(cache=True)
+def _damped_step(y, J, e, lam, wcol, lower, upper, max_step):
+    """Damped least-squares step (D,) from box coordinates y (D,) with Jacobian J (k, D) towards the
+    error e (k,), damping lam; coordinates weighted by ``wcol`` (D,) (dy = wcol * dz); coordinates
+    at a bound [lower, upper] the step pushes outwards are dropped (an active set, up to 3 passes);
+    at most ``max_step`` long (mm, planning metric)."""
+    k, d = J.shape
+    JwT = np.ascontiguousarray((J * wcol.reshape((1, d))).T)  # (D, k)
+    dy = np.zeros(d)
     for _ in range(3):
-        A = J @ J.transpose(0, 2, 1) + (lam ** 2)[:, None, None] * eye
-        dy = (J.transpose(0, 2, 1) @ np.linalg.solve(A, e[:, :, None]))[:, :, 0]
-        blocked = ((y <= space.lower + 1e-9) & (dy < 0)) | ((y >= space.upper - 1e-9) & (dy > 0))
-        if not blocked.any():
+        A = JwT.T @ JwT + lam * lam * np.eye(k)
+        dy = JwT @ np.linalg.solve(A, e)
+        blocked = False
+        for j in range(d):
+            if (y[j] <= lower[j] + 1e-9 and dy[j] < 0) or (y[j] >= upper[j] - 1e-9 and dy[j] > 0):
+                JwT[j] = 0.0
+                blocked = True
+        if not blocked:
             break
-        J[np.broadcast_to(blocked[:, None, :], J.shape)] = 0.0
-    dy = dy * wcol[None, :]
-    n = np.linalg.norm(dy, axis=1, keepdims=True)
-    return dy * np.minimum(1.0, max_step / np.maximum(n, 1e-12))
+    dy = dy * wcol
+    n = math.sqrt(np.sum(dy * dy))
+    return dy * min(1.0, max_step / max(n, 1e-12))

@@ -33,7 +33,7 @@ from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.blas import single_threaded_blas
 from ctrplan.planning.budget import GUARD_FACTOR, SearchBudget, check_max_states, states_for
 from ctrplan.planning.goal import ANGLE_WEIGHT_MM_PER_RAD, GoalSampler, TipGoal, tip_tangents
-from ctrplan.planning.ik import backend_tip_jacobian, solve_ik
+from ctrplan.planning.ik import backend_tip_jacobian, compile_ik, solve_ik
 from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.planners import PlannerSpec, scene_planner
 from ctrplan.planning.scene_check import check_scene
@@ -407,9 +407,10 @@ def check_start(model: PlanningModel, start_backbone: Backbone | None = None) ->
 
 
 def compile_kernels(model: PlanningModel, progress: Progress = _quiet) -> Backbone:
-    """Run the model's backends on the start and on it twice, so that numba compiles (first run only)
-    or loads from its cache every kernel a plan uses before the planning clock starts. Returns the
-    exact backbone of the start (the start check uses it: the start is solved once).
+    """Run the model's backends on the start and on it twice, and the IK kernels on a dummy seed, so
+    that numba compiles (first run only) or loads from its cache every kernel a plan uses before the
+    planning clock starts. Returns the exact backbone of the start (the start check uses it: the
+    start is solved once).
     ``progress("compile", done=k, total=n)`` counts the n kernel sets (a backend's single-query and
     batched ones, and the exact backend's along a path where validation uses it), k of them ready."""
     q = np.asarray(model.scene.start, dtype=float)
@@ -423,6 +424,7 @@ def compile_kernels(model: PlanningModel, progress: Progress = _quiet) -> Backbo
         out = forward(batch, points=model.points, check=False)
         if batch.ndim == 1:
             bb = out
+    compile_ik(model.space.dimension, len(q))
     progress("compile", done=len(calls), total=len(calls))
     return bb
 

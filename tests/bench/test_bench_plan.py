@@ -12,7 +12,7 @@ import pytest
 from ctrplan.bench import planning as planning_bench
 from ctrplan.bench.ompl_log import STATUS, planner_label, status_index
 from ctrplan.cli import main
-from ctrplan.parallel import run_jobs
+from ctrplan.parallel import available_cores, run_jobs
 from tests.paths import SCENES
 
 OPEN = str((SCENES / "open.yaml").resolve())
@@ -93,10 +93,11 @@ def test_status_enum():
 
 
 def test_executors_give_the_same_content():
-    """Same seeds -> same runs in this process, over two local worker processes and on local Ray."""
+    """Same seeds -> same runs in this process (on one core and on two), over two local worker
+    processes and on local Ray."""
     specs = planning_bench.make_specs([(OPEN, 5.0)], ["pinn"], ["rrtconnect"], 2, 3)
     here = run_jobs(planning_bench.run_one, specs)
-    again = run_jobs(planning_bench.run_one, specs)
+    again = run_jobs(planning_bench.run_one, specs, threads=min(2, len(available_cores())))
     pool = run_jobs(planning_bench.run_one, specs, workers=2)
     ray = run_jobs(planning_bench.run_one, specs, ray_address="local", workers=2)
 
@@ -114,6 +115,9 @@ def test_executors_give_the_same_content():
     (["--runs", "0"], "--runs: need at least 1 run"),
     (["--time-limit", "-1"], "--time-limit: must be a positive duration"),
     (["--workers", "64"], "--workers: 64 workers but only"),
+    (["--threads", "0"], "--threads: need at least 1"),
+    (["--threads", "2", "--workers", "2"], "--threads: 2 cores per run needs one local worker"),
+    (["--threads", "64"], "--threads: 64 cores per run but only"),
 ])
 def test_bad_options(args, needle, tmp_path, capsys):
     out = tmp_path / "o"

@@ -150,6 +150,33 @@ def test_single_and_batched_calls_agree(robot, pinn):
         np.testing.assert_allclose(one.residual[0], batch.residual[i], rtol=1e-3, atol=1e-3)
 
 
+def test_blocked_batches_are_the_same_on_any_number_of_threads(robot, pinn):
+    """A planner's batched calls run in `ROW_BLOCKS` blocks, in parallel where numba has threads: the
+    result must not depend on the threads (a seeded plan is the same everywhere), and it must be the
+    backbone that `forward` computes row by row (float32 rounding apart)."""
+    import numba
+
+    q = robot.sample_joints(13, rng=5)
+    frac = np.linspace(0.5, 1.0, 21)
+    threads = numba.get_num_threads()
+    try:
+        runs = []
+        for n in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(n)
+            runs.append((pinn.body(q, frac), pinn.tip_and_tangent(q)))
+    finally:
+        numba.set_num_threads(threads)
+    for (body, tips), (body2, tips2) in zip(runs, runs[1:], strict=False):
+        np.testing.assert_array_equal(body.positions_mm, body2.positions_mm)
+        np.testing.assert_array_equal(tips[0], tips2[0])
+    body, (tip, _, ok) = runs[0]
+    for i in (0, 6, 12):
+        one = pinn.forward(q[i], frac)
+        np.testing.assert_allclose(body.positions_mm[i], one.positions_mm[0], atol=1e-4)
+        np.testing.assert_allclose(tip[i], one.tip_mm[0], atol=1e-4)
+    assert body.usable.all() and ok.all()
+
+
 def test_pinn_is_exactly_rotation_equivariant(robot, pinn):
     q = robot.sample_joints(5, rng=12)
     q[:, 3:] = np.clip(q[:, 3:], -2.0, 2.0)

@@ -29,7 +29,7 @@ from ctrplan.planning import (
     validate_path,
 )
 from ctrplan.planning.corridor import CorridorRRTConnect
-from ctrplan.planning.ik import fd_tip_jacobian
+from ctrplan.planning.ik import _damped_step, fd_tip_jacobian
 from ctrplan.planning.planners import PLANNERS
 from ctrplan.planning.validity import bisection_order
 from ctrplan.robot import Robot
@@ -103,6 +103,33 @@ def test_ik_asked_enough_stops_there_or_changes_nothing(exact):
     np.testing.assert_array_equal(stopped.error_mm, short.error_mm)
     assert stopped.iterations == short.iterations == 3
     assert asked == [3, 3]  # once per solve, with check_after iterations done
+
+
+def test_damped_step_is_the_least_squares_step_with_bounds_as_an_active_set():
+    """Closed forms: away from the bounds, a lightly damped step solves J dy = e with the least
+    weighted norm (dy = W J^T x, W the column weights); a coordinate at a bound that the step would
+    push outwards is held and the others still solve J dy = e; a long step is cut to ``max_step``."""
+    rng = np.random.default_rng(3)
+    J, e = rng.normal(size=(3, 6)), rng.normal(size=3)
+    w = np.array([1.0, 1.0, 1.0, 0.25, 0.25, 0.25])
+    lo, hi = np.full(6, -100.0), np.full(6, 100.0)
+    y = np.zeros(6)
+    dy = _damped_step(y, J, e, 1e-6, w, lo, hi, 1e3)
+    np.testing.assert_allclose(J @ dy, e, atol=1e-8)
+    Jw = J * w  # dy = w * dz with dz = Jw^T (Jw Jw^T)^-1 e: the least-norm solution in z
+    np.testing.assert_allclose(dy, w * (Jw.T @ np.linalg.solve(Jw @ Jw.T, e)), atol=1e-8)
+    j = int(np.argmax(np.abs(dy)))
+    at = y.copy()
+    if dy[j] < 0:
+        at[j] = lo[j]
+    else:
+        at[j] = hi[j]
+    held = _damped_step(at, J, e, 1e-6, w, lo, hi, 1e3)
+    assert held[j] == 0.0
+    np.testing.assert_allclose(J @ held, e, atol=1e-8)
+    short = _damped_step(y, J, 1e3 * e, 1e-6, w, lo, hi, 2.0)
+    assert np.linalg.norm(short) == pytest.approx(2.0)
+    np.testing.assert_allclose(short / np.linalg.norm(short), dy / np.linalg.norm(dy), atol=1e-8)
 
 
 def test_goal_sampler_gives_valid_goals_in_the_region(open_scene, exact):
