@@ -36,7 +36,7 @@ from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS, PLANNING_ORDER
 from ctrplan.machine import machine_info, single_core
 from ctrplan.memory import check_backbones, check_fits
-from ctrplan.parallel import check_workers
+from ctrplan.parallel import available_cores, check_workers
 from ctrplan.planning.planners import BENCHMARKED, PLANNERS, planner_spec
 from ctrplan.robot import Robot
 
@@ -193,10 +193,10 @@ PlanOutOpt = Annotated[Path, typer.Option(
     "--out", help="Directory for results.json, the OMPL logs, benchmark.db and plots.")]
 WorkersOpt = workers_option("Local worker processes, one per core (1: in this process).")
 RayOpt = ray_option("Run on a Ray cluster at this address ('local' starts one here; needs the 'ray' extra).")
-ThreadsOpt = Annotated[int, typer.Option(
+ThreadsOpt = Annotated[int | None, typer.Option(
     "--threads", help="Cores each run may use (numba threads for batched kinematics; more than 1 needs "
-                      "--workers 1): 1 gives one-core timings, the cores of the machine the latency of "
-                      "a plan alone on it.")]
+                      "--workers 1). Default: every core with one worker (the latency of a plan alone "
+                      "on the machine, as `ctrplan plan` runs), else 1 (one-core timings).")]
 
 
 @bench_app.command("plan")
@@ -204,7 +204,7 @@ def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
          planner: PlannersOpt = PLAN_PLANNERS, runs: RunsOpt = 20,
          time_limit: PlanTimeLimitOpt = None, max_states: MaxStatesOpt = None, seed: PlanSeedOpt = 0,
          out: PlanOutOpt = Path("runs/bench_plan"), as_json: JsonSummaryOpt = False, workers: WorkersOpt = 1,
-         ray: RayOpt = None, threads: ThreadsOpt = 1) -> None:
+         ray: RayOpt = None, threads: ThreadsOpt = None) -> None:
     """Planning benchmark: every backend x planner on each scene, N seeded runs each.
 
     Reports success (confirmed by the exact model), the planning-time distribution, the time split
@@ -229,6 +229,8 @@ def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
         raise InputError(f"--runs: need at least 1 run, got {runs}")
     time_limit = parse_duration(time_limit, "s")
     check_max_states(max_states)
+    if threads is None:
+        threads = len(available_cores()) if workers == 1 and not ray else 1
     try:
         check_workers(workers, ray, threads)
     except InputError as exc:
