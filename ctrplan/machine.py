@@ -45,13 +45,13 @@ def machine_info() -> dict[str, Any]:
 
 
 def limit_threads(numba_threads: int = 1) -> Callable[[], None]:
-    """torch and BLAS to one thread in this process, numba to ``numba_threads``; returns a function
-    that restores them."""
+    """torch and BLAS to one thread in this process, numba to ``numba_threads`` (at most the threads
+    it was started with, ``NUMBA_NUM_THREADS``); returns a function that restores them."""
     import numba
     import torch
 
     numba_before, torch_before = numba.get_num_threads(), torch.get_num_threads()
-    numba.set_num_threads(numba_threads)
+    numba.set_num_threads(min(numba_threads, numba.config.NUMBA_NUM_THREADS))
     torch.set_num_threads(1)
     blas = threadpool_limits(limits=1)  # BLAS threads would only fight over the one core
 
