@@ -7,7 +7,7 @@ from __future__ import annotations
 import os
 import platform
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
@@ -64,21 +64,50 @@ def limit_threads(numba_threads: int = 1) -> Callable[[], None]:
 
 
 @contextmanager
+def numba_threads_at_most(n: int) -> Iterator[None]:
+    """numba's parallel regions on at most ``n`` threads inside (in this thread): a region of fewer
+    blocks than threads only wakes threads that find no work."""
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(n, before)))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
+
+
+def _set_affinity(cores: set[int]) -> None:
+    """Every thread of this process (numba's running workers too; Linux lists them in
+    /proc/self/task) onto ``cores``; elsewhere the calling thread."""
+    try:
+        threads = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        threads = [0]
+    for tid in threads:
+        with suppress(OSError):  # a thread that ended meanwhile
+            os.sched_setaffinity(tid, cores)
+
+
+@contextmanager
 def pinned_cores(cores: int = 1) -> Iterator[list[int] | None]:
-    """Pin this process to ``cores`` CPU cores (the highest-numbered it may use), numba to as many
-    threads (a plan's batched kinematics runs in blocks across them), torch and BLAS to one; restore
-    all on exit. Yields the cores, or None where CPU affinity is not supported (macOS, Windows)."""
+    """Pin this process, all its threads, to ``cores`` >= 1 CPU cores (the highest-numbered it may
+    use), numba to as many threads (at most ``NUMBA_NUM_THREADS``; a plan's batched kinematics runs in
+    blocks across them), torch and BLAS to one; restore all on exit. Yields the cores, or None where
+    CPU affinity is not supported (macOS, Windows)."""
+    if cores < 1:
+        raise ValueError(f"cores must be >= 1, got {cores}")
     affinity = os.sched_getaffinity(0) if hasattr(os, "sched_setaffinity") else None
     chosen = sorted(affinity)[-cores:] if affinity else None
     if chosen:
-        os.sched_setaffinity(0, set(chosen))
+        _set_affinity(set(chosen))
     restore_threads = limit_threads(len(chosen) if chosen else cores)
     try:
         yield chosen
     finally:
         restore_threads()
         if affinity:
-            os.sched_setaffinity(0, affinity)
+            _set_affinity(affinity)
 
 
 @contextmanager

@@ -82,20 +82,27 @@ def available_cores() -> list[int]:
 
 def check_workers(workers: int, ray_address: str | None = None, threads: int = 1) -> None:
     """`InputError` unless ``workers`` is 1 .. the number of cores (any number >= 1 on Ray), and
-    ``threads`` (cores of one job) is 1, or up to the number of cores for a single local worker."""
+    ``threads`` (cores of one job) is 1, or for a single local worker up to the number of cores and
+    numba's ``NUMBA_NUM_THREADS``."""
     if workers < 1:
         raise InputError(f"workers: need at least 1, got {workers}")
-    cores = len(available_cores())
-    if not ray_address and workers > cores:
-        raise InputError(f"workers: {workers} workers but only {cores} cores available "
-                         f"(one run per core keeps the timings honest)")
     if threads < 1:
         raise InputError(f"threads: need at least 1, got {threads}")
     if threads > 1 and (workers > 1 or ray_address):
         raise InputError(f"threads: {threads} cores per run needs one local worker (--workers 1, no "
                          f"Ray): workers run on one core each")
+    cores = len(available_cores())
+    if not ray_address and workers > cores:
+        raise InputError(f"workers: {workers} workers but only {cores} cores available "
+                         f"(one run per core keeps the timings honest)")
     if threads > cores:
         raise InputError(f"threads: {threads} cores per run but only {cores} cores available")
+    if threads > 1:
+        import numba
+
+        if threads > numba.config.NUMBA_NUM_THREADS:
+            raise InputError(f"threads: {threads} cores per run but numba was started with "
+                             f"NUMBA_NUM_THREADS={numba.config.NUMBA_NUM_THREADS}")
 
 
 class Pool(ABC):
@@ -279,8 +286,9 @@ def open_pool(workers: int = 1, ray_address: str | None = None,
 
     With ``context`` (a picklable callable, e.g. a class) every worker builds its context once,
     ``context()``, and the pool calls each job as ``fn(context, spec)``; without, as ``fn(spec)``."""
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
+    if workers < 1 or threads < 1 or (threads > 1 and (workers > 1 or ray_address)):
+        raise ValueError(f"need workers >= 1 and threads >= 1, threads > 1 only for one local worker; got "
+                         f"workers={workers}, threads={threads}, ray={ray_address!r}")
     with ExitStack() as stack:
         if ray_address:
             stack.enter_context(_ray_session(ray_address, workers if workers > 1 else None))

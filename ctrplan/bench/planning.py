@@ -106,8 +106,9 @@ def run_batch(batch: tuple[RunSpec, ...]) -> dict[str, Any]:
 def run_all(specs: list[RunSpec], *, workers: int = 1, ray_address: str | None = None,
             tick: Callable[[int, int], None] | None = None, threads: int = 1) -> list[dict[str, Any]]:
     """The records of ``specs`` (in their order), run in `batches` on the executor of
-    `ctrplan.parallel.run_jobs`; ``tick(runs done, runs)`` after every batch (runs done: about,
-    where batches of different sizes finish out of order)."""
+    `ctrplan.parallel.run_jobs` (``threads``: cores of a run, one worker only); ``tick(runs done,
+    runs)`` after every batch (runs done: about, where batches of different sizes finish out of
+    order)."""
     from ctrplan.parallel import run_jobs
 
     jobs = batches(specs, workers)

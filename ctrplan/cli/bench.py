@@ -34,6 +34,7 @@ from ctrplan.cli.progress import CountProgress
 from ctrplan.dataio import atomic_write, check_output_dir, output_dir
 from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS, PLANNING_ORDER
+from ctrplan.kinematics.pinn import ROW_BLOCKS
 from ctrplan.machine import machine_info, single_core
 from ctrplan.memory import check_backbones, check_fits
 from ctrplan.parallel import available_cores, check_workers
@@ -195,8 +196,9 @@ WorkersOpt = workers_option("Local worker processes, one per core (1: in this pr
 RayOpt = ray_option("Run on a Ray cluster at this address ('local' starts one here; needs the 'ray' extra).")
 ThreadsOpt = Annotated[int | None, typer.Option(
     "--threads", help="Cores each run may use (numba threads for batched kinematics; more than 1 needs "
-                      "--workers 1). Default: every core with one worker (the latency of a plan alone "
-                      "on the machine, as `ctrplan plan` runs), else 1 (one-core timings).")]
+                      "--workers 1). Default: with one worker the cores a plan uses (2: its kinematics "
+                      "runs in two blocks; the latency of a plan alone on the machine, as `ctrplan plan` "
+                      "runs), else 1 (one-core timings).")]
 
 
 @bench_app.command("plan")
@@ -229,8 +231,8 @@ def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
         raise InputError(f"--runs: need at least 1 run, got {runs}")
     time_limit = parse_duration(time_limit, "s")
     check_max_states(max_states)
-    if threads is None:
-        threads = len(available_cores()) if workers == 1 and not ray else 1
+    if threads is None:  # a search runs its kernels in ROW_BLOCKS blocks: that many cores at most
+        threads = min(len(available_cores()), ROW_BLOCKS) if workers == 1 and not ray else 1
     try:
         check_workers(workers, ray, threads)
     except InputError as exc:

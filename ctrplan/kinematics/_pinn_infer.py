@@ -392,6 +392,13 @@ def body_points(q, out_frac, intervals, net, rod, loaded, outer_radii):
     return _body_fields(q, out_frac, rod, outer_radii, states)
 
 
+@njit(cache=True)
+def _block(rows, blocks, c):
+    """Rows [a, b) of block c of ``rows`` rows split into ``blocks`` contiguous blocks (b <= a: empty)."""
+    size = (rows + blocks - 1) // blocks
+    return c * size, min(rows, (c + 1) * size)
+
+
 @njit(cache=True, parallel=True)
 def body_points_blocks(q, out_frac, intervals, net, rod, loaded, outer_radii, blocks):
     """`body_points` with the rows split into ``blocks`` contiguous blocks, run in parallel where
@@ -400,10 +407,8 @@ def body_points_blocks(q, out_frac, intervals, net, rod, loaded, outer_radii, bl
     sizes)."""
     nb = q.shape[0]
     states = np.empty((nb, out_frac.shape[0], 2 * rod[0].shape[0] + 9))
-    size = (nb + blocks - 1) // blocks
     for c in prange(blocks):
-        a = c * size
-        b = min(nb, a + size)
+        a, b = _block(nb, blocks, c)
         if a < b:
             backbones(q[a:b], out_frac, intervals, net, rod, loaded, states[a:b], states[a:b], False)
     return _body_fields(q, out_frac, rod, outer_radii, states)
@@ -414,10 +419,7 @@ def infer_blocks(q, frac, net, out, blocks):
     """`infer` (``net``: its weights tuple) with the rows split into ``blocks`` contiguous blocks, run
     in parallel where numba has threads; the blocks are fixed, so the result does not depend on the
     number of threads."""
-    nb = q.shape[0]
-    size = (nb + blocks - 1) // blocks
     for c in prange(blocks):
-        a = c * size
-        b = min(nb, a + size)
+        a, b = _block(q.shape[0], blocks, c)
         if a < b:
             infer(q[a:b], frac[a:b], *net, out[a:b])

@@ -62,7 +62,7 @@ class CorridorSampler:
 
     def sample(self, n: int, start: np.ndarray, goals: np.ndarray) -> np.ndarray:
         """``n`` samples; ``start`` (D,), ``goals`` (G, D) box coordinates (none: uniform only)."""
-        if self._next + n > self._rows:
+        if self._rows == 0 or self._next + n > self._rows:
             self._draw(max(n, self.BLOCK))
         rows = slice(self._next, self._next + n)
         self._next += n

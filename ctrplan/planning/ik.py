@@ -129,12 +129,13 @@ def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets:
     seeds = np.atleast_2d(np.asarray(seeds, dtype=float))
     targets = np.asarray(targets, dtype=float)
     k = targets.shape[-1]  # 3: tip position; 6: tip pose
-    targets = np.ascontiguousarray(np.broadcast_to(targets, (seeds.shape[0], k)))
+    # the compiled iteration takes C-ordered, writable arrays (as `compile_ik` compiles it)
+    targets = np.array(np.broadcast_to(targets, (seeds.shape[0], k)), dtype=float, order="C")
     b = seeds.shape[0]
-    M = np.ascontiguousarray(space.joint_from_coords, dtype=float)
+    M = np.array(space.joint_from_coords, dtype=float, order="C")
     wcol = np.where(space.is_rotation, 1.0 / float(rotation_weight), 1.0)  # dy = wcol * dz
-    lower, upper = np.asarray(space.lower, dtype=float), np.asarray(space.upper, dtype=float)
-    y = space.clip(space.to_coords(seeds))
+    lower, upper = np.array(space.lower, dtype=float), np.array(space.upper, dtype=float)
+    y = np.array(space.clip(space.to_coords(seeds)), dtype=float, order="C")
     lam = np.full(b, float(damping))
     best_err = np.full(b, np.inf)
     best_y = y.copy()
@@ -161,10 +162,10 @@ def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets:
             tips, Jq, ok = jacobian(space.to_joints(y[idx]), guess=g)
         else:
             tips, Jq, ok = jacobian(space.to_joints(y[idx]))
-        better = _lm_iteration(idx, np.ascontiguousarray(tips, dtype=float),
-                               np.ascontiguousarray(Jq, dtype=float), np.asarray(ok, dtype=np.bool_), targets,
-                               M, wcol, lower, upper, float(max_step), float(tol_mm), y, lam, best_err,
-                               best_y, best_tip, best_J, active)
+        tips, Jq = np.array(tips, dtype=float, order="C"), np.array(Jq, dtype=float, order="C")
+        ok = np.array(ok, dtype=np.bool_)
+        better = _lm_iteration(idx, tips, Jq, ok, targets, M, wcol, lower, upper, float(max_step),
+                               float(tol_mm), y, lam, best_err, best_y, best_tip, best_J, active)
         init = getattr(jacobian, "last_initial_state", None) if warm else None
         if init is not None:
             if best_init is None:
@@ -192,9 +193,9 @@ def _lm_iteration(idx, tips, Jq, ok, targets, M, wcol, lower, upper, max_step, t
     """One Levenberg iteration of `solve_ik` for the running seeds ``idx`` (R,), in place: each
     seed's new tip (R, k), joint Jacobian (R, k, 2N) and ``ok`` (R,) at its iterate ``y[idx]``; an
     improvement is kept (``best_*``, damping halved), otherwise the damping grows 4x; seeds within
-    ``tol_mm``, with damping above 1e6 or without any finite error stop (``active``); the others
-    take a `_damped_step` from their best iterate, clipped to the box [lower, upper] (D,). Returns
-    which seeds improved (R,)."""
+    ``tol_mm``, with damping above 1e6, without any finite error or with a non-finite Jacobian stop
+    (``active``); the others take a `_damped_step` from their best iterate, clipped to the box
+    [lower, upper] (D,). Returns which seeds improved (R,)."""
     better = np.zeros(idx.size, dtype=np.bool_)
     for r in range(idx.size):
         i = idx[r]
@@ -212,7 +213,8 @@ def _lm_iteration(idx, tips, Jq, ok, targets, M, wcol, lower, upper, max_step, t
             lam[i] *= 0.5
         else:
             lam[i] *= 4.0
-        if best_err[i] <= tol_mm or lam[i] > 1e6 or not math.isfinite(best_err[i]):
+        if (best_err[i] <= tol_mm or lam[i] > 1e6 or not math.isfinite(best_err[i])
+                or not np.all(np.isfinite(best_J[i]))):
             active[i] = False
             continue
         dy = _damped_step(best_y[i], best_J[i], targets[i] - best_tip[i], lam[i], wcol, lower, upper,

@@ -31,6 +31,8 @@ from ctrplan.kinematics import make_backend
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.blas import single_threaded_blas
+from ctrplan.kinematics.pinn import ROW_BLOCKS
+from ctrplan.machine import numba_threads_at_most
 from ctrplan.planning.budget import GUARD_FACTOR, SearchBudget, check_max_states, states_for
 from ctrplan.planning.goal import ANGLE_WEIGHT_MM_PER_RAD, GoalSampler, TipGoal, tip_tangents
 from ctrplan.planning.ik import backend_tip_jacobian, compile_ik, solve_ik
@@ -304,7 +306,8 @@ def search(checker: ConfigurationChecker, *, start: np.ndarray | None = None, pl
     budget = SearchBudget.start(max_states or s.max_states or states_for(model.backend.name, limit_s),
                                 GUARD_FACTOR * limit_s,
                                 lambda: checker.counters.kinematics_calls)
-    with single_threaded_blas(), gc_paused(), _hooked(checker, _progress_hook(problem, budget, progress)):
+    with single_threaded_blas(), numba_threads_at_most(ROW_BLOCKS), gc_paused(), \
+            _hooked(checker, _progress_hook(problem, budget, progress)):
         region_goal = isinstance(problem.goal, TipGoal)
         if region_goal:
             problem.goal.budget = budget

@@ -54,7 +54,12 @@ def kernel(name, skip, file_end, text):
 
 def watch(test):
     def run():
-        while not test():
+        while True:
+            try:
+                if test():
+                    break
+            except Exception:  # another thread's stack, walked while it runs, can change under the walk
+                pass
             time.sleep(0.0005)
         os.kill(os.getpid(), signal.SIGINT)
     threading.Thread(target=run, daemon=True).start()

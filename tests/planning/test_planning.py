@@ -29,7 +29,7 @@ from ctrplan.planning import (
     validate_path,
 )
 from ctrplan.planning.corridor import CorridorRRTConnect
-from ctrplan.planning.ik import _damped_step, fd_tip_jacobian
+from ctrplan.planning.ik import _damped_step, _lm_iteration, compile_ik, fd_tip_jacobian
 from ctrplan.planning.planners import PLANNERS
 from ctrplan.planning.validity import bisection_order
 from ctrplan.robot import Robot
@@ -103,6 +103,21 @@ def test_ik_asked_enough_stops_there_or_changes_nothing(exact):
     np.testing.assert_array_equal(stopped.error_mm, short.error_mm)
     assert stopped.iterations == short.iterations == 3
     assert asked == [3, 3]  # once per solve, with check_after iterations done
+
+
+def test_compile_ik_compiles_what_solve_ik_runs(exact):
+    """`compile_ik` runs before a planning clock starts: the kernel it compiles must be the one
+    `solve_ik` then calls (one seed or several, one shared target or one each), else numba compiles
+    a new version inside the clock."""
+    robot = exact.robot
+    sp = BoxSpace.for_robot(robot)
+    compile_ik(sp.dimension, robot.n_joints)
+    before = list(_lm_iteration.signatures)
+    jac = fd_tip_jacobian(lambda q, points=2: exact.forward(q, points=points, check=False), sp)
+    targets = exact.forward(robot.sample_joints(3, 5), points=2, check=False).tip_mm
+    for seeds, goal in ((1, targets[0]), (3, targets), (3, targets[0])):
+        solve_ik(jac, sp, robot.sample_joints(seeds, 6), goal, max_iterations=2)
+    assert list(_lm_iteration.signatures) == before
 
 
 def test_damped_step_is_the_least_squares_step_with_bounds_as_an_active_set():
