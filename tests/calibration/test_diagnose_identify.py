@@ -44,7 +44,7 @@ def test_uncertainty_is_s2_inverse_normal_matrix_and_equal_columns_are_unresolve
 
 # ---- plausibility on the confidence interval ----------------------------------------------------
 def test_a_value_whose_interval_overlaps_the_range_is_plausible_at_the_edge():
-    """nu = 0.5005 +- 0.0008 (the issue's fit): the 2-sigma interval [0.4989, 0.5021] overlaps
+    """nu = 0.5005 +- 0.0008 (the issue's fit): the 3-sigma interval [0.4981, 0.5029] overlaps
     [0, 0.5], so it is at the edge, not implausible; +- 0.0001 is implausible."""
     robot, e = Robot.nominal(), StiffnessRatio()
     v = e.plausibility(robot, np.array([0.5005]), np.array([[0.0008 ** 2]]))
@@ -56,7 +56,7 @@ def test_a_value_whose_interval_overlaps_the_range_is_plausible_at_the_edge():
 
 def test_a_magnitude_is_judged_on_its_propagated_uncertainty():
     """|F| of a tip force (20 mN ceiling): F = (21, 0, 0) mN with sigma 1 mN per axis has |F| = 21 +- 1
-    mN (d|F|/dF = F/|F|), interval [19, 23] -> at the edge; sigma 0.2 mN -> implausible. Off the axis
+    mN (d|F|/dF = F/|F|), 3-sigma interval [18, 24] -> at the edge; sigma 0.2 mN -> implausible. Off the axis
     F = (15, 15, 0) mN: |F| = 21.2 mN, std sqrt(0.5 * 1 + 0.5 * 1) = 1 mN as well."""
     robot, e = Robot.nominal(), make_effect("tip_force")
     for f in (np.array([0.021, 0.0, 0.0]), np.array([0.015, 0.015, 0.0])):
