@@ -176,15 +176,14 @@ def solve_ik(jacobian: TipJacobian, space: BoxSpace, seeds: np.ndarray, targets:
     return result(it)
 
 
-def compile_ik(dimension: int, joints: int) -> None:
-    """Compile (or load from numba's cache) the kernels of `solve_ik` for a ``dimension``-coordinate
-    box of ``joints`` joints, on one dummy seed: before a planning clock starts, not inside it."""
-    seed = np.zeros((1, dimension))
-    _lm_iteration(np.zeros(1, dtype=np.int64), np.zeros((1, 3)), np.zeros((1, 3, joints)),
-                  np.ones(1, dtype=np.bool_), np.ones((1, 3)), np.zeros((joints, dimension)),
-                  np.ones(dimension), seed[0] - 1.0, seed[0] + 1.0, 1.0, 0.05, seed.copy(), np.ones(1),
-                  np.full(1, np.inf), seed.copy(), np.zeros((1, 3)), np.zeros((1, 3, dimension)),
-                  np.ones(1, dtype=np.bool_))
+def compile_ik(space: BoxSpace) -> None:
+    """Compile (or load from numba's cache) `solve_ik`'s kernel before a planning clock starts: one
+    iteration of one seed in ``space``, through the same argument preparation as every call (numba
+    compiles one version per array layout)."""
+    def still(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # a robot that does not move
+        return np.zeros((len(q), 3)), np.zeros((len(q), 3, q.shape[1])), np.ones(len(q), dtype=bool)
+
+    solve_ik(still, space, space.to_joints(0.5 * (space.lower + space.upper)), np.ones(3), max_iterations=1)
 
 
 @njit(cache=True)

@@ -427,7 +427,7 @@ def compile_kernels(model: PlanningModel, progress: Progress = _quiet) -> Backbo
         out = forward(batch, points=model.points, check=False)
         if batch.ndim == 1:
             bb = out
-    compile_ik(model.space.dimension, len(q))
+    compile_ik(model.space)
     progress("compile", done=len(calls), total=len(calls))
     return bb
 

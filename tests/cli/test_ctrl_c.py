@@ -58,7 +58,7 @@ def watch(test):
             try:
                 if test():
                     break
-            except Exception:  # another thread's stack, walked while it runs, can change under the walk
+            except (AttributeError, TypeError):  # a running thread's stack can change under the walk
                 pass
             time.sleep(0.0005)
         os.kill(os.getpid(), signal.SIGINT)

@@ -111,7 +111,7 @@ def test_compile_ik_compiles_what_solve_ik_runs(exact):
     a new version inside the clock."""
     robot = exact.robot
     sp = BoxSpace.for_robot(robot)
-    compile_ik(sp.dimension, robot.n_joints)
+    compile_ik(sp)
     before = list(_lm_iteration.signatures)
     jac = fd_tip_jacobian(lambda q, points=2: exact.forward(q, points=points, check=False), sp)
     targets = exact.forward(robot.sample_joints(3, 5), points=2, check=False).tip_mm
