@@ -23,15 +23,15 @@ except PackageNotFoundError:  # running from a source tree
     __version__ = "0.0.0+src"
 
 _API = {
-    "DomainError": "ctrplan.errors", "InputError": "ctrplan.errors",
-    "Robot": "ctrplan.robot", "Tube": "ctrplan.robot", "JointDomain": "ctrplan.robot",
-    "Loads": "ctrplan.robot",
+    "DomainError": "ctrplan.base.errors", "InputError": "ctrplan.base.errors",
+    "Robot": "ctrplan.model.robot", "Tube": "ctrplan.model.robot", "JointDomain": "ctrplan.model.robot",
+    "Loads": "ctrplan.model.robot",
     "Backbone": "ctrplan.kinematics", "Backend": "ctrplan.kinematics",
     "CosseratBackend": "ctrplan.kinematics", "SolverSettings": "ctrplan.kinematics",
     "make_backend": "ctrplan.kinematics",
     "PinnBackend": "ctrplan.kinematics.pinn",
-    "load_scene": "ctrplan.scene", "plan": "ctrplan.planning",
-    "check_domain": "ctrplan.stability",
+    "load_scene": "ctrplan.scene.loader", "plan": "ctrplan.planning",
+    "check_domain": "ctrplan.kinematics.stability",
 }
 
 __all__ = sorted([*_API, "__version__"])

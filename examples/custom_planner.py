@@ -14,7 +14,7 @@ from ompl import geometric as og
 from ompl import util as ou
 
 from ctrplan.planning import build_problem, resolve_backend, validate_path
-from ctrplan.scene import load_scene
+from ctrplan.scene.loader import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 

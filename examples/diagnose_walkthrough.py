@@ -24,7 +24,7 @@ import numpy as np
 from ctrplan.calibration import CAUSES, diagnose, read_measured, write_measured_csv, write_outputs
 from ctrplan.calibration.fit import Evaluator
 from ctrplan.calibration.synthetic import generate
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 HERE = Path(__file__).resolve().parent
 

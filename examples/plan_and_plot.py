@@ -16,7 +16,7 @@ from ompl import util as ou
 
 from ctrplan.planning import plan
 from ctrplan.planning.validate import clearance_along
-from ctrplan.scene import load_scene
+from ctrplan.scene.loader import load_scene
 from ctrplan.viz import plot_plan, viewer_data, write_viewer
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -20,7 +20,7 @@ import json
 
 from ctrplan.kinematics.model_file import resolve_model, write_card_field
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnBackend
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 from ctrplan.training.evaluate import calibrate
 
 

@@ -27,7 +27,7 @@ HELDOUT_LAST = 0.3
 
 
 def _ctrplan(args: list[str]) -> str:
-    from ctrplan.cli import main
+    from ctrplan.cli.app import main
 
     out = io.StringIO()
     with contextlib.redirect_stdout(out):

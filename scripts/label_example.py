@@ -24,9 +24,9 @@ from scipy.spatial.transform import Rotation
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from ctrplan.cli import main  # noqa: E402
+from ctrplan.cli.app import main  # noqa: E402
 from ctrplan.planning import plan  # noqa: E402
-from ctrplan.scene import load_scene  # noqa: E402
+from ctrplan.scene.loader import load_scene
 
 REPO = Path(__file__).resolve().parents[1]
 FOLDER = REPO / "examples" / "segmentation"

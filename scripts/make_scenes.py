@@ -57,7 +57,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ctrplan.yamlio import dump_yaml
+from ctrplan.base.yamlio import dump_yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "scenes"
@@ -515,8 +515,9 @@ def pipe_scene(backend) -> dict:
     """A curved pipe (12 mm bore, closed at the far end) laid along the distal 70 mm of a planar
     configuration's backbone, target near its end; the start is the most retracted configuration
     with the goal's tube angles that fits inside: the robot advances through the bend."""
-    from ctrplan.collision import CollisionWorld, RobotCollisionChecker
-    from ctrplan.scene import Obstacle
+    from ctrplan.collision.checker import RobotCollisionChecker
+    from ctrplan.collision.world import CollisionWorld
+    from ctrplan.scene.objects import Obstacle
 
     robot = backend.robot
     goal = np.array([-5.0, 10.0, 5.0, 0.0, 0.5 * math.pi, -0.5 * math.pi])
@@ -563,7 +564,7 @@ def check_scene(path: Path, seeds: int = 3, time_limit: float = 10.0) -> None:  
 
     from ctrplan.kinematics import CosseratBackend
     from ctrplan.planning import ConfigurationChecker, PlanningModel, plan
-    from ctrplan.scene import load_scene
+    from ctrplan.scene.loader import load_scene
 
     ou.setLogLevel(ou.LOG_ERROR)
     scene = load_scene(path)
@@ -586,7 +587,7 @@ def main() -> None:  # pragma: no cover - script
     ap.add_argument("--check", action="store_true", help="verify the problems by planning")
     args = ap.parse_args()
     from ctrplan.kinematics import CosseratBackend
-    from ctrplan.robot import Robot
+    from ctrplan.model.robot import Robot
 
     backend = CosseratBackend(Robot.nominal())
     desc = ("Endonasal transsphenoidal approach through the right nostril to the pituitary "

@@ -471,7 +471,7 @@ def check() -> int:
 def ctrplan_json(args: list[str], ok: tuple[int, ...] = (0,)) -> dict[str, Any]:
     """Run ``ctrplan ARGS`` (ending in --json) with this interpreter; its JSON document. An exit code
     outside ``ok`` stops the script."""
-    entry = "from ctrplan.cli import main; raise SystemExit(main())"  # `ctrplan` of this interpreter
+    entry = "from ctrplan.cli.app import main; raise SystemExit(main())"  # `ctrplan` of this interpreter
     result = subprocess.run([sys.executable, "-c", entry, *args], stdout=subprocess.PIPE, check=False,
                             text=True, cwd=ROOT)
     if result.returncode not in ok:

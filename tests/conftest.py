@@ -20,8 +20,9 @@ from pathlib import Path
 import pytest
 
 from ctrplan.kinematics import CosseratBackend
-from ctrplan.robot import Robot
-from ctrplan.scene import Scene, load_scene
+from ctrplan.model.robot import Robot
+from ctrplan.scene.loader import load_scene
+from ctrplan.scene.objects import Scene
 from tests.paths import SCENES
 
 #: 52 solved cases from an independent solver (docs/design.md §1: tips, u_z(0), some backbones; nominal, with

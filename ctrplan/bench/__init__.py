@@ -1,7 +1,7 @@
 """Benchmarks: the paper's experiments as reproducible commands.
 
 Shared by every benchmark: the summary statistics of per-call times. The description of the machine
-and pinning to one core are `ctrplan.machine`; the executors `ctrplan.parallel`.
+and pinning to one core are `ctrplan.base.machine`; the executors `ctrplan.base.parallel`.
 """
 
 from __future__ import annotations

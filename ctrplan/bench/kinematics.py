@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
+from ctrplan.base.memory import F8, backbone_bytes
 from ctrplan.bench import timing_stats
 from ctrplan.kinematics import Backend
-from ctrplan.memory import F8, backbone_bytes
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 #: Distance of the warm-start neighbour, per joint: 0.5 mm (beta), 0.5 deg (alpha).
 NEIGHBOUR_STEP_MM, NEIGHBOUR_STEP_RAD = 0.5, math.radians(0.5)

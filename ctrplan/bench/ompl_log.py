@@ -16,7 +16,7 @@ from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
-from ctrplan.dataio import atomic_write
+from ctrplan.base.dataio import atomic_write
 from ctrplan.planning.planners import OMPL_NAMES
 
 #: OMPL's PlannerStatus names, in enum order (the ``status`` column is an index into them).

@@ -6,10 +6,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from ctrplan.base.machine import machine_info
 from ctrplan.bench.ompl_log import write_database, write_logs
 from ctrplan.bench.planning import summarize
 from ctrplan.bench.plots import planning_plots
-from ctrplan.machine import machine_info
 
 
 def write_plan_results(records: list[dict[str, Any]], out: Path, limits: list[tuple[str, float]],

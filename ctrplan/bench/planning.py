@@ -4,7 +4,7 @@ One run is `ctrplan.planning.plan` (search, exact re-validation, repair) on one 
 planner, seed); `run_one` turns it into a flat record (times in s, lengths in mm) and `summarize`
 aggregates the records per (scene, backend, planner). Every backend x planner pair gets the same seeds,
 so their runs are paired. Runs are independent and deterministic for a seed (OMPL is re-seeded per run,
-and every search is budgeted in work, `ctrplan.planning.budget`): `ctrplan.parallel` spreads them
+and every search is budgeted in work, `ctrplan.planning.budget`): `ctrplan.base.parallel` spreads them
 over processes or a Ray cluster with the same content, whatever the load -- except a run whose
 wall-clock guard fired (``cut_short``: counted in the summary).
 """
@@ -70,9 +70,9 @@ class RunContext:
     def get(self, scene_file: str, backend: str) -> tuple[Any, Any, Any, Any]:
         """Scene, planning backend, exact backend and collision world of ``scene_file`` and
         ``backend``."""
-        from ctrplan.collision import CollisionWorld
+        from ctrplan.collision.world import CollisionWorld
         from ctrplan.kinematics import CosseratBackend, make_backend
-        from ctrplan.scene import load_scene
+        from ctrplan.scene.loader import load_scene
 
         if scene_file not in self._exact:
             scene = load_scene(scene_file)
@@ -106,10 +106,10 @@ def run_batch(batch: tuple[RunSpec, ...]) -> dict[str, Any]:
 def run_all(specs: list[RunSpec], *, workers: int = 1, ray_address: str | None = None,
             tick: Callable[[int, int], None] | None = None, threads: int = 1) -> list[dict[str, Any]]:
     """The records of ``specs`` (in their order), run in `batches` on the executor of
-    `ctrplan.parallel.run_jobs` (``threads``: cores of a run, one worker only); ``tick(runs done,
+    `ctrplan.base.parallel.run_jobs` (``threads``: cores of a run, one worker only); ``tick(runs done,
     runs)`` after every batch (runs done: about, where batches of different sizes finish out of
     order)."""
-    from ctrplan.parallel import run_jobs
+    from ctrplan.base.parallel import run_jobs
 
     jobs = batches(specs, workers)
 
@@ -192,7 +192,7 @@ def check_rates(scene_file: str, backend: str, *, states: int = RATE_STATES, bat
     verdicts. Times depend on the machine and its load."""
     import time
 
-    from ctrplan.machine import single_core
+    from ctrplan.base.machine import single_core
     from ctrplan.planning import ConfigurationChecker, PlanningModel, compile_kernels
 
     scene, be, exact, world = (context or RunContext()).get(scene_file, backend)
@@ -288,9 +288,9 @@ def prepare(scene_files: list[Path], backends: list[str], time_limit_s: float | 
     Loads every scene and builds every backend for its robot once here, so that a bad scene file or
     a missing or mismatched model is reported before any run starts (not from inside a worker), and
     each scene's broadphase grid, so that workers load it from the disk cache."""
-    from ctrplan.broadphase import grid_for
+    from ctrplan.collision.broadphase import grid_for
     from ctrplan.kinematics import make_backend
-    from ctrplan.scene import load_scene
+    from ctrplan.scene.loader import load_scene
 
     out = []
     for f in scene_files:

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from ctrplan.dataio import atomic_write
+from ctrplan.base.dataio import atomic_write
 
 
 def timing_boxplot(series: Mapping[tuple[str, int], np.ndarray], path: str | Path, *,

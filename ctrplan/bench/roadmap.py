@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ctrplan.planning.roadmap.query import QueryResult, RoadmapPlanner
-from ctrplan.scene import Scene, TargetRegion
+from ctrplan.scene.objects import Scene, TargetRegion
 
 #: Planner name of roadmap records in logs and databases.
 ROADMAP_PLANNER = "roadmap"

@@ -6,11 +6,11 @@ held out), `fit` (batched least squares), `noise` (measurement noise from the da
 `selection` (significance, stability and the named causes), `diagnosis` (the procedure and its
 report) with its knobs in `options`, `where` and `plots` (where the error grows), `synthetic`
 (generated data with a hidden cause). The library of causes, each registered by its class, is
-`ctrplan.effects`: part of the robot model (a robot's calibration holds its measurement-side
+`ctrplan.model.causes`: part of the robot model (a robot's calibration holds its measurement-side
 causes), below this package.
 
-The result is one extended `ctrplan.robot.Robot`: its mechanics in its fields, its measurement side
-in `Robot.calibration` (`ctrplan.measurement.Calibration` -- what "calibration" means on a robot).
+The result is one extended `ctrplan.model.robot.Robot`: its mechanics in its fields, its measurement side
+in `Robot.calibration` (`ctrplan.model.measurement.Calibration` -- what "calibration" means on a robot).
 """
 
 from __future__ import annotations
@@ -19,16 +19,16 @@ import importlib
 from typing import Any
 
 _EXPORTS = {
-    "CAUSES": "ctrplan.effects",
-    "Calibration": "ctrplan.measurement",
+    "CAUSES": "ctrplan.model.causes",
+    "Calibration": "ctrplan.model.measurement",
     "DiagnoseOptions": "options",
     "Diagnosis": "diagnosis",
-    "EFFECTS": "ctrplan.effects",
+    "EFFECTS": "ctrplan.model.causes.base",
     "MeasuredData": "data",
     "Split": "split",
     "diagnose": "diagnosis",
-    "make_effect": "ctrplan.effects",
-    "motion_direction": "ctrplan.measurement",
+    "make_effect": "ctrplan.model.causes.base",
+    "motion_direction": "ctrplan.model.measurement",
     "read_measured": "data",
     "split_rows": "split",
     "write_crl_csv": "data",

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ctrplan.dataio import (
+from ctrplan.base.dataio import (
     atomic_write,
     format_csv,
     joint_names,
@@ -28,8 +28,8 @@ from ctrplan.dataio import (
     read_text,
     tip_names,
 )
-from ctrplan.errors import InputError
-from ctrplan.robot import Robot, check_joint_rows
+from ctrplan.base.errors import InputError
+from ctrplan.model.robot import Robot, check_joint_rows
 
 CRL_COLUMNS = 40
 #: Order of the joints in a CRL row: alpha1 beta1 alpha2 beta2 alpha3 beta3 -> index into q.

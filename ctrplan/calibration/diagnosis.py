@@ -6,7 +6,7 @@ Procedure (`diagnose`):
 1. split the rows (`split.split_rows`): contiguous blocks held out at random, or the last rows;
 2. nominal errors per tube and where they grow (joints, direction of motion, residual direction); the
    measurement noise from the data alone (`noise.estimate_noise`), independent of any fitted model;
-3. fit every candidate cause of `ctrplan.effects.CAUSES` on the training rows (least squares on all measured
+3. fit every candidate cause (`ctrplan.model.causes`) on the training rows (least squares on all measured
    tube tips, finite-difference Jacobians, warm-started batched Cosserat solves); parameters the data
    cannot show (`Effect.unseen`, e.g. the offset of a joint that never moves) are not fitted, and
    joint offsets stay within what keeps every row of the file physical;
@@ -33,6 +33,8 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from ctrplan.base.dataio import plain
+from ctrplan.base.errors import InputError
 from ctrplan.calibration.data import MeasuredData, rows_text
 from ctrplan.calibration.experiment import Experiment, separating_rows
 from ctrplan.calibration.fit import Evaluator, Prediction
@@ -40,11 +42,9 @@ from ctrplan.calibration.noise import estimate_noise
 from ctrplan.calibration.options import DiagnoseOptions
 from ctrplan.calibration.selection import Candidate, Selection, Selector, configuration_groups
 from ctrplan.calibration.split import Split, contiguous_subsample
-from ctrplan.dataio import plain
-from ctrplan.effects import make_effect
-from ctrplan.errors import InputError
-from ctrplan.measurement import motion_direction
-from ctrplan.robot import Robot
+from ctrplan.model.causes.base import make_effect
+from ctrplan.model.measurement import motion_direction
+from ctrplan.model.robot import Robot
 
 
 @dataclass
@@ -504,7 +504,7 @@ __all__ = ["Diagnosis", "diagnose", "error_stats", "write_outputs"]
 def write_outputs(diag: Diagnosis, out_dir: str | Path, plots: bool = True) -> list[Path]:
     """Write the extended robot file, ``report.json``, ``report.txt`` and the plots into ``out_dir``
     (created if needed). Every file is written atomically, after the diagnosis is complete."""
-    from ctrplan.dataio import atomic_write, output_dir
+    from ctrplan.base.dataio import atomic_write, output_dir
 
     out = output_dir(out_dir)
     j = diag.to_json()

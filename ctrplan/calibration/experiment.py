@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from ctrplan.calibration.fit import Evaluator
-from ctrplan.measurement import motion_direction
-from ctrplan.robot import Robot
+from ctrplan.model.measurement import motion_direction
+from ctrplan.model.robot import Robot
 
 #: Configurations drawn per row asked for (the best of them are kept).
 POOL_PER_ROW = 50
@@ -46,7 +46,7 @@ class Experiment:
     def write_csv(self, path: str | Path, joint_names: tuple[str, ...]) -> None:
         """``experiment.csv``: the joint columns of the measured-data format, ``difference_mm`` and
         ``versus`` (written atomically)."""
-        from ctrplan.dataio import atomic_write
+        from ctrplan.base.dataio import atomic_write
 
         with atomic_write(path) as fh:
             fh.write(",".join([*joint_names, "difference_mm", "versus"]) + "\n")

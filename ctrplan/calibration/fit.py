@@ -2,7 +2,7 @@
 finite-difference Jacobians, least squares, uncertainty and BIC.
 
 A model is one `Robot`: its mechanics solved by the Cosserat backend, its calibration mapping the
-reported joints to the mechanics and the solved tips to the tracker (`ctrplan.measurement`).
+reported joints to the mechanics and the solved tips to the tracker (`ctrplan.model.measurement`).
 
 Cost model: a Jacobian costs one batched forward call per parameter that changes the mechanics
 (curvature, stiffness, loads: the kernel takes robot parameters per call); all perturbations that
@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from ctrplan.effects import CONFIDENCE_Z, Effect, Param
 from ctrplan.kinematics import CosseratBackend
-from ctrplan.robot import Robot
+from ctrplan.model.causes.base import CONFIDENCE_Z, Effect, Param
+from ctrplan.model.robot import Robot
 
 FD_STEP = 1e-3  # finite-difference step in units of each parameter's typical scale
 FIT_TOL = 1e-5  # relative tolerance of least squares on the cost and on the parameter step

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ctrplan.calibration.split import Split, split_rows
-from ctrplan.effects import CAUSES
+from ctrplan.model.causes import CAUSES
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ctrplan.dataio import atomic_write, joint_names
+from ctrplan.base.dataio import atomic_write, joint_names
 
 NOMINAL_COLOR = "#b0b0b0"
 EXTENDED_COLOR = "#1f77b4"

@@ -7,7 +7,7 @@ named.
   signed-rank test at ``alpha`` (rows of one configuration count once: `configuration_groups`), no
   parameter at a hard bound away from its base value or at any bound the data push past
   (`FitResult.pushed`), every parameter resolved by the rows (`FitResult.unresolved`), and every check
-  plausible within its confidence interval (`ctrplan.effects.Effect.plausibility`); a fit that needs an
+  plausible within its confidence interval (`Effect.plausibility`); a fit that needs an
   implausible value is reported, never named;
 * **grown**: from the best significant single (and up to ``grow_from`` - 1 next ones it does not
   beat), and from the best single that beats the nominal model only with an implausible value: of
@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy import stats
 
+from ctrplan.base.errors import InputError
 from ctrplan.calibration.fit import (
     Evaluator,
     FitResult,
@@ -52,12 +53,11 @@ from ctrplan.calibration.fit import (
 )
 from ctrplan.calibration.options import DiagnoseOptions
 from ctrplan.calibration.split import Split
-from ctrplan.effects import Combined, Effect, make_effect, offset_limits
-from ctrplan.errors import InputError
+from ctrplan.model.causes.base import Combined, Effect, make_effect, offset_limits
 
 if TYPE_CHECKING:
     from ctrplan.calibration.data import MeasuredData
-    from ctrplan.robot import Robot
+    from ctrplan.model.robot import Robot
 
 
 @dataclass

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 
 BLOCKS = 10
 

@@ -15,9 +15,9 @@ import numpy as np
 
 from ctrplan.calibration.data import MeasuredData
 from ctrplan.calibration.fit import Evaluator
-from ctrplan.effects import make_effect
-from ctrplan.measurement import motion_direction
-from ctrplan.robot import Robot
+from ctrplan.model.causes.base import make_effect
+from ctrplan.model.measurement import motion_direction
+from ctrplan.model.robot import Robot
 
 
 @dataclass

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
+from ctrplan.base.dataio import joint_names
 from ctrplan.calibration.fit import Evaluator
-from ctrplan.dataio import joint_names
 
 #: Finite-difference steps for the joint sensitivities: mm for beta, rad for alpha.
 BETA_STEP_MM, ALPHA_STEP_RAD = 1e-3, 1e-4

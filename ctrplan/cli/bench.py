@@ -13,10 +13,15 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
+from ctrplan.base.dataio import atomic_write, check_output_dir, output_dir
+from ctrplan.base.errors import InputError
+from ctrplan.base.machine import machine_info, single_core
+from ctrplan.base.memory import check_backbones, check_fits
+from ctrplan.base.parallel import available_cores, check_workers
 from ctrplan.bench import kinematics as kinematics_bench
 from ctrplan.bench import planning as planning_bench
 from ctrplan.bench.plots import timing_boxplot
-from ctrplan.cli import HELP_SETTINGS, app
+from ctrplan.cli.app import HELP_SETTINGS, app
 from ctrplan.cli.options import (
     JsonSummaryOpt,
     RobotOpt,
@@ -31,15 +36,10 @@ from ctrplan.cli.options import (
     workers_option,
 )
 from ctrplan.cli.progress import CountProgress
-from ctrplan.dataio import atomic_write, check_output_dir, output_dir
-from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKENDS, PLANNING_ORDER
 from ctrplan.kinematics.pinn import ROW_BLOCKS
-from ctrplan.machine import machine_info, single_core
-from ctrplan.memory import check_backbones, check_fits
-from ctrplan.parallel import available_cores, check_workers
+from ctrplan.model.robot import Robot
 from ctrplan.planning.planners import BENCHMARKED, PLANNERS, planner_spec
-from ctrplan.robot import Robot
 
 BENCH_HELP = "Benchmarks: timings, JSON summaries and plots."
 bench_app = typer.Typer(help=BENCH_HELP, short_help=BENCH_HELP, no_args_is_help=True,

@@ -11,7 +11,8 @@ from typing import Annotated
 
 import typer
 
-from ctrplan.cli import app
+from ctrplan.base.errors import InputError
+from ctrplan.cli.app import app
 from ctrplan.cli.options import (
     as_option,
     json_option,
@@ -21,7 +22,6 @@ from ctrplan.cli.options import (
     workers_option,
 )
 from ctrplan.cli.progress import PlainProgress
-from ctrplan.errors import InputError
 
 OPTIONS = {"workers": "--workers", "ray": "--ray", "storage": "--storage", "study": "--study"}
 
@@ -70,11 +70,11 @@ def design(task_file: TaskArg, trials: TrialsOpt = None, time_limit: TimeLimitOp
     """
     from rich.console import Console
 
-    from ctrplan.dataio import output_dir
+    from ctrplan.base.dataio import output_dir
+    from ctrplan.base.parallel import check_workers
     from ctrplan.design.outputs import write_outputs
     from ctrplan.design.study import default_storage, open_study
     from ctrplan.design.task import load_task
-    from ctrplan.parallel import check_workers
 
     if trials is not None and trials < 1:
         raise InputError(f"--trials: need at least 1, got {trials}")

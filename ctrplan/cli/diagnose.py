@@ -9,12 +9,12 @@ from typing import Annotated
 
 import typer
 
+from ctrplan.base.dataio import check_output_dir
+from ctrplan.base.errors import InputError
 from ctrplan.calibration import CAUSES
-from ctrplan.cli import app
+from ctrplan.cli.app import app
 from ctrplan.cli.options import heldout_split
 from ctrplan.cli.progress import StatusLine
-from ctrplan.dataio import check_output_dir
-from ctrplan.errors import InputError
 
 Data = Annotated[Path, typer.Argument(
     metavar="DATA.csv", show_default=False,
@@ -66,7 +66,7 @@ def diagnose(data: Data, robot: RobotOpt = None, out: OutOpt = None, json_: Json
     """
     from ctrplan.calibration import DiagnoseOptions, make_effect, read_measured, write_outputs
     from ctrplan.calibration import diagnose as run_diagnosis
-    from ctrplan.robot import Robot
+    from ctrplan.model.robot import Robot
 
     names = CAUSES if candidates is None else tuple(c.strip() for c in candidates.split(",") if c.strip())
     if not names:

@@ -17,14 +17,14 @@ from typing import Annotated
 import numpy as np
 import typer
 
-from ctrplan.cli import app
+from ctrplan.base.dataio import atomic_write, format_csv, tip_names
+from ctrplan.base.errors import InputError
+from ctrplan.base.memory import backbone_bytes, check_fits
+from ctrplan.cli.app import app
 from ctrplan.cli.options import BackendOpt, ModelOpt, RobotOpt, load_backend
-from ctrplan.dataio import atomic_write, format_csv, tip_names
-from ctrplan.errors import InputError
 from ctrplan.kinematics import Backbone
 from ctrplan.kinematics.base import DEFAULT_POINTS
-from ctrplan.memory import backbone_bytes, check_fits
-from ctrplan.robot import Robot, read_joints
+from ctrplan.model.robot import Robot, read_joints
 
 #: Output rows (configurations x backbone points) solved and written per chunk.
 CHUNK_ROWS = 10_000

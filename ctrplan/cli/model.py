@@ -15,7 +15,10 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from ctrplan.cli import app
+from ctrplan.base.dataio import atomic_write, check_output_dir, output_dir
+from ctrplan.base.errors import InputError
+from ctrplan.base.memory import backbone_bytes, check_backbones, check_fits
+from ctrplan.cli.app import app
 from ctrplan.cli.options import (
     ModelOpt,
     RobotOpt,
@@ -28,13 +31,10 @@ from ctrplan.cli.options import (
     time_limit_option,
 )
 from ctrplan.cli.progress import PlainProgress
-from ctrplan.dataio import atomic_write, check_output_dir, output_dir
-from ctrplan.errors import InputError
 from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnBackend
 from ctrplan.kinematics.pinn_net import PinnNet
-from ctrplan.memory import backbone_bytes, check_backbones, check_fits
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 from ctrplan.training.budget import MIN_EVAL_CONFIGURATIONS, TimeBudget
 from ctrplan.training.evaluate import CALIBRATION_CONFIGURATIONS, calibrate, compare
 from ctrplan.training.trainer import (
@@ -287,7 +287,7 @@ def _report(console: Console, out: Path, result: TrainResult, budget: TimeBudget
                   f"{m['backbone_error_pct']['mean']:.3f} %")
     if ERROR_BOUND_KEY in card:
         from ctrplan.kinematics.error_bound import region_bounds_mm
-        from ctrplan.scene import PlannerSettings
+        from ctrplan.scene.objects import PlannerSettings
 
         coverage = PlannerSettings.surrogate_coverage
         margins = ", ".join(f"{b:.2f}" for b in region_bounds_mm(card[ERROR_BOUND_KEY], coverage))

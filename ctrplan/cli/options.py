@@ -9,9 +9,9 @@ from typing import Annotated, Any
 
 import typer
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 from ctrplan.kinematics import BACKENDS, MODEL_BACKENDS, Backend, make_backend
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 #: Seconds per unit of a duration (`parse_duration`).
 DURATION_UNITS = {"s": 1.0, "m": 60.0, "min": 60.0, "h": 3600.0}

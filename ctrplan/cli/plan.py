@@ -18,15 +18,15 @@ from typing import Annotated
 import numpy as np
 import typer
 
-from ctrplan import console as console_state
-from ctrplan.cli import app
+from ctrplan.base.dataio import check_output_dir
+from ctrplan.base.errors import InputError
+from ctrplan.cli import console as console_state
+from ctrplan.cli.app import app
 from ctrplan.cli.options import ModelOpt, check_max_states, load_backend, parse_duration
 from ctrplan.cli.progress import StatusLine
-from ctrplan.dataio import check_output_dir
-from ctrplan.errors import InputError
 from ctrplan.kinematics import DEFAULT_PLANNING_BACKEND, PLANNING_ORDER
+from ctrplan.model.robot import Robot
 from ctrplan.planning.planners import PLANNERS
-from ctrplan.robot import Robot
 
 SceneArg = Annotated[Path, typer.Argument(metavar="SCENE.yaml", show_default=False,
                                           help="Scene file (robot, base pose, obstacles, target, start).")]
@@ -138,7 +138,7 @@ def plan_command(scene: SceneArg, backend: PlanBackendOpt = DEFAULT_PLANNING_BAC
     from ompl import util as ou
 
     from ctrplan.planning import plan
-    from ctrplan.scene import load_scene
+    from ctrplan.scene.loader import load_scene
     from ctrplan.viz.plan_outputs import plan_document, write_plan_outputs
 
     ou.setLogLevel(ou.LOG_WARN)

@@ -10,11 +10,11 @@ from typing import Annotated
 import numpy as np
 import typer
 
-from ctrplan.cli import HELP_SETTINGS, app
+from ctrplan.base.errors import InputError
+from ctrplan.cli.app import HELP_SETTINGS, app
 from ctrplan.cli.bench import bench_app, publish
 from ctrplan.cli.options import ModelOpt, as_option, load_backend, parse_duration
 from ctrplan.cli.progress import PlainProgress, StatusLine
-from ctrplan.errors import InputError
 
 ROADMAP_HELP = "Multi-query roadmaps: build once per scene, then answer targets in milliseconds."
 roadmap_app = typer.Typer(help=ROADMAP_HELP, short_help=ROADMAP_HELP, no_args_is_help=True,
@@ -53,12 +53,12 @@ def build_command(
     stable states only); the build is saved every minute and at the end, with the fingerprints of
     scene, robot and model.
     """
-    from ctrplan.dataio import check_output_dir, output_dir
-    from ctrplan.machine import limit_threads
-    from ctrplan.parallel import check_workers, open_pool
+    from ctrplan.base.dataio import check_output_dir, output_dir
+    from ctrplan.base.machine import limit_threads
+    from ctrplan.base.parallel import check_workers, open_pool
     from ctrplan.planning.roadmap.build import Source, build, planning_context
     from ctrplan.planning.roadmap.store import fingerprints, load_roadmap, read_meta
-    from ctrplan.scene import load_scene
+    from ctrplan.scene.loader import load_scene
 
     limit_s = parse_duration(time_limit, "s")
     flags = {"workers": "--workers", "ray": "--ray"}
@@ -142,8 +142,8 @@ class _BuildProgress:
 def read_targets(path: Path):
     """Target spheres of a targets CSV (header x,y,z,tolerance_mm; scene frame, mm); `InputError`
     naming the file and row for anything else."""
-    from ctrplan.dataio import read_table
-    from ctrplan.scene import TargetRegion
+    from ctrplan.base.dataio import read_table
+    from ctrplan.scene.objects import TargetRegion
 
     table = read_table(path, TARGET_COLUMNS)
     tol = table.column("tolerance_mm")
@@ -160,11 +160,11 @@ def plan_from_roadmap(scene: Path, roadmap_dir: Path, targets: Path | None, *, b
     of T.csv) from the roadmap; exit 0 when all are solved, 1 otherwise."""
     from rich.console import Console
 
-    from ctrplan.dataio import check_output_dir
+    from ctrplan.base.dataio import check_output_dir
     from ctrplan.planning.roadmap._adapter import planning_context
     from ctrplan.planning.roadmap.query import RoadmapPlanner
     from ctrplan.planning.roadmap.store import fingerprints, load_roadmap
-    from ctrplan.scene import load_scene
+    from ctrplan.scene.loader import load_scene
 
     if out is not None:
         check_output_dir(out)
@@ -213,7 +213,7 @@ def roadmap_document(sc, scene_file: Path, roadmap_dir: Path, rm, results: list)
 def write_roadmap_outputs(out: Path, sc, results: list) -> None:
     """obstacles.ply (scene frame, mm, as `plan --out`) and ``path_<row>.json`` per target (the result,
     its dense exactly validated path and the exact tip path, scene frame, mm)."""
-    from ctrplan.dataio import atomic_write, output_dir
+    from ctrplan.base.dataio import atomic_write, output_dir
 
     output_dir(out)
     with atomic_write(out / "obstacles.ply", "wb") as fh:
@@ -267,14 +267,14 @@ def bench_roadmap(
     roadmap rows in the Planner Arena database."""
     from rich.console import Console
 
+    from ctrplan.base.dataio import check_output_dir, output_dir
+    from ctrplan.base.machine import machine_info
     from ctrplan.bench import roadmap as roadmap_bench
     from ctrplan.bench.ompl_log import write_database, write_logs
-    from ctrplan.dataio import check_output_dir, output_dir
-    from ctrplan.machine import machine_info
     from ctrplan.planning.roadmap._adapter import planning_context
     from ctrplan.planning.roadmap.query import RoadmapPlanner
     from ctrplan.planning.roadmap.store import fingerprints, load_roadmap
-    from ctrplan.scene import load_scene
+    from ctrplan.scene.loader import load_scene
 
     if n < 1:
         raise InputError(f"--n: need at least 1 target, got {n}")

@@ -11,7 +11,7 @@ import numpy as np
 import typer
 from rich.console import Console
 
-from ctrplan.cli import HELP_SETTINGS, app
+from ctrplan.cli.app import HELP_SETTINGS, app
 from ctrplan.cli.options import RobotOpt
 
 SCENE_HELP = "Make and check planning scenes."
@@ -40,7 +40,7 @@ def from_labels(
     spacing, orientation, origin): marching cubes, light smoothing and decimation, within one voxel
     of the segmentation. NEW.yaml is the template with its obstacles replaced by these meshes.
     """
-    from ctrplan.scene_labels import scene_from_labels
+    from ctrplan.scene.labels import scene_from_labels
 
     console = Console(stderr=True)
     with console.status("meshing labels", spinner="dots") if console.is_terminal else nullcontext():
@@ -76,9 +76,9 @@ def check(
     written to OUT.yaml with a valid start and the --robot (paths made relative to OUT.yaml) and the
     command exits 0.
     """
+    from ctrplan.model.robot import Robot
     from ctrplan.planning.scene_check import check_scene
-    from ctrplan.robot import Robot
-    from ctrplan.scene import load_scene
+    from ctrplan.scene.loader import load_scene
 
     override = Robot.load(robot) if robot is not None else None
     scene = load_scene(scene_file, check_start=False, robot=override)
@@ -102,10 +102,10 @@ def check(
 
 def write_fixed(scene_file: Path, out: Path, start, robot: str | None) -> None:
     """``scene_file`` with ``start`` (and ``robot``, if given) as OUT.yaml, paths relative to it."""
-    from ctrplan.dataio import atomic_write, check_output_dir
-    from ctrplan.robot import BUILTIN_ROBOTS
-    from ctrplan.scene import relocated
-    from ctrplan.yamlio import dump_yaml, load_yaml
+    from ctrplan.base.dataio import atomic_write, check_output_dir
+    from ctrplan.base.yamlio import dump_yaml, load_yaml
+    from ctrplan.model.robot import BUILTIN_ROBOTS
+    from ctrplan.scene.loader import relocated
 
     check_output_dir(out.parent, "--fix")
     data = relocated(load_yaml(scene_file), out)

@@ -10,13 +10,13 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from ctrplan.cli import app
+from ctrplan.base.dataio import atomic_write, check_output_dir, output_dir
+from ctrplan.base.errors import InputError
+from ctrplan.base.memory import check_fits
+from ctrplan.cli.app import app
 from ctrplan.cli.options import RobotOpt
 from ctrplan.cli.progress import PlainProgress
-from ctrplan.dataio import atomic_write, check_output_dir, output_dir
-from ctrplan.errors import InputError
-from ctrplan.memory import check_fits
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 
 @app.command()
@@ -36,7 +36,7 @@ def stability(
     (conjugate-point test), where the continuation jumps (the branch folds: the robot snaps), or
     where two equilibria exist. The verdict is in the output (JSON `snap_free`); exit 2 on bad input.
     """
-    from ctrplan.stability import certify, sweep_bytes
+    from ctrplan.kinematics.stability import certify, sweep_bytes
     from ctrplan.viz.stability_plot import plot_stability
 
     if n < 1 or steps < 3:

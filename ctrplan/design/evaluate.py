@@ -34,14 +34,14 @@ from typing import Any
 
 import numpy as np
 
-from ctrplan.collision import CollisionWorld
+from ctrplan.base.errors import InputError
+from ctrplan.collision.world import CollisionWorld
 from ctrplan.design.space import Parameters, build_robot, max_strain, robot_dict, total_length_mm
 from ctrplan.design.task import DesignTask, NamedTarget, load_task
-from ctrplan.errors import InputError
 from ctrplan.kinematics import CosseratBackend
-from ctrplan.robot import Robot
-from ctrplan.scene import Scene
-from ctrplan.stability import certify, is_certified
+from ctrplan.kinematics.stability import certify, is_certified
+from ctrplan.model.robot import Robot
+from ctrplan.scene.objects import Scene
 
 #: Goal-sampling batches of the reachability screen (each of 3 x the scene's goal_samples IK seeds);
 #: it gives up after SCREEN_GIVE_UP of them when no IK solution got the tip into the target at all.
@@ -51,7 +51,7 @@ SCREEN_GIVE_UP = 2
 
 @dataclass(frozen=True)
 class DesignJob:
-    """One evaluation for `ctrplan.parallel`: the task file, the design's parameters (``{}``: the
+    """One evaluation for `ctrplan.base.parallel`: the task file, the design's parameters (``{}``: the
     base design) and the study seed."""
 
     task_file: str
@@ -62,7 +62,7 @@ class DesignJob:
 class DesignContext:
     """What the evaluations in one process share: the tasks loaded by file, each task's collision
     world (its meshes and broadphase grid built once) and the stability verdicts found so far, by
-    robot fingerprint. A worker builds one (`ctrplan.parallel.open_pool` with
+    robot fingerprint. A worker builds one (`ctrplan.base.parallel.open_pool` with
     ``context=DesignContext``) and hands it to every `evaluate_job`; a fresh one shares nothing."""
 
     def __init__(self) -> None:

@@ -31,16 +31,16 @@ from typing import Any
 import numpy as np
 import optuna
 
-from ctrplan.dataio import atomic_write
+from ctrplan.base.dataio import atomic_write
+from ctrplan.base.machine import machine_info
+from ctrplan.base.yamlio import dump_yaml, load_yaml
 from ctrplan.design.objectives import OBJECTIVES
 from ctrplan.design.ranking import Design, best_design, designs_of, nominal_of, pareto_front, ranked
 from ctrplan.design.report import pareto_figure, write_report
 from ctrplan.design.space import build_robot
 from ctrplan.design.study import finished_trials
 from ctrplan.design.task import DesignTask
-from ctrplan.machine import machine_info
-from ctrplan.stability import certify, is_certified
-from ctrplan.yamlio import dump_yaml, load_yaml
+from ctrplan.kinematics.stability import certify, is_certified
 
 
 def targets_of(record: dict) -> dict[str, dict]:
@@ -147,7 +147,7 @@ def write_best(task: DesignTask, best: Design, out: Path, study: str) -> dict[st
 def write_target_scene(task: DesignTask, target, start: np.ndarray, robot_file: Path, path: Path) -> Path:
     """The task's scene file with ``robot_file``, ``start`` and ``target``: what ``ctrplan plan``
     needs to plan that target with the design (mesh and robot paths made relative to ``path``)."""
-    from ctrplan.scene import load_scene
+    from ctrplan.scene.loader import load_scene
 
     source = task.scene.path
     data = dict(load_yaml(source).data)
@@ -176,7 +176,7 @@ def write_target_path(task: DesignTask, exact, scene_file: Path, result: dict, f
     --out`` writes for it; returns its ``path.json``."""
     from ctrplan.planning import PlanResult, validate_path
     from ctrplan.planning.budget import states_for
-    from ctrplan.scene import load_scene
+    from ctrplan.scene.loader import load_scene
     from ctrplan.viz.plan_outputs import plan_document, write_plan_outputs
 
     scene = load_scene(scene_file)

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ctrplan.dataio import save_figure
+from ctrplan.base.dataio import save_figure
 from ctrplan.design.ranking import Design, ranked
 from ctrplan.design.task import DesignTask
 
@@ -186,7 +186,7 @@ def write_report(task: DesignTask, doc: dict, designs: list[Design], best: Desig
                  nominal: Design | None, out: Path) -> Path:
     """``report.html`` in ``out`` (after the other outputs: it embeds ``pareto.png`` and each
     reached target's ``plan.png``)."""
-    from ctrplan.dataio import atomic_write
+    from ctrplan.base.dataio import atomic_write
 
     parts = [f"<h1>ctrplan design: {html.escape(task.name)}</h1>",
              f"<p>Study <b>{html.escape(doc['study'])}</b> in <code>{html.escape(doc['storage'])}</code>: "

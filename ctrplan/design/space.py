@@ -4,7 +4,7 @@ A design is a dict of parameters: one float per `Vary` (named ``tube1.curvature_
 units) and, with a catalogue, one categorical ``diameters`` naming a nested set of stock sizes
 (``"0.4/0.5 0.7/0.9 1.2/1.5"``: inner/outer diameter per tube, innermost first). Parameters left out
 keep the base robot's values, so ``{}`` is the base design itself. `robot_dict` gives the robot file
-of a design; the robot loader (`ctrplan.robot.robot_from_yaml`) decides whether it can be built.
+of a design; the robot loader (`ctrplan.model.robot.robot_from_yaml`) decides whether it can be built.
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from typing import Any
 
 import optuna
 
+from ctrplan.base.yamlio import YamlDoc
 from ctrplan.design.task import DesignTask, StockSize
-from ctrplan.robot import Robot, robot_from_yaml
-from ctrplan.yamlio import YamlDoc
+from ctrplan.model.robot import Robot, robot_from_yaml
 
 #: Name of the categorical parameter that picks the stock sizes of all tubes.
 DIAMETERS = "diameters"

@@ -19,7 +19,7 @@ record as the user attribute ``record``; the base design's record is the study a
 ``nominal``.
 
 **Executors.** The driver (this process) asks the sampler for a design, hands its evaluation to a
-`ctrplan.parallel` pool (this process, local worker processes or Ray actors, each with its own
+`ctrplan.base.parallel` pool (this process, local worker processes or Ray actors, each with its own
 `ctrplan.design.evaluate.DesignContext`) and tells the result back, keeping as many trials in flight
 as there are workers. With one worker a study is reproducible
 for a seed: the sampler is seeded, and each evaluation is a function of its parameters and the seed
@@ -37,12 +37,12 @@ from pathlib import Path
 import optuna
 from optuna.trial import TrialState
 
+from ctrplan.base.errors import InputError
+from ctrplan.base.parallel import open_pool
 from ctrplan.design.evaluate import DesignContext, DesignJob, evaluate_job
 from ctrplan.design.objectives import Objective
 from ctrplan.design.space import distributions
 from ctrplan.design.task import DesignTask
-from ctrplan.errors import InputError
-from ctrplan.parallel import open_pool
 
 RECORD = "record"
 NOMINAL = "nominal"
@@ -132,7 +132,7 @@ def run_study(task: DesignTask, study: optuna.Study, *, trials: int, seed: int =
               report: Report = _quiet) -> bool:
     """Run trials until the study has ``trials`` finished ones (or, with ``time_limit_s``, an outer
     wall-clock guard, until that long has passed: trials in flight then finish), ``workers`` at a
-    time on the executor of `ctrplan.parallel.open_pool`. The base design is evaluated first if
+    time on the executor of `ctrplan.base.parallel.open_pool`. The base design is evaluated first if
     the study has no record of it. Trials in flight when an exception (Ctrl-C) stops the run are
     marked failed. Returns whether the time limit stopped the run before ``trials`` were
     finished."""

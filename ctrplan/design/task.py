@@ -22,7 +22,7 @@ A task is YAML in mm and 1/m; paths are relative to the task file::
                                              #   search (states; default: what plan_time_s buys with
                                              #   the exact model on the reference machine)
 
-Every error names the file, the key and the line (`ctrplan.yamlio`).
+Every error names the file, the key and the line (`ctrplan.base.yamlio`).
 """
 
 from __future__ import annotations
@@ -37,11 +37,12 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
+from ctrplan.base.errors import InputError
+from ctrplan.base.yamlio import YamlDoc, load_yaml
 from ctrplan.design.objectives import OBJECTIVES, Objective
-from ctrplan.errors import InputError
-from ctrplan.robot import BUILTIN_ROBOTS, MAX_PRECURVE_STRAIN, TUBE_LIMITS, Robot
-from ctrplan.scene import Scene, TargetRegion, load_scene, target_from_yaml
-from ctrplan.yamlio import YamlDoc, load_yaml
+from ctrplan.model.robot import BUILTIN_ROBOTS, MAX_PRECURVE_STRAIN, TUBE_LIMITS, Robot
+from ctrplan.scene.loader import load_scene, target_from_yaml
+from ctrplan.scene.objects import Scene, TargetRegion
 
 #: Robot-file tube fields a task may vary (file units: 1/m, mm).
 VARY_FIELDS = ("curvature_1_per_m", "curved_length_mm", "straight_length_mm")

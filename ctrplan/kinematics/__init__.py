@@ -1,4 +1,4 @@
-"""Kinematics backends: joints in, full backbones out (`Backbone`).
+"""Kinematics backends: joints in, full backbones out (`Backbone`); elastic stability of the equilibria.
 
 ``make_backend(name, robot)`` builds one by name: ``cosserat`` (exact shooting solver), ``pinn``
 (physics-informed surrogate; shipped: ``ctrplan/data/models/pinn_nominal``) or ``hybrid`` (PINN-seeded
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 from ctrplan.kinematics.backbone import STATE_NAMES, STATE_UNITS, Backbone
 from ctrplan.kinematics.base import Backend, Body
 from ctrplan.kinematics.cosserat import CosseratBackend, SolverSettings
@@ -21,7 +21,7 @@ from ctrplan.kinematics.registry import (
     PLANNING_ORDER,
     BackendKind,
 )
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 
 def make_backend(name: str, robot: Robot | None = None, model: str | Path | None = None) -> Backend:

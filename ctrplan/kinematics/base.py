@@ -10,9 +10,9 @@ from typing import ClassVar, NamedTuple
 import numpy as np
 from numba import njit
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 from ctrplan.kinematics.backbone import Backbone
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 DEFAULT_POINTS = 64
 

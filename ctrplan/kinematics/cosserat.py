@@ -13,7 +13,7 @@ import numpy as np
 import ctrplan.kinematics._shooting as kernel
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Points, arc_fractions, outer_radius_along
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 G_TO_N_PER_MM = 1e-9  # rho [kg/m^3] * A [mm^2] * g [m/s^2] * 1e-9 = N/mm
 

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 
 
 def region_bounds_mm(bound: dict, coverage: float) -> list[float]:

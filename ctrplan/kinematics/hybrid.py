@@ -13,7 +13,7 @@ from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Points
 from ctrplan.kinematics.cosserat import CosseratBackend, SolverSettings
 from ctrplan.kinematics.pinn import PinnBackend
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 
 class HybridBackend(Backend):

@@ -18,10 +18,10 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save
 
-from ctrplan.dataio import atomic_write, plain
-from ctrplan.errors import InputError
+from ctrplan.base.dataio import atomic_write, plain
+from ctrplan.base.errors import InputError
 from ctrplan.kinematics.pinn_net import FEATURES, PinnNet
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 #: Users' own models (`ctrplan train` writes here), relative to the working directory.
 MODELS_DIR = Path("models")

@@ -28,7 +28,7 @@ from ctrplan.kinematics.blas import one_blas_thread
 from ctrplan.kinematics.cosserat import RodArrays
 from ctrplan.kinematics.model_file import load_model
 from ctrplan.kinematics.pinn_net import PinnNet
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 #: Model-card key of the calibrated backbone position error bound (`PinnBackend.error_bound`).
 ERROR_BOUND_KEY = "backbone_error_bound"

@@ -39,7 +39,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 P_REF_MM = 100.0
 FEATURES = ("paper", "equivariant")

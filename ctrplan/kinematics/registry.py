@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ctrplan.kinematics.base import Backend
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 #: The backend `ctrplan plan` (and `ctrplan.plan`) uses when none is named.
 DEFAULT_PLANNING_BACKEND = "pinn"

@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 from ctrplan.kinematics.registry import BACKEND_KINDS
 
 #: States per second of search with each backend on the reference machine (AMD EPYC, one of its 2

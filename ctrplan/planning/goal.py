@@ -21,7 +21,7 @@ from ctrplan.kinematics.base import tangent_of
 from ctrplan.planning.budget import SearchBudget
 from ctrplan.planning.ik import IKResult, TipJacobian, backend_tip_jacobian, solve_ik
 from ctrplan.planning.validity import ConfigurationChecker
-from ctrplan.scene import Scene, TargetRegion
+from ctrplan.scene.objects import Scene, TargetRegion
 
 #: Seed ranking: mm of tip distance that one radian of approach-angle excess counts as.
 ANGLE_WEIGHT_MM_PER_RAD = 20.0

@@ -18,16 +18,16 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ctrplan.collision import CollisionWorld
+from ctrplan.collision.world import CollisionWorld
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Body, arc_fractions
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.error_bound import region_bounds_mm, region_margins_mm
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY
+from ctrplan.kinematics.stability import is_certified
+from ctrplan.model.robot import Robot
 from ctrplan.planning.space import BoxSpace
-from ctrplan.robot import Robot
-from ctrplan.scene import Scene
-from ctrplan.stability import is_certified
+from ctrplan.scene.objects import Scene
 
 #: Surrogate margin (mm) for a model whose card has no calibrated error bound.
 DEFAULT_SURROGATE_MARGIN_MM = 0.3
@@ -36,7 +36,7 @@ DEFAULT_SURROGATE_MARGIN_MM = 0.3
 @dataclass(frozen=True)
 class StabilityDecision:
     """Whether states need an elastic stability test: not when the robot is certified snap-free over
-    its joint domain (`ctrplan.stability.is_certified`), else every state an exact backend computes
+    its joint domain (`ctrplan.kinematics.stability.is_certified`), else every state an exact backend computes
     is tested (an unstable one is invalid: the robot would snap there). Made once per robot."""
 
     certified: bool

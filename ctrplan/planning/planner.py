@@ -25,14 +25,14 @@ import numpy as np
 from ompl import base as ob
 from ompl import util as ou
 
-from ctrplan.collision import CollisionWorld
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
+from ctrplan.base.machine import numba_threads_at_most
+from ctrplan.collision.world import CollisionWorld
 from ctrplan.kinematics import make_backend
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.blas import single_threaded_blas
 from ctrplan.kinematics.pinn import ROW_BLOCKS
-from ctrplan.machine import numba_threads_at_most
 from ctrplan.planning.budget import GUARD_FACTOR, SearchBudget, check_max_states, states_for
 from ctrplan.planning.goal import ANGLE_WEIGHT_MM_PER_RAD, GoalSampler, TipGoal, tip_tangents
 from ctrplan.planning.ik import backend_tip_jacobian, compile_ik, solve_ik
@@ -42,7 +42,7 @@ from ctrplan.planning.scene_check import check_scene
 from ctrplan.planning.shortcut import shortcut_path
 from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate_planned_path
 from ctrplan.planning.validity import BatchMotionValidator, ConfigurationChecker, ValidityChecker
-from ctrplan.scene import Scene
+from ctrplan.scene.objects import Scene
 
 #: Share of a search's work budget between two goal-sampling batches once goals are known.
 REFILL_SHARE = 0.05

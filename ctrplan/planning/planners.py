@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 
 
 @dataclass(frozen=True)

@@ -22,13 +22,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.planners import scene_planner
 from ctrplan.planning.validity import ConfigurationChecker
-from ctrplan.scene import Scene
+from ctrplan.scene.objects import Scene
 
 #: Obstacles spanning less than this fraction of the robot's length, or more than this multiple of
 #: it, are reported as a likely unit error.
@@ -69,7 +69,7 @@ class SceneCheck:
 def check_scene(scene: Scene, *, samples: int = REACH_SAMPLES, seed: int = 0, reach: bool = True,
                 model: PlanningModel | None = None, start_backbone: Backbone | None = None) -> SceneCheck:
     """Run every check on ``scene`` (its start may lie outside the domain: see
-    `ctrplan.scene.load_scene(..., check_start=False)`). ``reach=False`` skips the sampled
+    `ctrplan.scene.loader.load_scene(..., check_start=False)`). ``reach=False`` skips the sampled
     reachability check (seconds; `plan` runs the others, which take milliseconds, before every
     search). ``model``: the plan's `PlanningModel` (its exact backend, with the stability decision,
     judges the start; its collision world is reused); default: one of the exact model.

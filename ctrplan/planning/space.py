@@ -17,7 +17,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ctrplan.robot import JointDomain, Robot, box_names
+from ctrplan.model.robot import JointDomain, Robot, box_names
 
 
 @dataclass(frozen=True)

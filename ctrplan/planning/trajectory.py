@@ -1,7 +1,7 @@
 """A timed trajectory from a validated path: the robot stops at each waypoint and moves between
 them on the straight joint-space segment the exact validation checked, every joint synchronised on
 one trapezoidal (or, for short segments, triangular) speed profile within the robot's speed and
-acceleration limits (`ctrplan.robot.JointLimits`).
+acceleration limits (`ctrplan.model.robot.JointLimits`).
 
 Along a segment from ``q_a`` to ``q_b`` the joints are ``q_a + u(t) (q_b - q_a)``, ``u`` from 0 to 1.
 Joint j then moves at ``|d_j| u'`` and accelerates at ``|d_j| u''``, so the limits on ``u`` are
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ctrplan.robot import JointLimits
+from ctrplan.model.robot import JointLimits
 
 
 @dataclass(frozen=True)

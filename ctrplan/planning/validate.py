@@ -18,13 +18,14 @@ from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
 
-from ctrplan.collision import CollisionWorld, RobotCollisionChecker
+from ctrplan.collision.checker import RobotCollisionChecker
+from ctrplan.collision.world import CollisionWorld
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
 from ctrplan.planning.goal import tip_tangents
 from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.space import BoxSpace, split_segments
-from ctrplan.scene import Scene
+from ctrplan.scene.objects import Scene
 
 
 @dataclass

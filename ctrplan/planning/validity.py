@@ -19,12 +19,13 @@ from typing import Any
 import numpy as np
 from ompl import base as ob
 
-from ctrplan.collision import CollisionWorld, RobotCollisionChecker
+from ctrplan.collision.checker import RobotCollisionChecker
+from ctrplan.collision.world import CollisionWorld
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import ArcFractions, Backend, Body, Points, arc_fractions
 from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.space import BoxSpace
-from ctrplan.scene import Scene
+from ctrplan.scene.objects import Scene
 
 
 @dataclass

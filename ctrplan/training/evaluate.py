@@ -14,11 +14,11 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.cosserat import CosseratBackend
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 from ctrplan.training.budget import MIN_EVAL_CONFIGURATIONS
 
 EVAL_SEED = 918_273_645

@@ -16,11 +16,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ctrplan.base.errors import InputError
 from ctrplan.calibration.data import MeasuredData
 from ctrplan.calibration.split import contiguous_subsample, split_rows
-from ctrplan.errors import InputError
-from ctrplan.measurement import motion_direction
-from ctrplan.robot import Robot
+from ctrplan.model.measurement import motion_direction
+from ctrplan.model.robot import Robot
 from ctrplan.training.trainer import Observations
 
 

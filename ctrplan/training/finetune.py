@@ -43,7 +43,7 @@ from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.model_file import file_sha256, read_card, save_model, write_card_field
 from ctrplan.kinematics.pinn import PinnBackend
 from ctrplan.kinematics.pinn_net import PinnNet
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 from ctrplan.training.evaluate import compare
 from ctrplan.training.fewshot import FewShot, mechanics_joints, model_joints, observations, validation_split
 from ctrplan.training.lag import fit_lag, with_lag

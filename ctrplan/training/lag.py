@@ -1,6 +1,6 @@
 """Learn from the shots the direction-dependent lag of the rotation joints that the cause library's
 backlash (an instant flip at each reversal) does not describe: play and hysteresis that take some travel
-to build up after a reversal (`ctrplan.measurement.LagCorrection`, a Prandtl-Ishlinskii model whose
+to build up after a reversal (`ctrplan.model.measurement.LagCorrection`, a Prandtl-Ishlinskii model whose
 inputs are the direction of motion and play operators of a few radii).
 
 The weights enter linearly through the joints, so they are fitted by Gauss-Newton on the extended
@@ -16,8 +16,8 @@ from dataclasses import replace
 import numpy as np
 
 from ctrplan.kinematics.cosserat import CosseratBackend
-from ctrplan.measurement import LagCorrection, play_features
-from ctrplan.robot import Robot
+from ctrplan.model.measurement import LagCorrection, play_features
+from ctrplan.model.robot import Robot
 
 #: Play radii of the correction (rad): 0 is the direction of motion (backlash); the others let the lag
 #: build up over 1, 3 and 6 degrees of travel after a reversal.

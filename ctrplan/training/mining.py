@@ -22,7 +22,7 @@ import torch
 
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.pinn_net import PinnNet
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 from ctrplan.training.samples import solve_dense
 
 #: A tip orientation error of this many degrees scores like 1 mm of tip position error.

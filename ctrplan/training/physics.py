@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from ctrplan.kinematics.cosserat import RodArrays
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 
 @dataclass(frozen=True)

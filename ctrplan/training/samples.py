@@ -18,7 +18,7 @@ import numpy as np
 
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.pinn_net import P_REF_MM
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 #: Configurations solved per call while a pool is built (progress is reported between chunks).
 SOLVE_CHUNK = 4096

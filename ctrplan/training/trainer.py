@@ -32,13 +32,13 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save
 
-from ctrplan.dataio import atomic_write
-from ctrplan.errors import InputError
+from ctrplan.base.dataio import atomic_write
+from ctrplan.base.errors import InputError
+from ctrplan.base.machine import cpu_model
 from ctrplan.kinematics.model_file import save_model
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY
 from ctrplan.kinematics.pinn_net import PinnNet
-from ctrplan.machine import cpu_model
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 from ctrplan.training.budget import TimeBudget
 from ctrplan.training.evaluate import accuracy_verdict
 from ctrplan.training.mining import HardExamples, Mining

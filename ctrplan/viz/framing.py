@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ctrplan.scene import Scene
+from ctrplan.scene.objects import Scene
 
 
 def finite_points(backbones: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ctrplan.dataio import save_figure  # noqa: E402
+from ctrplan.base.dataio import save_figure
 from ctrplan.kinematics.backbone import state_names  # noqa: E402
 from ctrplan.training.evaluate import Comparison  # noqa: E402
 

@@ -10,8 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ctrplan.collision import CollisionWorld, RobotCollisionChecker, StructureClearance
-from ctrplan.dataio import atomic_write, format_csv, output_dir
+from ctrplan.base.dataio import atomic_write, format_csv, output_dir
+from ctrplan.collision.checker import RobotCollisionChecker, StructureClearance
+from ctrplan.collision.world import CollisionWorld
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.planning.trajectory import segment_positions, time_parametrise
 from ctrplan.planning.validate import clearance_along
@@ -42,7 +43,7 @@ def plan_document(result, sc, scene_file: Path, model: str | None,
 
 
 def structure_clearances(sc, exact, world: CollisionWorld | None = None) -> list[StructureClearance]:
-    """`ctrplan.collision.StructureClearance` of every obstacle of ``sc`` along the exact backbones
+    """`ctrplan.collision.checker.StructureClearance` of every obstacle of ``sc`` along the exact backbones
     ``exact`` (robot frame) of a path, with the scene's margin and each obstacle's own."""
     checker = RobotCollisionChecker(world or CollisionWorld.from_scene(sc), sc.base_pose,
                                     exact.positions_mm.shape[1], sc.settings.margin_mm)

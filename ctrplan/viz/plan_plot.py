@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from ctrplan.dataio import save_figure
-from ctrplan.scene import Scene
+from ctrplan.base.dataio import save_figure
+from ctrplan.scene.objects import Scene
 from ctrplan.viz.framing import corridor_bounds, corridor_direction, section
 from ctrplan.viz.style import TARGET_COLOR, axis_labels, scene_colors, view_name
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ctrplan.dataio import save_figure
-from ctrplan.stability import StabilityReport
+from ctrplan.base.dataio import save_figure
+from ctrplan.kinematics.stability import StabilityReport
 
 
 def _relative_rotation_deg(sweep) -> np.ndarray:

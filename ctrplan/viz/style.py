@@ -15,7 +15,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from ctrplan.scene import Obstacle, opposite
+from ctrplan.scene.geometry import opposite
+from ctrplan.scene.objects import Obstacle
 
 #: The target region: a colour no obstacle gets.
 TARGET_COLOR = "#00b4f0"

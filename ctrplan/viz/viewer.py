@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ctrplan.dataio import atomic_write
-from ctrplan.scene import Scene
+from ctrplan.base.dataio import atomic_write
+from ctrplan.scene.objects import Scene
 from ctrplan.viz.framing import corridor_bounds, corridor_direction, finite_points
 from ctrplan.viz.style import (
     CLEARANCE_CAP_MM,

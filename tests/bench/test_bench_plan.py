@@ -9,10 +9,10 @@ import sqlite3
 import numpy as np
 import pytest
 
+from ctrplan.base.parallel import available_cores, run_jobs
 from ctrplan.bench import planning as planning_bench
 from ctrplan.bench.ompl_log import STATUS, planner_label, status_index
-from ctrplan.cli import main
-from ctrplan.parallel import available_cores, run_jobs
+from ctrplan.cli.app import main
 from tests.paths import SCENES
 
 OPEN = str((SCENES / "open.yaml").resolve())

@@ -1,4 +1,4 @@
-"""`ctrplan.parallel`: a pool with a context builds it once per worker and hands it to every job."""
+"""`ctrplan.base.parallel`: a pool with a context builds it once per worker and hands it to every job."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from collections import defaultdict
 
 import pytest
 
-from ctrplan.parallel import available_cores, run_jobs
+from ctrplan.base.parallel import available_cores, run_jobs
 
 
 class Tally:

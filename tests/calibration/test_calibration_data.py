@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from ctrplan.base.errors import InputError
 from ctrplan.calibration import (
     motion_direction,
     read_measured,
@@ -17,9 +18,8 @@ from ctrplan.calibration import (
 )
 from ctrplan.calibration.data import matrix_quaternion, quaternion_matrix
 from ctrplan.calibration.synthetic import generate
-from ctrplan.errors import InputError
 from ctrplan.kinematics import CosseratBackend
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 
 @pytest.fixture(scope="module")

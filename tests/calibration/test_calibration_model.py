@@ -12,14 +12,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from ctrplan.base.errors import InputError
 from ctrplan.calibration import CAUSES, EFFECTS, make_effect
 from ctrplan.calibration.fit import Evaluator
 from ctrplan.cli.diagnose import CandidatesOpt
-from ctrplan.effects import SIDES, MeasurementEffect, StiffnessRatio
-from ctrplan.errors import InputError
 from ctrplan.kinematics import CosseratBackend
-from ctrplan.measurement import Calibration, motion_direction
-from ctrplan.robot import JointDomain, Robot, Tube
+from ctrplan.model.causes.base import SIDES
+from ctrplan.model.causes.measurement_side import MeasurementEffect
+from ctrplan.model.causes.mechanics import StiffnessRatio
+from ctrplan.model.measurement import Calibration, motion_direction
+from ctrplan.model.robot import JointDomain, Robot, Tube
 from tests.independent.cosserat import Tubes, solve
 
 FOUR = (Tube(0.3, 0.4, 150.0, 50.0, 30e-3), Tube(0.5, 0.7, 100.0, 60.0, 15e-3),

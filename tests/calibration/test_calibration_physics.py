@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from ctrplan.calibration.selection import compare  # the held-out significance test
-from ctrplan.effects import make_effect
-from ctrplan.robot import Robot
+from ctrplan.model.causes.base import make_effect
+from ctrplan.model.robot import Robot
 
 
 def test_stiffness_ratio_is_poissons_ratio_nu_equal_e_over_2g_minus_1():

@@ -21,9 +21,9 @@ from ctrplan.calibration import (
 from ctrplan.calibration.fit import FitResult
 from ctrplan.calibration.selection import Candidate, Selection, choose, judge, off_limits
 from ctrplan.calibration.synthetic import generate
-from ctrplan.cli import main
-from ctrplan.effects import offset_limits
-from ctrplan.robot import Robot
+from ctrplan.cli.app import main
+from ctrplan.model.causes.base import offset_limits
+from ctrplan.model.robot import Robot
 from tests.independent.lab import make, test_seed
 from tests.paths import REPO
 

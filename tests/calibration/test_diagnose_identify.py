@@ -14,9 +14,10 @@ import pytest
 from ctrplan.calibration import read_measured
 from ctrplan.calibration.fit import FitResult, _derived, _pushed, _uncertainty
 from ctrplan.calibration.selection import compare, configuration_groups
-from ctrplan.cli import main
-from ctrplan.effects import StiffnessRatio, make_effect
-from ctrplan.robot import Robot
+from ctrplan.cli.app import main
+from ctrplan.model.causes.base import make_effect
+from ctrplan.model.causes.mechanics import StiffnessRatio
+from ctrplan.model.robot import Robot
 from tests.independent.cosserat import Tubes, solve
 from tests.independent.lab import LabData, make, random_rows, sweep, test_seed
 

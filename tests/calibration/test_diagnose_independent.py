@@ -13,8 +13,8 @@ import json
 import numpy as np
 
 from ctrplan.calibration import CAUSES, DiagnoseOptions, diagnose, read_measured
-from ctrplan.cli import main
-from ctrplan.robot import Robot
+from ctrplan.cli.app import main
+from ctrplan.model.robot import Robot
 from tests.independent.cosserat import Tubes, solve
 from tests.independent.lab import make, test_seed
 

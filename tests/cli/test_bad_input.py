@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ctrplan.cli import main
-from ctrplan.robot import JOINT_NAMES
+from ctrplan.cli.app import main
+from ctrplan.model.robot import JOINT_NAMES
 from tests.paths import REPO
 
 HEADER = ",".join(JOINT_NAMES)
@@ -194,8 +194,8 @@ def test_bad_option_fails_cleanly_and_writes_nothing(tmp_path, capsys, monkeypat
 def test_robot_domain_is_refused_at_load_so_sampling_stays_physical(tmp_path):
     """The domain box may only hold configurations `check_joints` accepts: then `sample_joints`
     never returns an impossible one. At the limit (beta2 - beta1 <= L1 - L2 = 45 mm) it loads."""
-    from ctrplan.errors import InputError
-    from ctrplan.robot import Robot
+    from ctrplan.base.errors import InputError
+    from ctrplan.model.robot import Robot
 
     path = tmp_path / "robot.yaml"
     for old, new, limit in (

@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ctrplan.base.dataio import TIP_NAMES, format_csv, read_table
 from ctrplan.cli import kinematics as cli_kinematics
-from ctrplan.cli import main
-from ctrplan.dataio import TIP_NAMES, format_csv, read_table
+from ctrplan.cli.app import main
 from ctrplan.kinematics import CosseratBackend
-from ctrplan.robot import JOINT_NAMES, Robot
+from ctrplan.model.robot import JOINT_NAMES, Robot
 from tests.paths import REPO
 
 EXAMPLE = REPO / "examples" / "configs.csv"

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from ctrplan.base.errors import InputError
 from ctrplan.cli.options import parse_duration
-from ctrplan.errors import InputError
 from tests.paths import REPO
 
 
@@ -25,7 +25,7 @@ def test_what_is_not_a_duration_is_one_line(text):
 @pytest.mark.parametrize("command", [["plan", "scenes/open.yaml"], ["bench", "plan", "scenes/open.yaml"],
                                      ["design", "scenes/skullbase_design.yaml"], ["train"]])
 def test_every_time_limit_reads_durations_the_same_way(command, capsys, monkeypatch):
-    from ctrplan.cli import main
+    from ctrplan.cli.app import main
 
     monkeypatch.chdir(REPO)
     assert main([*command, "--time-limit", "ten minutes"]) == 2

@@ -3,7 +3,7 @@
 outputs. Every time: the one line ``ctrplan: aborted`` on stderr, exit 130, no output folder left
 empty or half-written.
 
-The command runs in a child process through the console-script entry (`ctrplan.console.run`), with
+The command runs in a child process through the console-script entry (`ctrplan.cli.console.run`), with
 one of these triggers:
 
 * ``kernel NAME SKIP FILE TEXT``: as numba enters the compiled kernel NAME for the (SKIP+1)-th time
@@ -76,7 +76,7 @@ elif kind == "inside":
     inside(*trigger)
 else:
     watch(lambda: os.path.exists(trigger[0]))
-from ctrplan.console import run
+from ctrplan.cli.console import run
 run()
 """
 
@@ -127,7 +127,7 @@ def test_ctrl_c_inside_ompl_solve(tmp_path):
 
 def test_ctrl_c_in_a_stability_sweep_leaves_no_output_folder(tmp_path):
     out = tmp_path / "stability"
-    result = interrupt(["kernel", "solve_one", "30", "ctrplan/stability.py", "backend.forward("],
+    result = interrupt(["kernel", "solve_one", "30", "ctrplan/kinematics/stability.py", "backend.forward("],
                        ["stability", "--n", "4", "--steps", "9", "--out", str(out)], tmp_path)
     assert_aborted(result)
     assert not out.exists()

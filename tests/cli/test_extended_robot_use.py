@@ -8,8 +8,8 @@ from pathlib import Path
 
 import yaml
 
-from ctrplan.cli import main
-from ctrplan.robot import Robot
+from ctrplan.cli.app import main
+from ctrplan.model.robot import Robot
 from tests.paths import REPO
 
 

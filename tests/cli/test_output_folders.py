@@ -9,8 +9,8 @@ the parents (`scripts/mutations.py` applies it; the atomic write interrupted by 
 
 from __future__ import annotations
 
-from ctrplan.cli import main
-from ctrplan.dataio import check_output_dir
+from ctrplan.base.dataio import check_output_dir
+from ctrplan.cli.app import main
 
 
 def test_the_output_check_leaves_no_folder_of_a_deep_new_path(tmp_path):

@@ -13,10 +13,10 @@ from pathlib import Path
 
 import pytest
 
-from ctrplan.cli import main
-from ctrplan.dataio import atomic_write
-from ctrplan.errors import InputError
-from ctrplan.memory import available_bytes, backbone_bytes, check_fits
+from ctrplan.base.dataio import atomic_write
+from ctrplan.base.errors import InputError
+from ctrplan.base.memory import available_bytes, backbone_bytes, check_fits
+from ctrplan.cli.app import main
 
 CONFIGS = "beta1,beta2,beta3,alpha1,alpha2,alpha3\n-20,-10,-5,0.1,0.2,0.3\n-30,-20,-10,1,-1,0.5\n"
 

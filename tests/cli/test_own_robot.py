@@ -7,7 +7,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from ctrplan.cli import main
+from ctrplan.cli.app import main
 from tests.paths import REPO
 
 SHIPPED = REPO / "ctrplan" / "data" / "models"

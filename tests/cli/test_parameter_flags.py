@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from ctrplan.cli import main
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
+from ctrplan.cli.app import main
 from ctrplan.kinematics import make_backend
 from ctrplan.training.fewshot import split_shots
 from ctrplan.training.trainer import get_recipe

@@ -16,7 +16,7 @@ import time
 import pytest
 from test_cli_kinematics import run
 
-from ctrplan.cli import main
+from ctrplan.cli.app import main
 from ctrplan.kinematics.model_file import resolve_model
 from tests.paths import REPO
 
@@ -105,7 +105,7 @@ def test_ctrl_c_prints_one_line(tmp_path):
     script = ("import sys\n"
               "from pathlib import Path\n"
               "import ctrplan.planning as planning\n"
-              "from ctrplan.cli import main\n"
+              "from ctrplan.cli.app import main\n"
               "plan = planning.plan\n"
               "def announced_plan(*args, **kwargs):\n"
               f"    Path({str(started)!r}).touch()\n"
@@ -142,7 +142,7 @@ def test_help_is_never_cut_and_flags_have_no_metavar(capsys, monkeypatch, comman
 
 
 def test_version_does_not_import_the_commands():
-    code = ("import sys\nfrom ctrplan.cli import main\nrc = main(['--version'])\n"
+    code = ("import sys\nfrom ctrplan.cli.app import main\nrc = main(['--version'])\n"
             "print(rc, 'torch' in sys.modules, 'ompl' in sys.modules, 'matplotlib' in sys.modules)")
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,

@@ -9,7 +9,7 @@ import re
 import time
 
 import ctrplan.cli.progress as progress
-from ctrplan.cli import main
+from ctrplan.cli.app import main
 from tests.paths import SCENES
 
 

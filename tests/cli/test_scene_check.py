@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from ctrplan.cli import main
+from ctrplan.cli.app import main
 from ctrplan.kinematics import CosseratBackend
-from ctrplan.scene import load_scene, transform_points
+from ctrplan.scene.geometry import transform_points
+from ctrplan.scene.loader import load_scene
 from tests.paths import SCENES
 
 OPEN = (SCENES / "open.yaml").read_text()

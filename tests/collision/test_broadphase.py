@@ -12,13 +12,16 @@ import numpy as np
 import pytest
 import trimesh
 
-from ctrplan import broadphase
-from ctrplan.broadphase import DistanceGrid, capsule_contact, geometry_key, grid_for
-from ctrplan.collision import CollisionWorld, RobotCollisionChecker
+from ctrplan.collision import broadphase
+from ctrplan.collision.broadphase import DistanceGrid, capsule_contact, geometry_key, grid_for
+from ctrplan.collision.checker import RobotCollisionChecker
+from ctrplan.collision.world import CollisionWorld
 from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.space import BoxSpace
 from ctrplan.planning.validity import ConfigurationChecker
-from ctrplan.scene import Obstacle, load_scene, make_pose
+from ctrplan.scene.geometry import make_pose
+from ctrplan.scene.loader import load_scene
+from ctrplan.scene.objects import Obstacle
 from tests.paths import SCENES
 
 
@@ -240,7 +243,7 @@ def test_fcl_contact_for_every_state_the_broadphase_cannot_clear(cosserat):
 
 
 def test_compiled_capsule_frames_match_numpy_frames():
-    from ctrplan.collision import _frames_and_boxes, capsule_frames
+    from ctrplan.collision.capsules import _frames_and_boxes, capsule_frames
 
     rng = np.random.default_rng(4)
     a = rng.normal(size=(50, 3)) * 10

@@ -8,14 +8,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from ctrplan.collision import (
-    CapsuleChain,
-    CollisionWorld,
-    RobotCollisionChecker,
-    segment_frames,
-    segment_radii,
-)
-from ctrplan.scene import Obstacle, frame_from_z, make_pose
+from ctrplan.collision.capsules import CapsuleChain, segment_frames, segment_radii
+from ctrplan.collision.checker import RobotCollisionChecker
+from ctrplan.collision.world import CollisionWorld
+from ctrplan.scene.geometry import frame_from_z, make_pose
+from ctrplan.scene.objects import Obstacle
 
 
 def straight(n: int = 11, length: float = 100.0) -> np.ndarray:

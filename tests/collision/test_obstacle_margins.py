@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from ctrplan.broadphase import DistanceGrid
-from ctrplan.collision import CollisionWorld, RobotCollisionChecker
-from ctrplan.scene import Obstacle, make_pose
+from ctrplan.collision.broadphase import DistanceGrid
+from ctrplan.collision.checker import RobotCollisionChecker
+from ctrplan.collision.world import CollisionWorld
+from ctrplan.scene.geometry import make_pose
+from ctrplan.scene.objects import Obstacle
 
 
 @pytest.fixture(autouse=True)

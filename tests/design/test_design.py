@@ -18,15 +18,15 @@ import optuna
 import pytest
 from scipy.optimize import brentq
 
-from ctrplan.cli import main
+from ctrplan.base.parallel import run_jobs
+from ctrplan.cli.app import main
 from ctrplan.design.evaluate import DesignContext, DesignJob, evaluate, evaluate_job
 from ctrplan.design.task import load_task
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.kinematics.cosserat import SolverSettings
-from ctrplan.parallel import run_jobs
+from ctrplan.kinematics.stability import critical_length_mm, is_certified
+from ctrplan.model.robot import Robot
 from ctrplan.planning import BoxSpace
-from ctrplan.robot import Robot
-from ctrplan.stability import critical_length_mm, is_certified
 
 # One tube: 50 mm straight, 40 mm curved, translation beta in [-10, 0], any rotation. In front of the
 # plate it is a straight segment and a circular arc of curvature kappa: the tip lies at the distance

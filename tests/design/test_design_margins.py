@@ -11,7 +11,7 @@ import pytest
 from ctrplan.design.evaluate import DesignContext, _design_scene
 from ctrplan.design.task import load_task
 from ctrplan.kinematics import CosseratBackend
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 from tests.independent.geometry import sphere_gap
 from tests.paths import SCENES
 

@@ -13,8 +13,10 @@ import numpy as np
 import pytest
 import yaml
 
-from ctrplan.cli import main
-from ctrplan.collision import CollisionWorld, RobotCollisionChecker
+from ctrplan.base.errors import InputError
+from ctrplan.cli.app import main
+from ctrplan.collision.checker import RobotCollisionChecker
+from ctrplan.collision.world import CollisionWorld
 from ctrplan.design.space import (
     DIAMETERS,
     build_robot,
@@ -24,8 +26,7 @@ from ctrplan.design.space import (
     total_length_mm,
 )
 from ctrplan.design.task import load_task
-from ctrplan.errors import InputError
-from ctrplan.robot import Robot, Tube
+from ctrplan.model.robot import Robot, Tube
 from tests.paths import REPO
 
 SKULLBASE_TASK = REPO / "scenes" / "skullbase_design.yaml"
@@ -169,7 +170,7 @@ def test_domain_corners_decide_tube_order():
     needs L1 - L2 >= 20 (closed form at the corner), whatever the rotations. A design that breaks
     it is refused by the robot loader, so it never reaches the stability sweep."""
     def robot(l2: float) -> Robot:
-        from ctrplan.robot import JointDomain
+        from ctrplan.model.robot import JointDomain
 
         tubes = (Tube(0.4, 0.5, 100.0, 40.0, 0.02), Tube(0.7, 0.9, 60.0, l2 - 60.0, 0.01))
         dom = JointDomain(((-10.0, 0.0), (0.0, 20.0), (-math.pi, math.pi), (0.5, 1.0)))

@@ -1,5 +1,5 @@
 """Measured data with hidden effects, made by the independent integrator (`cosserat`) and effects
-implemented here -- not by `ctrplan.effects`/`synthetic`.
+implemented here -- not by `ctrplan.model.causes`/`synthetic`.
 
 Two acquisitions: a lab ``sweep`` (some joints sweep slowly back and forth -- small steps, reversals,
 near-repeated configurations -- the others stay fixed) and ``random`` rows (every joint drawn anew in

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
+from ctrplan.base.errors import InputError
 from ctrplan.cli.options import BackendOpt, ModelOpt, load_backend
-from ctrplan.errors import InputError
 from ctrplan.kinematics import BACKEND_KINDS, BACKENDS, MODEL_BACKENDS, PLANNING_ORDER, make_backend
 from ctrplan.planning.budget import states_for
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ctrplan.kinematics import CosseratBackend, SolverSettings
-from ctrplan.robot import Loads, Robot
+from ctrplan.model.robot import Loads, Robot
 
 
 def _case_backend(robot: Robot, case: dict) -> CosseratBackend:

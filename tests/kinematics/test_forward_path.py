@@ -11,9 +11,9 @@ import math
 import numpy as np
 
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.kinematics.stability import critical_length_mm
+from ctrplan.model.robot import Robot
 from ctrplan.planning import StabilityDecision
-from ctrplan.robot import Robot
-from ctrplan.stability import critical_length_mm
 from tests.independent.cosserat import Tubes, solve
 from tests.planning.test_planning_model import _pair
 

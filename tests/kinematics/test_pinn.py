@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 from ctrplan.kinematics import CosseratBackend, make_backend
 from ctrplan.kinematics.model_file import save_model
 from ctrplan.kinematics.pinn import PinnBackend
@@ -279,7 +279,7 @@ def test_training_resumes_from_checkpoint(robot, tmp_path):
 
 @pytest.mark.parametrize("backend", ["pinn", "hybrid"])
 def test_fk_cli_accepts_learned_backends(backend, tmp_path):
-    from ctrplan.cli import main
+    from ctrplan.cli.app import main
 
     configs = REPO / "examples" / "configs.csv"
     out = tmp_path / "tips.csv"
@@ -292,7 +292,7 @@ def test_fk_cli_accepts_learned_backends(backend, tmp_path):
 
 @pytest.mark.parametrize("setting", ["nope=1", "dense_batch", "steps=5", "name=fast"])
 def test_train_rejects_bad_recipe_overrides(setting, capsys):
-    from ctrplan.cli import main
+    from ctrplan.cli.app import main
 
     assert main(["train", "--steps", "1", "--set", setting]) == 2
     err = capsys.readouterr().err.strip().splitlines()

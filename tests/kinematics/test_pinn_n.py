@@ -12,11 +12,11 @@ import pytest
 import torch
 from test_rhs_agree import LOADS, robot_of
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.kinematics.pinn import PinnBackend
 from ctrplan.kinematics.pinn_net import PinnNet
-from ctrplan.robot import Loads, Robot
+from ctrplan.model.robot import Loads, Robot
 from ctrplan.training.losses import boundary_residual, tracked_tips
 from ctrplan.training.physics import TubeTensors
 from ctrplan.training.trainer import get_recipe, train
@@ -200,7 +200,7 @@ def test_training_runs_for_one_and_four_tubes(n, tmp_path):
 
 
 def test_train_cli_with_fixed_joints_and_a_tube_curved_from_its_base(tmp_path, capsys):
-    from ctrplan.cli import main
+    from ctrplan.cli.app import main
 
     path = tmp_path / "fixed.yaml"
     path.write_text(FIXED_JOINTS_YAML)

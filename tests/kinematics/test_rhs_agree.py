@@ -12,7 +12,7 @@ import torch
 
 from ctrplan.kinematics import _shooting
 from ctrplan.kinematics.cosserat import RodArrays
-from ctrplan.robot import JointDomain, Loads, Robot, Tube
+from ctrplan.model.robot import JointDomain, Loads, Robot, Tube
 from ctrplan.training.physics import TubeTensors, rhs
 
 LOADS = Loads(gravity_m_s2=(0.0, -9.81, 3.0), tip_force_n=(0.2, -0.1, 0.05))

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ctrplan.kinematics.cosserat import CosseratBackend, SolverSettings
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 from tests.independent.cosserat import Tubes, integrate, solve
 
 ROBOT = """

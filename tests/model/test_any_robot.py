@@ -9,11 +9,11 @@ import textwrap
 import numpy as np
 import pytest
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 from ctrplan.kinematics import CosseratBackend, SolverSettings
+from ctrplan.kinematics.stability import check_domain, critical_length_mm
+from ctrplan.model.robot import JointDomain, Loads, Robot, Tube
 from ctrplan.planning.space import BoxSpace
-from ctrplan.robot import JointDomain, Loads, Robot, Tube
-from ctrplan.stability import check_domain, critical_length_mm
 from tests.paths import REPO
 
 NU = 0.3
@@ -281,7 +281,7 @@ def test_one_tube_under_load_solves_single_and_batched():
 
 def test_two_tube_scene_plans_with_its_own_pinn_by_default(capsys):
     """`ctrplan plan scenes/two_tube.yaml` picks the shipped PINN trained for that robot."""
-    from ctrplan.cli import main
+    from ctrplan.cli.app import main
 
     repo = REPO
     assert main(["plan", str(repo / "scenes" / "two_tube.yaml"), "--json", "--seed", "0"]) == 0

@@ -1,4 +1,4 @@
-"""CSV reading with file line numbers, and atomic writing (ctrplan.dataio)."""
+"""CSV reading with file line numbers, and atomic writing (ctrplan.base.dataio)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import os
 import numpy as np
 import pytest
 
-from ctrplan.dataio import atomic_write, format_csv, read_table
-from ctrplan.errors import DomainError, InputError
-from ctrplan.robot import JOINT_NAMES, read_joints
+from ctrplan.base.dataio import atomic_write, format_csv, read_table
+from ctrplan.base.errors import DomainError, InputError
+from ctrplan.model.robot import JOINT_NAMES, read_joints
 
 HEADER = ",".join(JOINT_NAMES)
 

@@ -7,10 +7,10 @@ from importlib import resources
 
 import pytest
 
-from ctrplan.dataio import parse_number
-from ctrplan.errors import InputError
-from ctrplan.robot import Robot
-from ctrplan.yamlio import load_yaml
+from ctrplan.base.dataio import parse_number
+from ctrplan.base.errors import InputError
+from ctrplan.base.yamlio import load_yaml
+from ctrplan.model.robot import Robot
 
 NOMINAL_YAML = resources.files("ctrplan.data").joinpath("nominal.yaml").read_text()
 

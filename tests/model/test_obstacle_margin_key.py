@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from ctrplan.errors import InputError
-from ctrplan.scene import load_scene
+from ctrplan.base.errors import InputError
+from ctrplan.scene.loader import load_scene
 from tests.paths import SCENES
 
 

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from ctrplan.errors import InputError
-from ctrplan.scene import PlannerSettings, TargetRegion, load_scene
+from ctrplan.base.errors import InputError
+from ctrplan.scene.loader import load_scene
+from ctrplan.scene.objects import PlannerSettings, TargetRegion
 from tests.paths import SCENES
 
 GOOD = """\

@@ -16,8 +16,8 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from ctrplan.cli import main
-from ctrplan.scene import load_scene
+from ctrplan.cli.app import main
+from ctrplan.scene.loader import load_scene
 from tests.paths import REPO
 
 SPACING = np.array([0.6, 0.9, 1.3])  # mm along i, j, k
@@ -147,7 +147,7 @@ def test_an_nrrd_volume_is_placed_by_its_space_directions(inputs, tmp_path):
 
 def test_a_transposed_rotation_would_miss_the_shape(inputs):
     """The check above can fail: the same voxels placed with the rotation transposed lie far off."""
-    from ctrplan.segmentation import LabelVolume, label_mesh
+    from ctrplan.scene.segmentation import LabelVolume, label_mesh
 
     A = affine()
     A[:3, :3] = ROTATION.T * SPACING

@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
+from ctrplan.model.robot import Robot
 from ctrplan.planning import validate_path
-from ctrplan.robot import Robot
-from ctrplan.scene import load_scene
+from ctrplan.scene.loader import load_scene
 from tests.independent.cosserat import Tubes, solve
 from tests.independent.geometry import axis_angle
 from tests.paths import REPO

@@ -5,8 +5,9 @@ from __future__ import annotations
 import pytest
 
 from ctrplan.kinematics import CosseratBackend
-from ctrplan.robot import Robot
-from ctrplan.scene import Scene, load_scene
+from ctrplan.model.robot import Robot
+from ctrplan.scene.loader import load_scene
+from ctrplan.scene.objects import Scene
 from tests.paths import SCENES
 
 

@@ -14,14 +14,14 @@ import time
 import numpy as np
 import pytest
 
-from ctrplan.cli import main
+from ctrplan.cli.app import main
 from ctrplan.design.ranking import Design, best_design
 from ctrplan.design.task import Objective
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend
+from ctrplan.model.robot import Robot
 from ctrplan.planning import plan
 from ctrplan.planning.budget import GUARD_FACTOR, states_for
-from ctrplan.robot import Robot
-from ctrplan.scene import load_scene
+from ctrplan.scene.loader import load_scene
 from tests.design.test_design import read_csv, write_one_tube_task
 from tests.paths import SCENES
 
@@ -156,8 +156,8 @@ def test_a_study_that_beats_nothing_returns_the_base_design(tmp_path, capsys, mo
 def test_task_and_scene_work_budgets(tmp_path, value, error):
     """``budget.plan_states`` of a task and ``planner.max_states`` of a scene: integers >= 1 (states),
     else one error naming the key and line."""
+    from ctrplan.base.errors import InputError
     from ctrplan.design.task import load_task
-    from ctrplan.errors import InputError
 
     task_file = write_one_tube_task(tmp_path)
     text = task_file.read_text().replace("plan_time_s: 3.0}", f"plan_time_s: 3.0, plan_states: {value}}}")

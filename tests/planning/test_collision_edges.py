@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ctrplan.model.robot import Robot
 from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.validity import EDGE_BATCHES, ConfigurationChecker, bisection_order, edge_batches
-from ctrplan.robot import Robot
 
 
 @pytest.mark.parametrize("k", [0, 1, 14, 15, 16, 31, 200])

@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ctrplan.model.robot import Robot
 from ctrplan.planning import ConfigurationChecker, PlanningModel, plan, resolve_backend
 from ctrplan.planning.corridor import CorridorSampler
 from ctrplan.planning.planner import search
 from ctrplan.planning.space import BoxSpace
-from ctrplan.robot import Robot
-from ctrplan.scene import load_scene
+from ctrplan.scene.loader import load_scene
 from tests.paths import SCENES
 
 

@@ -9,13 +9,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ctrplan.collision import RobotCollisionChecker
+from ctrplan.collision.checker import RobotCollisionChecker
 from ctrplan.kinematics import CosseratBackend, make_backend
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend
 from ctrplan.planning import ConfigurationChecker
 from ctrplan.planning.model import PlanningModel, planning_backend
 from ctrplan.planning.planner import EXACT_GOAL_TOL_MM, exact_goal
-from ctrplan.scene import Obstacle, TargetRegion, load_scene
+from ctrplan.scene.loader import load_scene
+from ctrplan.scene.objects import Obstacle, TargetRegion
 from tests.paths import SCENES
 
 

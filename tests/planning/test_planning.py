@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from ctrplan.cli import main
+from ctrplan.cli.app import main
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend
+from ctrplan.model.robot import Robot
 from ctrplan.planning import (
     BoxSpace,
     ConfigurationChecker,
@@ -32,8 +33,7 @@ from ctrplan.planning.corridor import CorridorRRTConnect
 from ctrplan.planning.ik import _damped_step, _lm_iteration, compile_ik, fd_tip_jacobian
 from ctrplan.planning.planners import PLANNERS
 from ctrplan.planning.validity import bisection_order
-from ctrplan.robot import Robot
-from ctrplan.scene import load_scene
+from ctrplan.scene.loader import load_scene
 from tests.independent.cosserat import Tubes, solve
 from tests.independent.geometry import axis_angle, box_gap, sphere_gap
 from tests.paths import SCENES
@@ -432,9 +432,9 @@ def test_a_tiny_budget_ends_the_search_by_work_not_by_the_clock(open_scene, exac
 def test_library_resolve_backend_does_not_fall_back(tmp_path):
     from importlib import resources
 
-    from ctrplan.errors import InputError
+    from ctrplan.base.errors import InputError
+    from ctrplan.model.robot import Robot
     from ctrplan.planning import resolve_backend
-    from ctrplan.robot import Robot
 
     text = resources.files("ctrplan.data").joinpath("nominal.yaml").read_text()
     (tmp_path / "r.yaml").write_text(text.replace("curvature_1_per_m: 28.0", "curvature_1_per_m: 30.0")

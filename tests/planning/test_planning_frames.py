@@ -16,7 +16,7 @@ import pytest
 
 from ctrplan.planning import plan, validate_path
 from ctrplan.planning.validate import clearance_along
-from ctrplan.scene import load_scene
+from ctrplan.scene.loader import load_scene
 from tests.independent.cosserat import Tubes, solve
 from tests.independent.geometry import axis_angle, box_gap, sphere_gap
 

@@ -8,12 +8,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 from ctrplan.kinematics import make_backend
 from ctrplan.planning import ConfigurationChecker, GoalSampler, plan, validate_path
 from ctrplan.planning.goal import tip_tangents
 from ctrplan.planning.model import PlanningModel
-from ctrplan.scene import load_scene
+from ctrplan.scene.loader import load_scene
 from tests.paths import SCENES
 
 

@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 import yaml
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.kinematics.stability import critical_length_mm
+from ctrplan.model.robot import JointDomain, Robot, Tube
 from ctrplan.planning import ConfigurationChecker, PlanningModel, exact_backend, plan, validate_planned_path
 from ctrplan.planning.planners import PLANNERS
 from ctrplan.planning.scene_check import check_scene
-from ctrplan.robot import JointDomain, Robot, Tube
-from ctrplan.scene import load_scene
-from ctrplan.stability import critical_length_mm
+from ctrplan.scene.loader import load_scene
 
 OPEN = Path(__file__).resolve().parents[2] / "scenes" / "open.yaml"
 E_MPA = 50e3

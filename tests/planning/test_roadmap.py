@@ -7,15 +7,16 @@ import json
 import numpy as np
 import pytest
 
-from ctrplan.cli import main
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
+from ctrplan.base.parallel import InlinePool
+from ctrplan.cli.app import main
 from ctrplan.kinematics import CosseratBackend
-from ctrplan.parallel import InlinePool
 from ctrplan.planning import BoxSpace
 from ctrplan.planning.roadmap.build import Source, build
 from ctrplan.planning.roadmap.query import RoadmapPlanner
 from ctrplan.planning.roadmap.store import fingerprints, load_roadmap
-from ctrplan.scene import TargetRegion, load_scene
+from ctrplan.scene.loader import load_scene
+from ctrplan.scene.objects import TargetRegion
 from tests.independent.cosserat import Tubes, solve
 from tests.independent.geometry import axis_angle, box_gap, sphere_gap
 from tests.paths import SCENES

@@ -7,12 +7,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ctrplan.collision import CollisionWorld, RobotCollisionChecker
+from ctrplan.collision.checker import RobotCollisionChecker
+from ctrplan.collision.world import CollisionWorld
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend
 from ctrplan.planning import BoxSpace, plan, validate_path
-from ctrplan.scene import Obstacle, Scene, load_scene, make_pose
+from ctrplan.scene.geometry import make_pose
+from ctrplan.scene.loader import load_scene
+from ctrplan.scene.objects import Obstacle, Scene
 from tests.independent.geometry import box_gap
 from tests.paths import SCENES
 

@@ -10,11 +10,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ctrplan.collision import CollisionWorld, RobotCollisionChecker
+from ctrplan.collision.checker import RobotCollisionChecker
+from ctrplan.collision.world import CollisionWorld
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.model.robot import Robot
 from ctrplan.planning import plan, validate_path
-from ctrplan.robot import Robot
-from ctrplan.scene import load_scene
+from ctrplan.scene.loader import load_scene
 from tests.independent.geometry import sphere_gap
 from tests.paths import SCENES
 

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 import ctrplan
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
+from ctrplan.base.yamlio import load_yaml
+from ctrplan.model.robot import JointLimits, Robot, robot_from_yaml
 from ctrplan.planning.trajectory import time_parametrise
-from ctrplan.robot import JointLimits, Robot, robot_from_yaml
-from ctrplan.yamlio import load_yaml
 
 LIMITS = JointLimits(speed_mm_per_s=4.0, speed_rad_per_s=0.5, acceleration_mm_per_s2=8.0,
                      acceleration_rad_per_s2=2.0)

@@ -8,14 +8,14 @@ import math
 
 import numpy as np
 
-from ctrplan.cli import main
+from ctrplan.cli.app import main
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.kinematics.stability import critical_length_mm, is_certified, user_certificate_dir
+from ctrplan.model.robot import Robot
 from ctrplan.planning import plan, validate_path
 from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.validity import ConfigurationChecker
-from ctrplan.robot import Robot
-from ctrplan.scene import load_scene
-from ctrplan.stability import critical_length_mm, is_certified, user_certificate_dir
+from ctrplan.scene.loader import load_scene
 from tests.model.test_any_robot import overlapping_pair
 from tests.paths import REPO
 

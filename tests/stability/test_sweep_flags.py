@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from ctrplan.kinematics import CosseratBackend, SolverSettings
-from ctrplan.stability import critical_length_mm, sweep_rotation
+from ctrplan.kinematics.stability import critical_length_mm, sweep_rotation
 from tests.model.test_any_robot import overlapping_pair
 
 ALPHA1 = 1.0  # rad: tube 1 stays here while tube 2 turns through [-pi, pi]: the pair passes opposed

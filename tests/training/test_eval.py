@@ -8,14 +8,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.kinematics.error_bound import region_bounds_mm
 from ctrplan.kinematics.model_file import read_card, resolve_model
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY
+from ctrplan.model.robot import Robot
 from ctrplan.planning.model import RegionMarginBackend, planning_backend
-from ctrplan.robot import Robot
-from ctrplan.scene import load_scene
+from ctrplan.scene.loader import load_scene
 from ctrplan.training.evaluate import (
     CALIBRATION_SEED,
     COVERAGES,
@@ -137,7 +137,7 @@ def test_shipped_model_card_has_a_calibrated_bound_that_the_planner_uses(pinn):
 
 
 def test_eval_model_prints_the_tail(tmp_path, capsys):
-    from ctrplan.cli import main
+    from ctrplan.cli.app import main
 
     assert main(["eval-model", "--n", "30", "--points", "20", "--out", str(tmp_path)]) in (0, None)
     out = capsys.readouterr().out

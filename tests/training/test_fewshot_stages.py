@@ -14,7 +14,7 @@ import pytest
 from safetensors.numpy import load_file
 
 from ctrplan.calibration.split import contiguous_subsample
-from ctrplan.cli import main
+from ctrplan.cli.app import main
 from tests.independent import lab
 
 ROWS, SHOTS, HELDOUT_LAST = 150, 50, 0.3

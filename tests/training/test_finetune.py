@@ -19,9 +19,9 @@ import pytest
 from ctrplan.calibration.data import write_measured_csv
 from ctrplan.calibration.split import split_rows
 from ctrplan.calibration.synthetic import generate
-from ctrplan.cli import main
+from ctrplan.cli.app import main
 from ctrplan.kinematics import make_backend
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 ROWS, SHOTS, HELDOUT = 160, 60, 0.5
 

@@ -1,5 +1,5 @@
 """The real-like lab (`tests/independent/lab.real_like`: fixed joints, play + hysteresis lag, a large
-tracker registration, only tube 1 measured) and the learned lag correction of `ctrplan.measurement`,
+tracker registration, only tube 1 measured) and the learned lag correction of `ctrplan.model.measurement`,
 checked against closed forms."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from ctrplan.measurement import LagCorrection, motion_direction, play_features
-from ctrplan.robot import Robot
+from ctrplan.model.measurement import LagCorrection, motion_direction, play_features
+from ctrplan.model.robot import Robot
 from tests.independent import lab
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from ctrplan.cli import main
+from ctrplan.cli.app import main
 from ctrplan.training.evaluate import ACCURACY_TARGET
 from ctrplan.training.trainer import get_recipe, pool_size, train
 from tests.cli.test_ctrl_c import interrupt

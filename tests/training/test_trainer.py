@@ -67,7 +67,7 @@ def test_cli_train_with_a_time_limit_reports_its_last_step_and_leaves_no_checkpo
     import json
     import re
 
-    from ctrplan.cli import main
+    from ctrplan.cli.app import main
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("TTY_COMPATIBLE", "1")  # rich draws the bar as on a terminal

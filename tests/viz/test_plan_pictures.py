@@ -12,7 +12,7 @@ import pytest
 from matplotlib.collections import PolyCollection
 from matplotlib.colors import to_rgb
 
-from ctrplan.scene import load_scene
+from ctrplan.scene.loader import load_scene
 from ctrplan.viz import viewer_data, write_viewer
 from ctrplan.viz.plan_plot import plan_figure
 from ctrplan.viz.style import scene_colors

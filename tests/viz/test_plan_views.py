@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from matplotlib.colors import to_hex
 
-from ctrplan.errors import InputError
-from ctrplan.scene import load_scene
+from ctrplan.base.errors import InputError
+from ctrplan.scene.loader import load_scene
 from ctrplan.viz import viewer_data, write_viewer
 from ctrplan.viz.framing import section
 from ctrplan.viz.plan_plot import plan_figure
@@ -97,7 +97,7 @@ def test_scene_anatomy_errors_name_the_key(tmp_path, anatomy, fragment):
 
 
 def test_plan_figure_names_every_obstacle_target_and_tip_trace(tmp_path):
-    from ctrplan.scene import load_scene
+    from ctrplan.scene.loader import load_scene
     from ctrplan.viz.plan_plot import plan_figure, plot_plan
 
     balls = "".join(f"- name: ball{i:02d}\n  sphere:\n    center: [{-60 + 8 * i}.0, 40.0, 150.0]\n"
@@ -121,7 +121,7 @@ def test_plan_figure_names_every_obstacle_target_and_tip_trace(tmp_path):
 
 
 def test_viewer_has_a_scale_bar(tmp_path):
-    from ctrplan.scene import load_scene
+    from ctrplan.scene.loader import load_scene
     from ctrplan.viz import viewer_data, write_viewer
 
     scene = load_scene(REPO / "scenes" / "open.yaml")

@@ -23,7 +23,7 @@ from ctrplan.planning.planner import compile_kernels, exact_goal, search
 from ctrplan.planning.space import BoxSpace
 from ctrplan.planning.validate import ValidatedPath, validate_path
 from ctrplan.planning.validity import ConfigurationChecker
-from ctrplan.scene import Scene, TargetRegion
+from ctrplan.scene.objects import Scene, TargetRegion
 
 
 @dataclass

@@ -25,7 +25,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 from ctrplan.planning.roadmap._adapter import (
     PlanningContext,
     check_edges,
@@ -36,7 +36,7 @@ from ctrplan.planning.roadmap._adapter import (
     single_query_path,
 )
 from ctrplan.planning.roadmap.store import Roadmap, fingerprints, load_roadmap, read_meta
-from ctrplan.scene import TargetRegion
+from ctrplan.scene.objects import TargetRegion
 
 #: Seconds between checkpoints of a running build.
 CHECKPOINT_S = 60.0
@@ -60,7 +60,7 @@ SEED_STATES = 20_000
 
 
 class Pool(Protocol):
-    """What the builder needs of an executor (`ctrplan.parallel.Pool`, opened with a `Source` or
+    """What the builder needs of an executor (`ctrplan.base.parallel.Pool`, opened with a `Source` or
     another factory of the `PlanningContext` as its ``context``: jobs are called ``fn(ctx, spec)``)."""
 
     def submit(self, fn: Callable[[PlanningContext, Any], dict], spec: Any) -> int: ...
@@ -71,7 +71,7 @@ class Pool(Protocol):
 @dataclass(frozen=True)
 class Source:
     """How a worker builds its planning context: scene file, backend name, PINN model (or None).
-    Called, it builds the context (`ctrplan.parallel.open_pool`'s ``context``: once per worker)."""
+    Called, it builds the context (`ctrplan.base.parallel.open_pool`'s ``context``: once per worker)."""
 
     scene_file: str
     backend: str
@@ -79,7 +79,7 @@ class Source:
 
     def __call__(self) -> PlanningContext:
         from ctrplan.kinematics import make_backend
-        from ctrplan.scene import load_scene
+        from ctrplan.scene.loader import load_scene
 
         scene = load_scene(self.scene_file)
         return planning_context(scene, make_backend(self.backend, scene.robot, self.model), self.model)

@@ -33,7 +33,7 @@ from ctrplan.planning.roadmap._adapter import (
     validate,
 )
 from ctrplan.planning.roadmap.store import Roadmap
-from ctrplan.scene import TargetRegion
+from ctrplan.scene.objects import TargetRegion
 
 #: Connected nodes whose tips are nearest the target that IK starts from.
 NEAREST = 24

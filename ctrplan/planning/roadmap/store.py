@@ -17,11 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from ctrplan.broadphase import geometry_key
-from ctrplan.dataio import atomic_write
-from ctrplan.errors import InputError
+from ctrplan.base.dataio import atomic_write
+from ctrplan.base.errors import InputError
+from ctrplan.collision.broadphase import geometry_key
 from ctrplan.kinematics.base import Backend
-from ctrplan.scene import Scene
+from ctrplan.scene.objects import Scene
 
 FORMAT = "ctrplan-roadmap-1"
 META_FILE = "roadmap.json"

@@ -10,7 +10,7 @@ from typing import Any
 
 import yaml
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 
 KeyPath = tuple[str | int, ...]
 

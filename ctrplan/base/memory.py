@@ -13,7 +13,7 @@ import math
 import os
 from pathlib import Path
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 
 #: The share of the available memory a command's arrays may take (the rest: Python, torch, plots).
 MEMORY_SHARE = 0.5

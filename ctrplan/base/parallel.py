@@ -27,8 +27,8 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from contextlib import ExitStack, contextmanager
 from typing import Any, TypeVar
 
-from ctrplan.errors import InputError
-from ctrplan.machine import limit_threads, pinned_cores
+from ctrplan.base.errors import InputError
+from ctrplan.base.machine import limit_threads, pinned_cores
 
 Spec = TypeVar("Spec")
 Job = Callable[[Any], dict]

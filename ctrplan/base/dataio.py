@@ -24,7 +24,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 
 
 def joint_names(n_tubes: int) -> tuple[str, ...]:

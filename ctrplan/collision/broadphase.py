@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from ctrplan.scene import Obstacle
+from ctrplan.scene.objects import Obstacle
 
 #: Bump when the grid's content or file layout changes (old cache files are then ignored).
 GRID_VERSION = 3
@@ -392,7 +392,7 @@ def grid_for(obstacles: Sequence[Obstacle], cell_mm: float = CELL_MM, band_mm: f
              use_disk: bool = True) -> DistanceGrid | None:
     """The `DistanceGrid` of ``obstacles``: from the disk cache, or built (and cached on disk when
     building took at least `SAVE_AFTER_S`). None without obstacles. Nothing is kept in memory here:
-    a `ctrplan.collision.CollisionWorld` holds its grid, so share the world."""
+    a `ctrplan.collision.world.CollisionWorld` holds its grid, so share the world."""
     if not obstacles:
         return None
     key = geometry_key(obstacles, cell_mm, band_mm)

@@ -5,7 +5,7 @@
     4: {name: sella_turcica}
     5: {name: left_internal_carotid, margin_mm: 2.0}   # the obstacle's own no-go margin (mm)
 
-The meshes (`ctrplan.segmentation.label_mesh`, world mm of the volume's affine) are written as
+The meshes (`ctrplan.scene.segmentation.label_mesh`, world mm of the volume's affine) are written as
 ``<NEW stem>_meshes/<name>.stl`` beside NEW.yaml; NEW.yaml is the template with only its
 ``obstacles`` replaced (robot, base pose, target, start, planner and the rest kept; a robot file
 named relative to the template is renamed relative to NEW.yaml). The template's frame must be the
@@ -20,11 +20,12 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from ctrplan.dataio import atomic_write, check_output_dir, output_dir
-from ctrplan.errors import InputError
-from ctrplan.scene import Scene, relocated, scene_from_yaml
-from ctrplan.segmentation import LabelVolume, label_mesh, read_label_volume
-from ctrplan.yamlio import YamlDoc, dump_yaml, load_yaml
+from ctrplan.base.dataio import atomic_write, check_output_dir, output_dir
+from ctrplan.base.errors import InputError
+from ctrplan.base.yamlio import YamlDoc, dump_yaml, load_yaml
+from ctrplan.scene.loader import relocated, scene_from_yaml
+from ctrplan.scene.objects import Scene
+from ctrplan.scene.segmentation import LabelVolume, label_mesh, read_label_volume
 
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
 

@@ -33,11 +33,11 @@ _exit_code = 1  # what the process exits with if the command never returned one
 
 
 def run() -> NoReturn:
-    """The ``ctrplan`` console script: `ctrplan.cli.main` inside the Ctrl-C handling above."""
+    """The ``ctrplan`` console script: `ctrplan.cli.app.main` inside the Ctrl-C handling above."""
     global _exit_code
     _on_ctrl_c(_abort_now)
     atexit.register(_leave)  # registered first, so it runs after the callbacks of every later import
-    from ctrplan.cli import main
+    from ctrplan.cli.app import main
 
     _exit_code = main()  # puts `_abort_now` back as the Ctrl-C handler when it returns
     sys.exit(_exit_code)

@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from ctrplan.dataio import Table, atomic_write, joint_names, plain, read_table
-from ctrplan.errors import DomainError, InputError
-from ctrplan.measurement import CALIBRATION_KEY, Calibration
-from ctrplan.yamlio import YamlDoc, load_yaml
+from ctrplan.base.dataio import Table, atomic_write, joint_names, plain, read_table
+from ctrplan.base.errors import DomainError, InputError
+from ctrplan.base.yamlio import YamlDoc, load_yaml
+from ctrplan.model.measurement import CALIBRATION_KEY, Calibration
 
 BUILTIN_ROBOTS = ("nominal",)
 
@@ -255,7 +255,7 @@ class Robot:
 
     Joints ``q = [beta_1 … beta_N, alpha_1 … alpha_N]`` (mm, rad). ``joint_offset`` (2N,) is added to
     every commanded q by the backends (zero offsets of beta in mm and alpha in rad: mechanics).
-    ``calibration`` is the measurement side (`ctrplan.measurement.Calibration`: backlash, windup,
+    ``calibration`` is the measurement side (`ctrplan.model.measurement.Calibration`: backlash, windup,
     sensor offset, registration); backends never apply it -- backbones stay in the robot frame -- but
     measured-data tools and `fk`/`shape` on ordered rows do. `mechanics` is the robot without it.
     """

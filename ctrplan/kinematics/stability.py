@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ctrplan.dataio import atomic_write
+from ctrplan.base.dataio import atomic_write
+from ctrplan.base.memory import F8, backbone_bytes
 from ctrplan.kinematics.cosserat import CosseratBackend, SolverSettings
-from ctrplan.memory import F8, backbone_bytes
-from ctrplan.robot import Robot
+from ctrplan.model.robot import Robot
 
 #: A step of the sweep moving the tip more than this many times its typical motion is a jump.
 JUMP_FACTOR = 8.0

@@ -6,7 +6,7 @@ tracker sees relate to its mechanics.
 * the package `ctrplan.calibration` *calibrates* a robot model from measured tips (``ctrplan
   diagnose``): it extends the mechanics (`Robot` fields) and this measurement side;
 * `Robot.calibration` (this class; the robot file's ``calibration`` key) *is* the measurement side
-  of one robot: the `ctrplan.effects.MeasurementEffect` terms it holds, each with its
+  of one robot: the `ctrplan.model.causes.measurement_side.MeasurementEffect` terms it holds, each with its
   values.
 
 A prediction for measured rows, for any backend, takes three steps:
@@ -39,9 +39,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ctrplan.effects import EFFECTS, SIDES, MeasurementEffect
-from ctrplan.errors import InputError
-from ctrplan.yamlio import YamlDoc
+from ctrplan.base.errors import InputError
+from ctrplan.base.yamlio import YamlDoc
+from ctrplan.model.causes.base import EFFECTS, SIDES
+from ctrplan.model.causes.measurement_side import MeasurementEffect
 
 if TYPE_CHECKING:
     from ctrplan.kinematics.backbone import Backbone

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ctrplan.errors import InputError
+from ctrplan.base.errors import InputError
 
 #: Length units a NIfTI header may declare, as millimetres per unit ("unknown" is read as mm).
 _NIFTI_MM_PER_UNIT = {"mm": 1.0, "meter": 1000.0, "micron": 1e-3, "unknown": 1.0}

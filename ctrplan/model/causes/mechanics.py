@@ -1,0 +1,262 @@
+"""Causes on the mechanics side: tube parameters, transmission lengths, joint offsets and loads
+(`Robot` fields, solved by the Cosserat backend).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ctrplan.model.causes.base import (
+    NITI_E_GPA,
+    NITI_E_SOURCE,
+    STANDARD_GRAVITY,
+    Check,
+    Effect,
+    Param,
+    Plausible,
+    _norm,
+)
+
+if TYPE_CHECKING:
+    from ctrplan.model.robot import Robot
+
+
+class Curvature(Effect):
+    name = "curvature"
+    key = "tubes[i].curvature_1_per_m"
+    description = "pre-curvature kappa_i of each tube (1/m)"
+    #: Largest bending strain kappa * OD / 2 superelastic NiTi recovers.
+    MAX_STRAIN = 0.08
+    SOURCE = ("heat-set curvature of nitinol tubes is reproduced within tens of per cent (springback "
+              "after shape setting; CTR model calibrations fit it for that reason, e.g. Webster, Romano & "
+              "Cowan 2009): file value +- 50 % (+- 1 1/m for a straight tube), and at most 8 % bending "
+              "strain kappa * OD / 2 (the strain superelastic NiTi recovers)")
+
+    def params(self, robot):
+        out = []
+        for i, t in enumerate(robot.tubes):
+            k = t.curvature_per_mm * 1e3
+            low = max(min(0.5 * k, k - 1.0), 0.0)
+            high = min(max(1.5 * k, k + 1.0), self.MAX_STRAIN / t.outer_radius_mm * 1e3)
+            out.append(Param(f"kappa{i + 1}_1_per_m", "1/m", max(0.1 * k, 0.5), 0.0, np.inf,
+                             Plausible(low, high, self.SOURCE)))
+        return out
+
+    def values(self, robot):
+        return np.array([t.curvature_per_mm * 1e3 for t in robot.tubes])
+
+    def with_values(self, robot, x):
+        return robot.with_changes(tubes=tuple(replace(t, curvature_per_mm=float(v) * 1e-3)
+                                              for t, v in zip(robot.tubes, x, strict=True)))
+
+    def unseen(self, q, direction, robot):
+        return {f"kappa{i + 1}_1_per_m": f"tube {i + 1} has no curved part"
+                for i, t in enumerate(robot.tubes) if t.curved_length_mm <= 0.0}
+
+    def derived(self, robot, x):
+        return {f"kappa{i + 1}_change_pct": 100.0 * (float(v) / (t.curvature_per_mm * 1e3) - 1.0)
+                for i, (t, v) in enumerate(zip(robot.tubes, x, strict=True)) if t.curvature_per_mm > 0}
+
+
+class StiffnessRatio(Effect):
+    name = "stiffness_ratio"
+    key = "tubes[i].shear_modulus_gpa"
+    description = "Poisson's ratio nu; G_i = E_i / (2 (1 + nu)) (torsion vs bending)"
+    SOURCE = ("isotropic metals have 0 <= nu <= 0.5 (0.5: incompressible); superelastic NiTi "
+              "nu = 0.3-0.33 (Johnson Matthey 'Nitinol technical properties'); nu = E / (2 G) - 1 as in "
+              "Dupont, Lock, Itkowitz & Butler 2010")
+
+    def params(self, robot):
+        # the hard bounds are wider than the plausible range so that a fit can say what it needs
+        return [Param("poisson_ratio", "1", 0.05, -0.9, 2.0, Plausible(0.0, 0.5, self.SOURCE))]
+
+    def values(self, robot):
+        t = robot.tubes[0]
+        return np.array([t.youngs_modulus_mpa / (2.0 * t.shear_modulus_mpa) - 1.0])
+
+    def with_values(self, robot, x):
+        nu = float(x[0])
+        return robot.with_changes(tubes=tuple(
+            replace(t, shear_modulus_mpa=t.youngs_modulus_mpa / (2.0 * (1.0 + nu))) for t in robot.tubes))
+
+    def unseen(self, q, direction, robot):
+        if robot.n_tubes == 1:
+            return {"poisson_ratio": "a single tube carries no torsion in free space"}
+        return {}
+
+    def derived(self, robot, x):
+        nu0 = self.values(robot)[0]
+        return {"torsional_stiffness_change_pct": 100.0 * ((1.0 + nu0) / (1.0 + float(x[0])) - 1.0)}
+
+
+class BendingStiffness(Effect):
+    name = "bending_stiffness"
+    key = "tubes[i].youngs_modulus_gpa, shear_modulus_gpa"
+    description = ("E*I and G*J of tube i relative to tube 1, i = 2..N (in free space only stiffness ratios "
+                   "shape the robot)")
+
+    def params(self, robot):
+        lo, hi = NITI_E_GPA
+        plausible = Plausible(lo / hi, hi / lo, f"{NITI_E_SOURCE}: one tube at most {hi:g}/{lo:g} times "
+                                                f"stiffer or softer than another")
+        return [Param(f"stiffness{i + 1}_rel", "1", 0.1, 0.1, 10.0, plausible)
+                for i in range(1, robot.n_tubes)]
+
+    def values(self, robot):
+        return np.ones(robot.n_tubes - 1)
+
+    def with_values(self, robot, x):
+        tubes = list(robot.tubes)
+        for i, v in enumerate(x, start=1):
+            tubes[i] = replace(tubes[i], youngs_modulus_mpa=tubes[i].youngs_modulus_mpa * float(v),
+                               shear_modulus_mpa=tubes[i].shear_modulus_mpa * float(v))
+        return robot.with_changes(tubes=tuple(tubes))
+
+    def derived(self, robot, x):
+        return {f"tube{i}_EI_change_pct": 100.0 * (float(v) - 1.0) for i, v in enumerate(x, start=2)}
+
+
+class Transmission(Effect):
+    name = "transmission"
+    key = "tubes[i].transmission_length_mm"
+    description = ("extra length d_i (mm) over which tube i twists behind the plate: the drive's torsional "
+                   "compliance, or a clamp nearer the plate (d_i < 0)")
+    SOURCE = ("the straight tube behind the plate twists ('transmissional torsion', Webster, Romano & "
+              "Cowan 2009); a drive of gears and collets adds at most the tube's own length of torsional "
+              "compliance, a clamp nearer the plate removes at most all of it")
+
+    def params(self, robot):
+        return [Param(f"transmission{i + 1}_mm", "mm", 5.0, -1000.0, 1000.0,
+                      Plausible(-t.length_mm, t.length_mm, self.SOURCE)) for i, t in enumerate(robot.tubes)]
+
+    def values(self, robot):
+        return np.array([t.transmission_length_mm for t in robot.tubes])
+
+    def with_values(self, robot, x):
+        return robot.with_changes(tubes=tuple(replace(t, transmission_length_mm=float(v))
+                                              for t, v in zip(robot.tubes, x, strict=True)))
+
+    def unseen(self, q, direction, robot):
+        if robot.n_tubes == 1:
+            return {"transmission1_mm": "a single tube carries no torsion in free space"}
+        return {}
+
+    def limits(self, q, robot):
+        # every row keeps a twisting length -beta_i + d_i >= 0 behind the plate
+        beta = robot.apply_offset(q)[:, :robot.n_tubes]
+        return {f"transmission{i + 1}_mm": (float(beta[:, i].max()), np.inf) for i in range(robot.n_tubes)}
+
+    def draw(self, robot, rng):
+        return np.abs(super().draw(robot, rng))   # a compliant drive: rows near the plate keep d >= 0
+
+    def derived(self, robot, x):
+        # a drive of torsional stiffness k adds d = G J / k of twisting length
+        return {f"drive_stiffness{i + 1}_nmm_per_rad": t.torsional_stiffness_nmm2 / float(v)
+                for i, (t, v) in enumerate(zip(robot.tubes, x, strict=True)) if v > 0}
+
+
+class JointOffset(Effect):
+    name = "joint_offset"
+    key = "joint_offset"
+    description = "zero offsets of beta_i (mm) and alpha_i (rad), added to q"
+    BETA_SOURCE = ("the zero of a translation (tube tip flush with the front plate) is set by eye or a "
+                   "homing switch: a few mm off at most; 10 mm ceiling")
+    ALPHA_SOURCE = "the zero of a rotation may be any angle"
+
+    def params(self, robot):
+        n = robot.n_tubes
+        return [Param(f"beta{i + 1}_offset_mm", "mm", 1.0, -1000.0, 1000.0,
+                      Plausible(-10.0, 10.0, self.BETA_SOURCE)) for i in range(n)] + \
+               [Param(f"alpha{i + 1}_offset_rad", "rad", 0.05, -2 * math.pi, 2 * math.pi,
+                      Plausible(-math.pi, math.pi, self.ALPHA_SOURCE)) for i in range(n)]
+
+    def values(self, robot):
+        return np.asarray(robot.joint_offset, dtype=float)
+
+    def with_values(self, robot, x):
+        return robot.with_changes(joint_offset=tuple(float(v) for v in x))
+
+    def unseen(self, q, direction, robot):
+        names = [p.name for p in self.params(robot)]
+        joints = robot.joint_names
+        return {names[j]: f"{joints[j]} never moves in the data" for j in range(robot.n_joints)
+                if np.ptp(q[:, j]) <= 1e-9}
+
+    def derived(self, robot, x):
+        n = robot.n_tubes
+        return {f"alpha{i + 1}_offset_deg": float(np.degrees(x[n + i])) for i in range(n)}
+
+
+class Gravity(Effect):
+    name = "gravity"
+    key = "loads.gravity_m_s2"
+    description = "gravity vector (m/s^2) with the file's density and E: only rho*g/E matters"
+
+    SOURCE = (f"only rho*g/E matters: |g| <= 9.81 m/s^2 x the file's E / the lowest E of NiTi "
+              f"({NITI_E_SOURCE})")
+
+    def params(self, robot):
+        # hard bounds: huge loads (what a gravity fit reaches for when it tries to explain a frame offset)
+        # are slow to solve
+        g = self.max_magnitude(robot)
+        return [Param(f"gravity_{a}_m_s2", "m/s^2", 5.0, -30.0, 30.0, Plausible(-g, g, self.SOURCE))
+                for a in "xyz"]
+
+    def values(self, robot):
+        return np.asarray(robot.loads.gravity_m_s2, dtype=float)
+
+    def with_values(self, robot, x):
+        return robot.with_changes(loads=replace(robot.loads, gravity_m_s2=tuple(float(v) for v in x)))
+
+    def max_magnitude(self, robot: Robot) -> float:
+        """The largest |g| a fit may need (m/s^2): 9.81 x E_file / E_true, E_true >= NiTi martensite."""
+        return STANDARD_GRAVITY * robot.tubes[0].youngs_modulus_mpa * 1e-3 / NITI_E_GPA[0]
+
+    def checks(self, robot):
+        return super().checks(robot) + [Check("gravity_magnitude_m_s2", "m/s^2", _norm,
+                                              Plausible(0.0, self.max_magnitude(robot), self.SOURCE))]
+
+    def draw(self, robot, rng):
+        # the robot lies horizontal (insertion axis level within 5 deg), rho*g/E within +-20 %
+        phi, tilt = rng.uniform(0, 2 * math.pi), math.radians(rng.uniform(-5, 5))
+        return STANDARD_GRAVITY * rng.uniform(0.8, 1.2) * np.array(
+            [math.cos(phi) * math.cos(tilt), math.sin(phi) * math.cos(tilt), math.sin(tilt)])
+
+    def derived(self, robot, x):
+        g = np.asarray(x, dtype=float)
+        mag = float(np.linalg.norm(g))
+        t = robot.tubes[0]
+        out = {"gravity_magnitude_m_s2": mag,
+               "rho_g_over_E_per_m": t.density_kg_m3 * mag / (t.youngs_modulus_mpa * 1e6)}
+        if mag > 0:
+            out["angle_from_insertion_axis_deg"] = float(np.degrees(np.arccos(np.clip(g[2] / mag, -1, 1))))
+        return out
+
+
+class TipForce(Effect):
+    name = "tip_force"
+    key = "loads.tip_force_n"
+    description = "point force at the tip of tube 1 (N), robot frame"
+    MAX_N = 0.02
+    SOURCE = "a sensor cable or tether on the tip of a robot in free space pulls a few mN; 20 mN ceiling"
+
+    def params(self, robot):
+        plausible = Plausible(-self.MAX_N, self.MAX_N, self.SOURCE)
+        return [Param(f"tip_force_{a}_n", "N", 2e-3, -0.05, 0.05, plausible) for a in "xyz"]
+
+    def values(self, robot):
+        return np.asarray(robot.loads.tip_force_n, dtype=float)
+
+    def with_values(self, robot, x):
+        return robot.with_changes(loads=replace(robot.loads, tip_force_n=tuple(float(v) for v in x)))
+
+    def checks(self, robot):
+        return super().checks(robot) + [Check("tip_force_magnitude_n", "N", _norm,
+                                              Plausible(0.0, self.MAX_N, self.SOURCE))]
+
+    def derived(self, robot, x):
+        return {"tip_force_magnitude_mn": 1e3 * float(np.linalg.norm(x))}
