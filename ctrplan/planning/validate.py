@@ -26,6 +26,7 @@ from ctrplan.collision.checker import RobotCollisionChecker, StructureClearance
 from ctrplan.collision.world import CollisionWorld
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
+from ctrplan.kinematics.registry import EXACT_MODEL
 from ctrplan.planning.goal import tip_tangents
 from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.space import BoxSpace, split_segments
@@ -84,7 +85,7 @@ class Validation:
     structure along the path (`StructureClearance`, None until measured: `measure_clearance`).
     """
 
-    backend: str = "cosserat"
+    backend: str = EXACT_MODEL
     collision_free: bool = False
     min_clearance_mm: float = 0.0
     max_position_error_mm: float = 0.0
