@@ -151,14 +151,12 @@ def plan_command(scene: SceneArg, backend: PlanBackendOpt = DEFAULT_PLANNING_BAC
         progress.update("compile")  # loading a backend compiles (or loads) its kernels
         be = load_backend(backend, sc.robot, model)
         result = plan(sc, be, planner=planner, time_limit_s=time_limit, max_states=max_states, seed=seed,
-                      progress=progress.update)
+                      progress=progress.update, clearances=True)
     if console_state.interrupted():  # Ctrl-C inside an OMPL callback ends the search, not the command
         raise KeyboardInterrupt
-    pinn = getattr(be, "pinn", be)  # hybrid keeps its PINN in .pinn
-    world = None if result.dense is None else result.dense.world  # the validation's collision world
-    doc = plan_document(result, sc, scene, getattr(pinn, "card", {}).get("weights_file"), world)
+    doc = plan_document(result, sc, scene, (be.model_card or {}).get("weights_file"))
     if out is not None:
-        write_plan_outputs(out, sc, result, doc, world)
+        write_plan_outputs(out, sc, result, doc)
     _summary(console, sc, result, doc, out)
     if json_out:
         typer.echo(json.dumps(doc))
@@ -178,7 +176,8 @@ class _Progress(StatusLine):
                 "start": "checking the start (collision world)",
                 "goal": "sampling goal configurations (IK)", "search": "searching",
                 "simplify": "simplifying the path", "validate": "validating with the exact model",
-                "repair": "repairing with the exact model"}.get(stage, stage)
+                "repair": "repairing with the exact model",
+                "clearance": "measuring clearances (exact model)"}.get(stage, stage)
         if stage == "compile" and "total" in info:
             text = f"compiling kernels {info['done']}/{info['total']} (first run only)"
         if "elapsed" in info:
@@ -201,11 +200,11 @@ def _summary(console, sc, result, doc: dict, out: Path | None) -> None:
     t.add_column(style="dim")
     t.add_column()
     t.add_row("planner / backend", f"{result.planner} / {result.backend}")
-    budget = result.details.get("budget", {})
+    search = result.work.search
     t.add_row("planning time", f"{result.planning_time_s:.2f} s (time budget {result.time_limit_s:g} s, "
-                               f"guard {budget.get('guard_s', 0):g} s"
+                               f"guard {0 if search is None else search.budget.guard_s:g} s"
                                + (": [bold yellow]fired[/])" if result.cut_short else ")"))
-    t.add_row("work", f"{budget.get('states', 0):,} of {result.max_states:,} states of the search; "
+    t.add_row("work", f"{result.states:,} of {result.max_states:,} states of the search; "
                       f"{result.kinematics_calls:,} kinematics calls in all")
     t.add_row("waypoints", str(len(result.path)))
     if v is not None:

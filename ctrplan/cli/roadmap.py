@@ -15,6 +15,7 @@ from ctrplan.cli.app import HELP_SETTINGS, app
 from ctrplan.cli.bench import bench_app, publish
 from ctrplan.cli.options import ModelOpt, as_option, load_backend, parse_duration
 from ctrplan.cli.progress import PlainProgress, StatusLine
+from ctrplan.kinematics.registry import DEFAULT_PLANNING_BACKEND, PLANNING_ORDER
 
 ROADMAP_HELP = "Multi-query roadmaps: build once per scene, then answer targets in milliseconds."
 roadmap_app = typer.Typer(help=ROADMAP_HELP, short_help=ROADMAP_HELP, no_args_is_help=True,
@@ -44,7 +45,8 @@ def build_command(
         "--ray", metavar="ADDRESS", show_default=False,
         help="Shard the build over a Ray cluster at this address ('local' starts one here).")] = None,
     backend: Annotated[str, typer.Option(
-        "--backend", metavar="NAME", help="Planning backend: pinn | cosserat | hybrid.")] = "pinn",
+        "--backend", metavar="NAME",
+        help=f"Planning backend: {' | '.join(PLANNING_ORDER)}.")] = DEFAULT_PLANNING_BACKEND,
     model: ModelOpt = None,
 ) -> None:
     """Build (or continue) a roadmap of valid states and edges for a scene.
@@ -75,7 +77,7 @@ def build_command(
     executor = f"ray {ray}" if ray else f"{workers} local worker(s)"
     with _BuildProgress(limit_s) as status:
         status("compiling kernels (first run only)")
-        ctx = planning_context(sc, be, model)
+        ctx = planning_context(sc, be)
         output_dir(out)
 
         def progress(info: dict) -> None:
@@ -161,7 +163,7 @@ def plan_from_roadmap(scene: Path, roadmap_dir: Path, targets: Path | None, *, b
     from rich.console import Console
 
     from ctrplan.base.dataio import check_output_dir
-    from ctrplan.planning.roadmap._adapter import planning_context
+    from ctrplan.planning.roadmap.build import planning_context
     from ctrplan.planning.roadmap.query import RoadmapPlanner
     from ctrplan.planning.roadmap.store import fingerprints, load_roadmap
     from ctrplan.scene.loader import load_scene
@@ -174,7 +176,7 @@ def plan_from_roadmap(scene: Path, roadmap_dir: Path, targets: Path | None, *, b
     rm = load_roadmap(roadmap_dir, fingerprints(sc, be))  # a foreign roadmap: one line, exit 2
     err = Console(stderr=True, highlight=False)
     with StatusLine(err, "plan --roadmap", "compiling kernels (first run only)", timed=True) as status:
-        planner = RoadmapPlanner(planning_context(sc, be, model), rm)
+        planner = RoadmapPlanner(planning_context(sc, be), rm)
         results = []
         for i, region in enumerate(regions, 1):
             status(f"target {i}/{len(regions)}")
@@ -255,7 +257,8 @@ def bench_roadmap(
         "--single-time-limit", metavar="DURATION",
         help="Time budget of the single-query RRTConnect run per target (as `plan --time-limit`); 0: "
              "skip the single-query runs.")] = "10s",
-    backend: Annotated[str, typer.Option("--backend", metavar="NAME", help="Planning backend.")] = "pinn",
+    backend: Annotated[str, typer.Option("--backend", metavar="NAME",
+                                         help="Planning backend.")] = DEFAULT_PLANNING_BACKEND,
     model: ModelOpt = None,
     out: Annotated[Path, typer.Option(
         "--out", help="Directory for results.json, the OMPL log, benchmark.db and the plot.")
@@ -271,10 +274,11 @@ def bench_roadmap(
     from ctrplan.base.machine import machine_info
     from ctrplan.bench import roadmap as roadmap_bench
     from ctrplan.bench.ompl_log import write_database, write_logs
-    from ctrplan.planning.roadmap._adapter import planning_context
+    from ctrplan.planning.roadmap.build import planning_context
     from ctrplan.planning.roadmap.query import RoadmapPlanner
     from ctrplan.planning.roadmap.store import fingerprints, load_roadmap
     from ctrplan.scene.loader import load_scene
+    from ctrplan.viz.bench_plots import roadmap_times_figure
 
     if n < 1:
         raise InputError(f"--n: need at least 1 target, got {n}")
@@ -288,7 +292,7 @@ def bench_roadmap(
     rm = load_roadmap(roadmap, fingerprints(sc, be))
     err = Console(stderr=True, highlight=False)
     with StatusLine(err, "bench roadmap", "compiling kernels (first run only)", timed=True) as status:
-        ctx = planning_context(sc, be, model)
+        ctx = planning_context(sc, be)
         planner = RoadmapPlanner(ctx, rm)
         targets = roadmap_bench.random_targets(sc.target, n, tolerance_mm, seed)
         records = roadmap_bench.run(planner, targets, backend_name=be.name, seed=seed,
@@ -304,7 +308,7 @@ def bench_roadmap(
             r["time_limit_s"] = limit or 0.0
     logs = write_logs(records, out, machine, settings)
     write_database(logs, out / "benchmark.db")
-    roadmap_bench.plot(records, out / "roadmap_times.png")
+    roadmap_times_figure(records, out / "roadmap_times.png")
     doc = {"machine": machine, "settings": settings, "summary": roadmap_bench.summarize(records),
            "runs": records}
     if publish(doc, out, as_json):

@@ -6,6 +6,9 @@ starts live with the kinematics backends. Units at this interface: mm, rad, N, k
 Joint vector, everywhere: ``q = [beta1, beta2, beta3, alpha1, alpha2, alpha3]`` (mm, rad); tube 1 is
 the innermost (longest) tube. Tube i occupies arc length ``[beta_i, beta_i + L_i]``; ``s = 0`` is the
 front plate.
+
+Over 500 lines because it is the robot and its file format together: every physical parameter with its
+YAML key, plausibility limit and error message, so that a new parameter touches one file.
 """
 
 from __future__ import annotations

@@ -8,8 +8,9 @@ stops a search that runs far longer than its budget should take (a slow or overl
 result it cut short says so (`SearchBudget.cut_short`), and only such a result depends on machine
 speed.
 
-Defaults keep today's time budgets: a time limit of S seconds buys ``S x REFERENCE_STATES_PER_S`` of
-the planning backend (what this project's reference machine, 2 cores, checks per second of search),
+Defaults keep today's time budgets: a time limit of S seconds buys S times the planning backend's
+registered rate (`ctrplan.kinematics.registry.BackendKind.reference_states_per_s`: what this project's
+reference machine, 2 cores, checks per second of search),
 and the guard fires at ``GUARD_FACTOR x S``.
 """
 
@@ -21,11 +22,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from ctrplan.base.errors import InputError
-from ctrplan.kinematics.registry import BACKEND_KINDS
+from ctrplan.kinematics.registry import reference_states_per_s
 
-#: States per second of search with each backend on the reference machine (AMD EPYC, one of its 2
-#: cores per search), as each backend registers it (`ctrplan.kinematics.registry`).
-REFERENCE_STATES_PER_S = {name: kind.reference_states_per_s for name, kind in BACKEND_KINDS.items()}
 #: The wall-clock guard of a search, in multiples of its time limit: a machine up to this much slower
 #: than the reference one still reaches the same verdict. The work budget already bounds a search's
 #: time on any machine; the guard only stops one on a pathologically slow or overloaded machine.
@@ -35,9 +33,10 @@ GUARD_FACTOR = 30.0
 
 
 def reference_rate(backend_name: str) -> float:
-    """States per second of `REFERENCE_STATES_PER_S` for a backend (by name; the exact model's rate
-    for one not listed)."""
-    return REFERENCE_STATES_PER_S.get(backend_name, REFERENCE_STATES_PER_S["cosserat"])
+    """States per second of search with a backend (by name) on the reference machine (AMD EPYC, one of
+    its 2 cores per search), as its kind registers it (the exact model's rate for one not
+    registered)."""
+    return reference_states_per_s(backend_name)
 
 
 def states_for(backend_name: str, time_s: float) -> int:

@@ -17,6 +17,9 @@ Recipes:
 * ``finetune`` -- the paper's stage (b): continues a trained model on measured tube tips
   (`train(observations=...)`) with the ODE and boundary residuals kept on a fixed collocation set, so
   the model stays physical.
+
+Over 500 lines because the loop, its checkpoints and resume share one state (step, optimiser,
+schedule, samplers, budget): split apart, a resumed run could restore part of it.
 """
 
 from __future__ import annotations

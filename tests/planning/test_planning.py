@@ -174,7 +174,7 @@ def test_straight_line_through_the_ball_collides_under_exact_validation(open_sce
     vp = validate_path(open_scene, np.stack([open_scene.start, goal]), exact)
     rep = vp.report
     assert not rep.collision_free and rep.colliding_states
-    assert rep.first_collision["obstacles"] == ["ball"]
+    assert rep.first_collision.obstacles == ("ball",) and rep.first_collision.why == "the robot touches ball"
     assert rep.min_clearance_mm == 0.0
     assert rep.max_position_error_mm < 1e-6  # planning backend = exact model (to solver tolerance)
 
@@ -207,7 +207,7 @@ def test_plan_with_repair_is_never_unsafe(open_scene):
     open.yaml's 3 mm of its target, and every checked state clears the ball and the block by the
     0.2 mm margin (distances computed here)."""
     res = plan(open_scene, WrongBackend(), seed=1, time_limit_s=5.0)
-    assert res.details["first_validation"]["tip_in_target"] is False  # the wrong model's own path
+    assert res.work.repair.first_validation.tip_in_target is False  # the wrong model's own path
     assert res.solved and res.validated.repaired, res.message
     tip = solve(res.path[-1][None], Tubes.paper())["tips_mm"][0, 0]
     assert np.linalg.norm(tip - [37.2, -27.2, 181.6]) <= 3.0
@@ -415,7 +415,7 @@ def test_compilation_is_outside_the_time_limit(open_scene):
     cold = SlowFirstCall(resolve_backend("pinn", open_scene.robot))
     res = plan(open_scene, cold, seed=0, time_limit_s=1.5)
     assert res.solved, res.message
-    assert res.details["compile_s"] >= 4.0
+    assert res.work.compile_s >= 4.0
     assert res.planning_time_s < 4.0 and not res.cut_short  # the 4 s of compiling are not in it
 
 
@@ -426,7 +426,7 @@ def test_a_tiny_budget_ends_the_search_by_work_not_by_the_clock(open_scene, exac
     res = plan(open_scene, exact, seed=0, time_limit_s=0.001)
     assert not res.solved and res.status == "TIMEOUT"
     assert res.max_states == 5 and "budget used up while sampling goal configurations" in res.message
-    assert res.details["budget"]["states"] >= 5 and not res.cut_short
+    assert res.states >= 5 and not res.cut_short
 
 
 def test_library_resolve_backend_does_not_fall_back(tmp_path):

@@ -78,7 +78,7 @@ def test_rrtconnect_keeps_asking_for_goals_while_none_is_found(open_scene):
     from ompl import geometric as og
 
     from ctrplan.kinematics import make_backend
-    from ctrplan.planning.planner import build_problem
+    from ctrplan.planning.search import build_problem
 
     far = replace(open_scene.target, center=open_scene.target.center + np.array([0.0, 0.0, 500.0]))
     scene = replace(open_scene, target=far)  # out of reach: every batch comes back empty

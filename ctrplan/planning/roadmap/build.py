@@ -82,7 +82,7 @@ class Source:
         from ctrplan.scene.loader import load_scene
 
         scene = load_scene(self.scene_file)
-        return planning_context(scene, make_backend(self.backend, scene.robot, self.model), self.model)
+        return planning_context(scene, make_backend(self.backend, scene.robot, self.model))
 
 
 def check_job(ctx: PlanningContext, job: dict) -> dict:
