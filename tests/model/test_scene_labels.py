@@ -174,7 +174,7 @@ def test_bad_input_is_one_line_and_writes_nothing(inputs, tmp_path, capsys, case
         expect = "file not found"
     elif case == "bad_names":
         names = tmp_path / "names.yaml"
-        names.write_text("three: carotid\n")
+        names.write_text("0: carotid\n")
         expect = "positive integer label"
     else:
         names = tmp_path / "names.yaml"
