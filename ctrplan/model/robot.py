@@ -139,6 +139,9 @@ def _box_matrix(n_tubes: int) -> np.ndarray:
     return M
 
 
+#: One turn (rad): a rotation interval at least this wide wraps (`JointDomain.wraps`).
+TURN = 2.0 * math.pi
+
 #: Joint names of a three-tube robot (the CSV header of three-tube files).
 JOINT_NAMES = joint_names(3)
 
@@ -152,7 +155,9 @@ class JointDomain:
 
     ``bounds`` are (lower, upper) per box coordinate (mm, rad), 2N of them; a zero-width interval is a
     fixed joint. ``box_lower``/``box_upper`` are the corners (2N,). The default is the paper's box for
-    its three-tube robot.
+    its three-tube robot. A rotation whose interval spans a full turn wraps (`wraps`): any value is
+    inside, as the same angle one or more turns on; a narrower one is an actuator's limit, compared
+    as it stands.
     """
 
     bounds: tuple[tuple[float, float], ...] = PAPER_BOX
@@ -168,6 +173,12 @@ class JointDomain:
     @cached_property
     def box_upper(self) -> np.ndarray:
         return np.array([b[1] for b in self.bounds])
+
+    @cached_property
+    def wraps(self) -> np.ndarray:
+        """Which box coordinates are rotations whose interval spans a full turn (2N,) bool."""
+        rotation = np.arange(len(self.bounds)) >= self.n_tubes
+        return rotation & (self.box_upper - self.box_lower >= TURN * (1.0 - 1e-12))
 
     @cached_property
     def fixed(self) -> np.ndarray:
@@ -201,6 +212,8 @@ class JointDomain:
     def violations(self, q: np.ndarray, tol: float = 1e-9) -> list[tuple[int, str]]:
         """``(row, message)`` for the first violated inequality of every offending row of q (..., 2N)."""
         box = self.to_box(np.atleast_2d(q))
+        lo = self.box_lower[self.wraps]
+        box[:, self.wraps] = lo + np.mod(box[:, self.wraps] - lo, TURN)
         lo, hi = self.box_lower - tol, self.box_upper + tol
         bad = (box < lo) | (box > hi)
         names = box_names(self.n_tubes)

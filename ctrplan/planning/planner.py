@@ -251,15 +251,15 @@ def _setup_planner(spec: PlannerSpec, problem: PlanningProblem, range_mm: float 
 
 
 def _simplified_path(problem: PlanningProblem, simplify: bool, timings: dict) -> np.ndarray:
-    """The solution as joints (K, 2N), shortcut first if ``simplify`` (`shortcut_path`: batched,
-    lazy checks at the motion validator's resolution)."""
-    path_q = _path_q(problem, problem.pdef.getSolutionPath())
+    """The solution as joints (K, 2N), continuous (`BoxSpace.unwrap`), shortcut first if ``simplify``
+    (`shortcut_path`: batched, lazy checks at the motion validator's resolution)."""
+    box, checker = problem.box, problem.checker
+    path_q = box.unwrap(_path_q(problem, problem.pdef.getSolutionPath()))
     if not simplify:
         return path_q
     t_simp = time.perf_counter()
-    box, checker = problem.box, problem.checker
     cut = shortcut_path(box.to_coords(path_q), lambda y: checker.validate(box.to_joints(y))[0],
-                        problem.motion_validator.resolution)
+                        problem.motion_validator.resolution, box.difference)
     timings["simplify_s"] = time.perf_counter() - t_simp
     timings["simplify_states"] = cut.states
     return path_q[cut.vertices]
@@ -526,6 +526,7 @@ def _validate_and_repair(model: PlanningModel, path_q: np.ndarray, result: PlanR
     if fixed is None:
         result.details["repair"] = "re-planning with the exact model failed"
         return vp, path_q
+    fixed = model.space.unwrap(fixed)
     vp2 = validate_planned_path(model, fixed)
     vp2.report.repaired = True
     if vp2.report.ok:
@@ -614,7 +615,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     _record_search(result, outcome, checker)
     if outcome.path_q is not None:
         t_goal = time.perf_counter()
-        path_q = exact_goal(outcome.path_q, checker)
+        path_q = model.space.unwrap(exact_goal(outcome.path_q, checker))
         result.details["exact_goal"] = {"appended": len(path_q) > len(outcome.path_q),
                                         "time_s": time.perf_counter() - t_goal}
         result.planning_time_s += result.details["exact_goal"]["time_s"]

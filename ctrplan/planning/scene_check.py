@@ -9,9 +9,12 @@ planner its whole time budget or give a meaningless "solved".
 4. **Target out of reach**: no sampled configuration of the robot puts its tip in (or near) the
    target from this base pose (the closest distance is reported).
 5. **Start**: outside the joint domain, in collision under the exact model (naming what it hits),
-   not converged or elastically unstable. The nearest valid start (`valid_start`'s candidates: the
-   start's own translations and the fully retracted ones, every tube turned by 1/8 turns, nearest in
-   the planning metric first) is proposed.
+   not converged or elastically unstable. The nearest valid start from which the exact model plans
+   to the target is proposed (`reaching_start`: candidates of `start_candidates`, the start's own
+   translations and the fully retracted ones, every tube turned by 1/8 turns, nearest in the planning
+   metric first; a start that is merely collision-free may leave the robot outside the anatomy),
+   or the command says that none of the nearest is one; `plan`, which skips the sampled reach,
+   proposes the nearest valid one without searching.
 6. **Planner**: the scene names a planner of `ctrplan.planning.planners.PLANNERS`.
 
 `check_scene` returns the problems found; `plan` and `ctrplan scene check` report the same lines.
@@ -29,6 +32,7 @@ from ctrplan.kinematics import CosseratBackend
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.planners import scene_planner
+from ctrplan.planning.space import BoxSpace
 from ctrplan.planning.validity import ConfigurationChecker
 from ctrplan.scene.objects import Scene
 from ctrplan.scene.orientation import anatomy_code, flip_verdict, side_pairs
@@ -48,6 +52,10 @@ REACH_IK_SEEDS = 16
 START_TURNS = 8
 #: Candidate starts checked per batched call.
 START_CHUNK = 64
+#: `scene check --fix` searches from at most this many valid candidate starts, nearest first, with
+#: this work budget each (exact model: about 4 s each on the reference machine).
+FIX_CANDIDATES = 4
+FIX_SEARCH_STATES = 20_000
 
 
 @dataclass(frozen=True)
@@ -94,7 +102,7 @@ def check_scene(scene: Scene, *, samples: int = REACH_SAMPLES, seed: int = 0, re
     _check_target_inside(scene, report)
     if reach:
         _check_reach(scene, samples, seed, report)
-    _check_start(scene, report, model or PlanningModel.of(scene), start_backbone)
+    _check_start(scene, report, model or PlanningModel.of(scene), start_backbone, reach, seed)
     try:
         scene_planner(scene)
     except InputError as exc:
@@ -220,18 +228,21 @@ def _check_reach(scene: Scene, samples: int, seed: int, report: SceneCheck) -> N
                  f"closest {best:.1f} mm)"))
 
 
-def _check_start(scene: Scene, report: SceneCheck, model: PlanningModel, bb: Backbone | None) -> None:
+def _check_start(scene: Scene, report: SceneCheck, model: PlanningModel, bb: Backbone | None,
+                 reach: bool, seed: int) -> None:
+    """The start's problem, if any, with the fix: with ``reach``, the nearest valid start from which
+    the exact model plans to the target (`reaching_start`), or why there is none; without (`plan`'s
+    quick checks), the nearest valid start, not searched from."""
     robot = scene.robot
     where = scene.where("start")
     lo, hi = scene.joint_box
-    box = robot.domain.to_box(scene.start)
+    space = BoxSpace.for_scene(scene)
     try:
         robot.check_joints(scene.start, where="start")
-        problem = None
-        if np.any((box < lo - 1e-9) | (box > hi + 1e-9)):
-            problem = f"{where}: outside the scene's joint_limits"
+        problem = None if space.contains(scene.start) else f"{where}: outside the scene's joint_limits"
     except InputError as exc:
         problem = f"{where}: {str(exc).removeprefix('start: ').removeprefix('row 0: ')}"
+    box = robot.domain.to_box(space.to_joints(space.clip(space.to_coords(scene.start))))
     inside = replace(scene, start=robot.domain.from_box(np.clip(box, lo, hi)))
     checker = ConfigurationChecker(model.exact_search().with_scene(inside))
     if problem is None:
@@ -239,13 +250,26 @@ def _check_start(scene: Scene, report: SceneCheck, model: PlanningModel, bb: Bac
     if problem is None:
         report.facts["start"] = "valid"
         return
-    fixed = valid_start(inside, checker)
-    if fixed is None:
-        report.problems.append(SceneProblem("start", f"{problem}; no valid start found near it"))
+    if not reach:
+        fixed = valid_start(inside, checker)
+        report.problems.append(SceneProblem("start", f"{problem}; " + (
+            "no valid start found near it" if fixed is None else
+            f"nearest valid start: {np.round(fixed, 4).tolist()} (not searched from: `ctrplan scene check "
+            f"--fix OUT.yaml` finds one from which the target is reached)")))
         return
-    report.fixed_start = fixed
+    found = reaching_start(inside, checker, seed)
+    if found.start is None:
+        why = "no valid start found near it" if not found.tried else (
+            f"no fix: from none of the {found.tried} nearest valid starts does the exact model reach the "
+            f"target ({found.states_each:,} states searched from each); move the base pose or the start "
+            f"nearer the entry")
+        report.problems.append(SceneProblem("start", f"{problem}; {why}"))
+        return
+    report.fixed_start = found.start
     report.problems.append(SceneProblem(
-        "start", f"{problem}; nearest valid start: {np.round(fixed, 4).tolist()}"))
+        "start", f"{problem}; nearest valid start: {np.round(found.start, 4).tolist()} (the exact model "
+                 f"plans from it to the target: {found.tried} candidate(s) searched from, {found.states:,} "
+                 f"states)"))
 
 
 def start_problem(scene: Scene, checker: ConfigurationChecker, bb: Backbone | None = None) -> str | None:
@@ -269,13 +293,22 @@ def start_problem(scene: Scene, checker: ConfigurationChecker, bb: Backbone | No
     return None
 
 
-def valid_start(scene: Scene, checker: ConfigurationChecker) -> np.ndarray | None:
-    """A start near the scene's that is valid under ``checker`` (a design's start; the fix that
-    `check_scene` proposes): the scene's start if valid, else the valid candidate nearest it in the
-    planning metric among its translations and the fully retracted ones (``betaN`` lowest,
-    differences largest), each with every rotatable tube turned by multiples of 1/`START_TURNS` turn
-    (wrapped into its interval). None when no candidate is valid."""
-    space = checker.space
+@dataclass(frozen=True)
+class StartFix:
+    """What `reaching_start` found: a start (joints, mm and rad) or None, how many valid candidates
+    it searched from, the states the successful search used and the budget of each."""
+
+    start: np.ndarray | None
+    tried: int
+    states: int
+    states_each: int
+
+
+def start_candidates(scene: Scene, space: BoxSpace) -> np.ndarray:
+    """Candidate starts near the scene's (joints (C, 2N)), nearest in the planning metric first
+    (wrapping rotations the short way): its translations and the fully retracted ones (``betaN``
+    lowest, differences largest), each with every rotatable tube turned by multiples of
+    1/`START_TURNS` turn (wrapped into its interval)."""
     robot = scene.robot
     n = robot.n_tubes
     lo, hi = scene.joint_box
@@ -290,11 +323,41 @@ def valid_start(scene: Scene, checker: ConfigurationChecker) -> np.ndarray | Non
             angles.append(np.array([box0[c]]))
     rows = [np.concatenate([t, a]) for t in (box0[:n], retracted) for a in itertools.product(*angles)]
     cands = robot.domain.from_box(np.array(rows))
-    dist = np.linalg.norm(space.to_coords(cands) - space.to_coords(scene.start[None]), axis=1)
-    order = np.argsort(dist, kind="stable")
-    for a in range(0, len(order), START_CHUNK):
-        chunk = order[a:a + START_CHUNK]
-        valid = checker.check(cands[chunk])
-        if valid.any():
-            return cands[chunk[int(np.argmax(valid))]]
-    return None
+    dist = space.distance(cands, scene.start[None])
+    return cands[np.argsort(dist, kind="stable")]
+
+
+def valid_starts(scene: Scene, checker: ConfigurationChecker):
+    """The valid `start_candidates` under ``checker``, nearest first (checked `START_CHUNK` at a
+    time)."""
+    cands = start_candidates(scene, checker.space)
+    for a in range(0, len(cands), START_CHUNK):
+        chunk = cands[a:a + START_CHUNK]
+        yield from chunk[checker.check(chunk).astype(bool)]
+
+
+def valid_start(scene: Scene, checker: ConfigurationChecker) -> np.ndarray | None:
+    """A start near the scene's that is valid under ``checker`` (a design's start; the quick fix
+    `plan` proposes): the scene's start if valid, else the nearest valid of `start_candidates`. None
+    when no candidate is valid."""
+    return next(valid_starts(scene, checker), None)
+
+
+def reaching_start(scene: Scene, checker: ConfigurationChecker, seed: int = 0) -> StartFix:
+    """The nearest valid start (`valid_starts`) from which a search with ``checker`` (the exact
+    model) reaches the target, trying the `FIX_CANDIDATES` nearest with `FIX_SEARCH_STATES` states
+    each: a start that is merely collision-free may leave the robot where the target cannot be
+    reached through the anatomy (outside the face)."""
+    from ctrplan.planning.planner import search  # the planner runs these checks: imported late
+
+    tried, hints = 0, None
+    for start in valid_starts(scene, checker):
+        out = search(checker, start=start, seed=seed, max_states=FIX_SEARCH_STATES, simplify=False,
+                     goal_hints=hints)
+        tried += 1
+        if out.path_q is not None:
+            return StartFix(start, tried, int(out.budget["states"]), FIX_SEARCH_STATES)
+        hints = np.array(out.goals) if out.goals else hints
+        if tried >= FIX_CANDIDATES:
+            break
+    return StartFix(None, tried, 0, FIX_SEARCH_STATES)
