@@ -91,13 +91,14 @@ def check(
     """
     from ctrplan.model.robot import Robot
     from ctrplan.planning.scene_check import check_scene
+    from ctrplan.planning.start_fix import reaching_start
     from ctrplan.scene.loader import load_scene
 
     override = Robot.load(robot) if robot is not None else None
     scene = load_scene(scene_file, check_start=False, robot=override)
     console = Console(stderr=True)
     with console.status("checking the scene", spinner="dots") if console.is_terminal else nullcontext():
-        report = check_scene(scene, seed=seed)
+        report = check_scene(scene, seed=seed, start_fix=reaching_start)
     for key, fact in report.facts.items():
         typer.echo(f"{key}: {fact}")
     start = scene.start if report.usable else report.fixed_start

@@ -33,7 +33,15 @@ from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.blas import single_threaded_blas
 from ctrplan.kinematics.pinn import ROW_BLOCKS
-from ctrplan.planning.budget import GUARD_FACTOR, SearchBudget, check_max_states, states_for
+from ctrplan.planning.budget import (
+    GUARD_FACTOR,
+    WALL_FACTOR,
+    PlanClock,
+    SearchBudget,
+    check_max_states,
+    reference_rate,
+    states_for,
+)
 from ctrplan.planning.goal import ANGLE_WEIGHT_MM_PER_RAD, GoalSampler, TipGoal, tip_tangents
 from ctrplan.planning.ik import backend_tip_jacobian, compile_ik, solve_ik
 from ctrplan.planning.model import PlanningModel
@@ -250,17 +258,20 @@ def _setup_planner(spec: PlannerSpec, problem: PlanningProblem, range_mm: float 
     return pl
 
 
-def _simplified_path(problem: PlanningProblem, simplify: bool, timings: dict) -> np.ndarray:
+def _simplified_path(problem: PlanningProblem, simplify: bool, timings: dict,
+                     stop: Callable[[], bool] | None = None) -> np.ndarray:
     """The solution as joints (K, 2N), continuous (`BoxSpace.unwrap`), shortcut first if ``simplify``
-    (`shortcut_path`: batched, lazy checks at the motion validator's resolution)."""
+    (`shortcut_path`: batched, lazy checks at the motion validator's resolution, until ``stop()``)."""
     box, checker = problem.box, problem.checker
     path_q = box.unwrap(_path_q(problem, problem.pdef.getSolutionPath()))
     if not simplify:
         return path_q
     t_simp = time.perf_counter()
     cut = shortcut_path(box.to_coords(path_q), lambda y: checker.validate(box.to_joints(y))[0],
-                        problem.motion_validator.resolution, box.difference)
+                        problem.motion_validator.resolution, box.difference, stop)
     timings["simplify_s"] = time.perf_counter() - t_simp
+    if cut.stopped:
+        timings["simplify_stopped"] = True
     timings["simplify_states"] = cut.states
     return path_q[cut.vertices]
 
@@ -282,7 +293,7 @@ def _failure_message(problem: PlanningProblem, budget: SearchBudget, to_configur
 def search(checker: ConfigurationChecker, *, start: np.ndarray | None = None, planner: str | None = None,
            time_limit_s: float | None = None, max_states: int | None = None, seed: int | None = None,
            progress: Progress = _quiet, simplify: bool | None = None, goal_q: np.ndarray | None = None,
-           goal_hints: np.ndarray | None = None) -> SearchOutcome:
+           goal_hints: np.ndarray | None = None, wall_s: float | None = None) -> SearchOutcome:
     """One OMPL search from ``start`` (default: the scene's) to the target region (or to the
     configuration ``goal_q``) with the planning model of ``checker``, whose counters and cache it
     extends; ``goal_hints`` (K, 2N): where goal sampling starts (see `GoalSampler`).
@@ -290,8 +301,9 @@ def search(checker: ConfigurationChecker, *, start: np.ndarray | None = None, pl
     Budget (`ctrplan.planning.budget`): ``max_states`` states evaluated (goal sampling included;
     default: the scene's ``max_states``, else what ``time_limit_s`` buys with this backend on the
     reference machine), under a
-    wall-clock guard of `GUARD_FACTOR` x ``time_limit_s`` (default: the scene's). The outcome's
-    ``budget`` says how much was used and whether the guard cut the search short.
+    wall-clock guard of `GUARD_FACTOR` x ``time_limit_s`` (default: the scene's), or, with ``wall_s``,
+    the time limit of a plan: stopped after ``wall_s`` seconds. The outcome's ``budget`` says how much
+    was used and whether the clock cut the search short.
 
     Steps: build the problem, sample goal configurations, set up the planner, solve, simplify."""
     model = checker.model
@@ -304,8 +316,8 @@ def search(checker: ConfigurationChecker, *, start: np.ndarray | None = None, pl
                           goal_hints=goal_hints)
     sampler = problem.sampler
     budget = SearchBudget.start(max_states or s.max_states or states_for(model.backend.name, limit_s),
-                                GUARD_FACTOR * limit_s,
-                                lambda: checker.counters.kinematics_calls)
+                                GUARD_FACTOR * limit_s if wall_s is None else wall_s,
+                                lambda: checker.counters.kinematics_calls, time_limit=wall_s is not None)
     with single_threaded_blas(), numba_threads_at_most(ROW_BLOCKS), gc_paused(), \
             _hooked(checker, _progress_hook(problem, budget, progress)):
         region_goal = isinstance(problem.goal, TipGoal)
@@ -330,8 +342,9 @@ def search(checker: ConfigurationChecker, *, start: np.ndarray | None = None, pl
             reached = sampler.stats.ik_reached
             why = f": {reached} IK solutions reached the target, all {model.stability.invalid}" \
                 if reached and not sampler.goals else ""
+            ended = "time limit reached" if budget.cut_short and budget.time_limit else "budget used up"
             return outcome(None, "TIMEOUT", False,
-                           f"budget used up while sampling goal configurations ({len(sampler.goals)} "
+                           f"{ended} while sampling goal configurations ({len(sampler.goals)} "
                            f"found{why}; {budget.describe()})")
         if spec.fixed_goal_set and region_goal:
             _fix_goal_set(problem, budget)
@@ -347,7 +360,10 @@ def search(checker: ConfigurationChecker, *, start: np.ndarray | None = None, pl
                            _failure_message(problem, budget, goal_q is not None))
         if simplify:
             progress("simplify", elapsed=budget.elapsed())
-        return outcome(_simplified_path(problem, simplify, timings), status_name, True, "")
+        stop = (lambda: budget.elapsed() >= budget.guard_s) if budget.time_limit else None
+        path_q = _simplified_path(problem, simplify, timings, stop)
+        budget.cut_short = budget.cut_short or timings.get("simplify_stopped", False)
+        return outcome(path_q, status_name, True, "")
 
 
 @dataclass
@@ -473,13 +489,14 @@ def exact_goal(path_q: np.ndarray, checker: ConfigurationChecker) -> np.ndarray:
 
 
 def _replanner(checker: ConfigurationChecker, seed: int | None, hints: np.ndarray,
-               time_s: float) -> tuple[Callable[..., np.ndarray | None], dict]:
+               time_s: float, wall_end: float | None = None) -> tuple[Callable[..., np.ndarray | None], dict]:
     """``replan(start_q, goal_q)`` for `repair_path`: RRTConnect searches with ``checker`` (of the
     exact model), not shortcut (a shortcut hugs the obstacles: with the exact model's bare margin,
     one checked at the planner's resolution can fail the finer exact validation), sharing one work
     budget (what ``time_s`` buys with the exact model; each search gets what is left, at least a
-    tenth) and one wall-clock guard; and the budget's record (``max_states``, ``states``,
-    ``cut_short``), updated by every search."""
+    tenth) and one wall-clock guard, or the plan's time limit (``wall_end``, perf_counter: every
+    search stops by then); and the budget's record (``max_states``, ``states``, ``cut_short``),
+    updated by every search."""
     total = states_for(checker.backend.name, time_s)
     guard_end = time.perf_counter() + GUARD_FACTOR * time_s
     record = {"max_states": total, "states": 0, "cut_short": False}
@@ -487,9 +504,10 @@ def _replanner(checker: ConfigurationChecker, seed: int | None, hints: np.ndarra
     def replan(start_q: np.ndarray, goal_q: np.ndarray | None) -> np.ndarray | None:
         left = max(total - record["states"], total // 10)
         limit = max(guard_end - time.perf_counter(), 0.5 * GUARD_FACTOR) / GUARD_FACTOR
+        wall = None if wall_end is None else max(0.0, wall_end - time.perf_counter())
         out = search(checker, start=start_q, goal_q=goal_q, planner="rrtconnect", time_limit_s=limit,
                      max_states=left, seed=seed, goal_hints=hints if goal_q is None else None,
-                     simplify=False)
+                     simplify=False, wall_s=wall)
         record["states"] += out.budget["states"]
         record["cut_short"] = record["cut_short"] or out.budget["cut_short"]
         return out.path_q
@@ -498,23 +516,30 @@ def _replanner(checker: ConfigurationChecker, seed: int | None, hints: np.ndarra
 
 
 def _validate_and_repair(model: PlanningModel, path_q: np.ndarray, result: PlanResult, repair: bool,
-                         progress: Progress, goals: list[np.ndarray]) -> tuple[ValidatedPath, np.ndarray]:
+                         progress: Progress, goals: list[np.ndarray],
+                         clock: PlanClock | None = None) -> tuple[ValidatedPath, np.ndarray]:
     """Exact validation of a planned path; if it fails and ``repair``, the failing stretches are
     re-planned with the exact model and the repaired path is validated again -- an end re-planned
     to the target samples its exact goals from the path's last state and the search's ``goals``
     first (exact inverse kinematics from scratch costs most of a repair). Records repair time and
-    calls in ``result``; returns the validated path and its joints."""
+    calls in ``result``; returns the validated path and its joints. With the plan's ``clock`` (a time
+    limit) the repair's searches stop in time to validate the repaired path before it runs out."""
     progress("validate")
     vp = validate_planned_path(model, path_q)
     result.details["validation_time_s"] = vp.report.time_s
     if vp.report.ok or not repair:
+        return vp, path_q
+    wall_end = None if clock is None else time.perf_counter() + clock.left() - 1.5 * vp.report.time_s
+    if wall_end is not None and wall_end <= time.perf_counter():
+        result.details["repair"] = "not tried: no time left within the time limit"
+        result.cut_short = True
         return vp, path_q
     progress("repair")
     t_rep = time.perf_counter()
     rep_checker = ConfigurationChecker(model.exact_search())
     rep_seed = None if result.seed is None else result.seed + 1
     hints = np.stack([path_q[-1], *goals])
-    replan, budget = _replanner(rep_checker, rep_seed, hints, max(5.0, result.time_limit_s))
+    replan, budget = _replanner(rep_checker, rep_seed, hints, max(5.0, result.time_limit_s), wall_end)
     fixed = repair_path(vp, replan)
     result.details["repair_budget"] = budget
     result.cut_short = result.cut_short or budget["cut_short"]
@@ -551,19 +576,27 @@ def _verdict(report: Validation, repair: bool) -> str:
     return "not solved: " + "; ".join(why) + ("" if repair else " (repair disabled)")
 
 
-def _report_guard(result: PlanResult) -> None:
-    """Say so when a wall-clock guard cut a search of the plan short: then, and only then, the
-    verdict depends on the machine's speed and load."""
-    if result.cut_short and "wall-clock guard" not in result.message:
+def _report_guard(result: PlanResult, clock: PlanClock | None) -> None:
+    """Say so when the clock cut a search of the plan short (then, and only then, the verdict depends
+    on the machine's speed and load), and, for a time limit, how to make it reproducible."""
+    if not result.cut_short or "wall-clock guard" in result.message or "--max-states" in result.message:
+        return
+    if clock is None:
         result.message += (" (a search was cut short by its wall-clock guard: this verdict depends on the "
                            "machine's speed and load)")
+        return
+    result.message += (f" (the time limit of {clock.limit_s:g} s stopped a search before its work budget of "
+                       f"{result.max_states:,} states was used: this verdict depends on the machine's speed "
+                       f"and load; for a reproducible one, give the work budget instead: --max-states "
+                       f"{result.max_states} without --time-limit)")
 
 
 def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | None = None,
          time_limit_s: float | None = None, max_states: int | None = None, seed: int | None = None,
          progress: Progress = _quiet,
          exact: Backend | None = None, repair: bool | None = None,
-         goal_hints: np.ndarray | None = None, world: CollisionWorld | None = None) -> PlanResult:
+         goal_hints: np.ndarray | None = None, world: CollisionWorld | None = None,
+         wall_limit: bool | None = None) -> PlanResult:
     """Plan a collision-free motion from the scene's start to its target, then validate it exactly.
 
     With an approximate backend (the PINN) the capsules get extra radius while planning: its
@@ -580,8 +613,15 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     configurations known already (e.g. from a reachability screen), where goal sampling starts.
     ``world``: the scene's collision world if already built (a design study plans many targets in
     one anatomy); by default it is built here.
+
+    The clock (`ctrplan.planning.budget`): with ``wall_limit`` (default: when no work budget is given,
+    neither ``max_states`` nor the scene's) ``time_limit_s`` is a time limit -- everything after
+    kernel compilation ends within `WALL_FACTOR` x it; otherwise the work budget decides and the
+    clock only guards.
     """
+    t_entry = time.perf_counter()
     s = scene.settings
+    wall_limit = (max_states is None and s.max_states is None) if wall_limit is None else wall_limit
     planner, _ = scene_planner(scene, planner)
     time_limit_s = _time_limit(scene, time_limit_s)
     max_states = check_max_states(max_states) or s.max_states
@@ -593,6 +633,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     model = PlanningModel.build(scene, resolve_backend(backend, scene.robot), exact, world)
     start_bb = compile_kernels(model, progress)
     compile_s = time.perf_counter() - t_compile
+    clock = PlanClock(time_limit_s, t_entry + compile_s) if wall_limit else None
     progress("start")  # the collision world: its distance grid and kernels on first use
     check_start(model, start_bb)  # the start under the exact model, solved once
     checker = ConfigurationChecker(model)
@@ -611,7 +652,8 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
         result.details["counters"] = vars(checker.counters).copy()
         return result
     outcome = search(checker, planner=planner, time_limit_s=time_limit_s, max_states=result.max_states,
-                     seed=seed, progress=progress, goal_hints=goal_hints)
+                     seed=seed, progress=progress, goal_hints=goal_hints,
+                     wall_s=None if clock is None else clock.search_left())
     _record_search(result, outcome, checker)
     if outcome.path_q is not None:
         t_goal = time.perf_counter()
@@ -619,13 +661,24 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
         result.details["exact_goal"] = {"appended": len(path_q) > len(outcome.path_q),
                                         "time_s": time.perf_counter() - t_goal}
         result.planning_time_s += result.details["exact_goal"]["time_s"]
-        vp, result.path = _validate_and_repair(model, path_q, result, repair, progress, outcome.goals)
+        vp, result.path = _validate_and_repair(model, path_q, result, repair, progress, outcome.goals,
+                                               clock)
         result.validated, result.dense = vp.report, vp
         result.tip_mm = np.asarray(vp.report.tip_mm)
         result.solved = vp.report.ok
         result.message = _verdict(vp.report, repair)
-    _report_guard(result)
+    _report_guard(result, clock)
+    result.details["clock"] = _clock_record(result, clock, model.backend.name)
     return result
+
+
+def _clock_record(result: PlanResult, clock: PlanClock | None, backend: str) -> dict:
+    """How the clock bounded the plan: a time limit (``wall_limit_s``, the wall time after kernel
+    compilation it used) or a guard, and the reference rate the work budget was sized with."""
+    return {"mode": "guard" if clock is None else "time limit", "time_limit_s": result.time_limit_s,
+            "wall_limit_s": None if clock is None else WALL_FACTOR * clock.limit_s,
+            "wall_s": None if clock is None else round(clock.elapsed(), 4),
+            "reference_states_per_s": reference_rate(backend)}
 
 
 def _record_search(result: PlanResult, outcome: SearchOutcome, checker: ConfigurationChecker) -> None:

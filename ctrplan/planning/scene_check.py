@@ -12,8 +12,8 @@ planner its whole time budget or give a meaningless "solved".
    not converged or elastically unstable. The nearest valid start from which the exact model plans
    to the target is proposed (`reaching_start`: candidates of `start_candidates`, the start's own
    translations and the fully retracted ones, every tube turned by 1/8 turns, nearest in the planning
-   metric first; a start that is merely collision-free may leave the robot outside the anatomy),
-   or the command says that none of the nearest is one; `plan`, which skips the sampled reach,
+   metric first; a start that is merely collision-free may leave the robot outside the anatomy:
+   `ctrplan.planning.start_fix`), or the command says that none of the nearest is one; `plan`
    proposes the nearest valid one without searching.
 6. **Planner**: the scene names a planner of `ctrplan.planning.planners.PLANNERS`.
 
@@ -23,6 +23,7 @@ planner its whole time budget or give a meaningless "solved".
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -52,10 +53,6 @@ REACH_IK_SEEDS = 16
 START_TURNS = 8
 #: Candidate starts checked per batched call.
 START_CHUNK = 64
-#: `scene check --fix` searches from at most this many valid candidate starts, nearest first, with
-#: this work budget each (exact model: about 4 s each on the reference machine).
-FIX_CANDIDATES = 4
-FIX_SEARCH_STATES = 20_000
 
 
 @dataclass(frozen=True)
@@ -82,14 +79,18 @@ class SceneCheck:
 
 
 def check_scene(scene: Scene, *, samples: int = REACH_SAMPLES, seed: int = 0, reach: bool = True,
-                model: PlanningModel | None = None, start_backbone: Backbone | None = None) -> SceneCheck:
+                model: PlanningModel | None = None, start_backbone: Backbone | None = None,
+                start_fix: StartFixer | None = None) -> SceneCheck:
     """Run every check on ``scene`` (its start may lie outside the domain: see
     `ctrplan.scene.loader.load_scene(..., check_start=False)`). ``reach=False`` skips the sampled
     reachability check (seconds; `plan` runs the others, which take milliseconds, before every
     search). ``model``: the plan's `PlanningModel` (its exact backend, with the stability decision,
     judges the start; its collision world is reused); default: one of the exact model.
     ``start_backbone``: that backend's backbone of the start at the model's points, if solved
-    already (`plan` solves it when it compiles the kernels). Obstacles of the wrong scale or
+    already (`plan` solves it when it compiles the kernels). ``start_fix``: how to find a start
+    that replaces a bad one (`ctrplan.planning.start_fix.reaching_start`: the nearest valid start
+    from which a search reaches the target; default: the nearest valid one, not searched from).
+    Obstacles of the wrong scale or
     orientation end the check there: every later answer would be about the wrong anatomy."""
     report = SceneCheck()
     robot_mm = float(scene.robot.lengths_mm[0] + scene.robot.domain.box_upper[0])
@@ -102,7 +103,7 @@ def check_scene(scene: Scene, *, samples: int = REACH_SAMPLES, seed: int = 0, re
     _check_target_inside(scene, report)
     if reach:
         _check_reach(scene, samples, seed, report)
-    _check_start(scene, report, model or PlanningModel.of(scene), start_backbone, reach, seed)
+    _check_start(scene, report, model or PlanningModel.of(scene), start_backbone, start_fix, seed)
     try:
         scene_planner(scene)
     except InputError as exc:
@@ -229,10 +230,10 @@ def _check_reach(scene: Scene, samples: int, seed: int, report: SceneCheck) -> N
 
 
 def _check_start(scene: Scene, report: SceneCheck, model: PlanningModel, bb: Backbone | None,
-                 reach: bool, seed: int) -> None:
-    """The start's problem, if any, with the fix: with ``reach``, the nearest valid start from which
-    the exact model plans to the target (`reaching_start`), or why there is none; without (`plan`'s
-    quick checks), the nearest valid start, not searched from."""
+                 start_fix: StartFixer | None, seed: int) -> None:
+    """The start's problem, if any, with the fix: with ``start_fix``, the start it finds (the
+    nearest valid one from which the exact model plans to the target), or why there is none;
+    without (`plan`'s quick checks), the nearest valid start, not searched from."""
     robot = scene.robot
     where = scene.where("start")
     lo, hi = scene.joint_box
@@ -250,14 +251,14 @@ def _check_start(scene: Scene, report: SceneCheck, model: PlanningModel, bb: Bac
     if problem is None:
         report.facts["start"] = "valid"
         return
-    if not reach:
+    if start_fix is None:
         fixed = valid_start(inside, checker)
         report.problems.append(SceneProblem("start", f"{problem}; " + (
             "no valid start found near it" if fixed is None else
             f"nearest valid start: {np.round(fixed, 4).tolist()} (not searched from: `ctrplan scene check "
             f"--fix OUT.yaml` finds one from which the target is reached)")))
         return
-    found = reaching_start(inside, checker, seed)
+    found = start_fix(inside, checker, seed)
     if found.start is None:
         why = "no valid start found near it" if not found.tried else (
             f"no fix: from none of the {found.tried} nearest valid starts does the exact model reach the "
@@ -304,6 +305,11 @@ class StartFix:
     states_each: int
 
 
+#: Finds a start to replace a bad one: (scene with the start clipped into the box, its exact
+#: checker, seed) -> `StartFix`.
+StartFixer = Callable[[Scene, ConfigurationChecker, int], StartFix]
+
+
 def start_candidates(scene: Scene, space: BoxSpace) -> np.ndarray:
     """Candidate starts near the scene's (joints (C, 2N)), nearest in the planning metric first
     (wrapping rotations the short way): its translations and the fully retracted ones (``betaN``
@@ -327,7 +333,7 @@ def start_candidates(scene: Scene, space: BoxSpace) -> np.ndarray:
     return cands[np.argsort(dist, kind="stable")]
 
 
-def valid_starts(scene: Scene, checker: ConfigurationChecker):
+def valid_starts(scene: Scene, checker: ConfigurationChecker) -> Iterator[np.ndarray]:
     """The valid `start_candidates` under ``checker``, nearest first (checked `START_CHUNK` at a
     time)."""
     cands = start_candidates(scene, checker.space)
@@ -341,23 +347,3 @@ def valid_start(scene: Scene, checker: ConfigurationChecker) -> np.ndarray | Non
     `plan` proposes): the scene's start if valid, else the nearest valid of `start_candidates`. None
     when no candidate is valid."""
     return next(valid_starts(scene, checker), None)
-
-
-def reaching_start(scene: Scene, checker: ConfigurationChecker, seed: int = 0) -> StartFix:
-    """The nearest valid start (`valid_starts`) from which a search with ``checker`` (the exact
-    model) reaches the target, trying the `FIX_CANDIDATES` nearest with `FIX_SEARCH_STATES` states
-    each: a start that is merely collision-free may leave the robot where the target cannot be
-    reached through the anatomy (outside the face)."""
-    from ctrplan.planning.planner import search  # the planner runs these checks: imported late
-
-    tried, hints = 0, None
-    for start in valid_starts(scene, checker):
-        out = search(checker, start=start, seed=seed, max_states=FIX_SEARCH_STATES, simplify=False,
-                     goal_hints=hints)
-        tried += 1
-        if out.path_q is not None:
-            return StartFix(start, tried, int(out.budget["states"]), FIX_SEARCH_STATES)
-        hints = np.array(out.goals) if out.goals else hints
-        if tried >= FIX_CANDIDATES:
-            break
-    return StartFix(None, tried, 0, FIX_SEARCH_STATES)

@@ -44,6 +44,7 @@ class Shortcut:
     vertices: np.ndarray
     states: int = 0
     calls: int = 0
+    stopped: bool = False
 
 
 class _Shortcuts:
@@ -105,12 +106,13 @@ def _shortest(weights: np.ndarray) -> list[int]:
 
 
 def shortcut_path(y: np.ndarray, valid: Callable[[np.ndarray], np.ndarray], resolution: float,
-                  difference: Difference | None = None) -> Shortcut:
+                  difference: Difference | None = None, stop: Callable[[], bool] | None = None) -> Shortcut:
     """The shortest valid path through the vertices of the valid path ``y`` (K, D) (box coordinates,
     planning metric mm); ``valid``: validity of states (M, D) -> (M,) bool in one batched call;
     ``resolution``: spacing of the checked states along an edge (mm); ``difference(a, b)``: the
-    step from a to b (`BoxSpace.difference`: wrapping rotations the short way; default b - a). See
-    the module docstring."""
+    step from a to b (`BoxSpace.difference`: wrapping rotations the short way; default b - a);
+    ``stop()``: asked before each round, True ends the shortcutting with the shortest path through
+    the edges checked so far (``Shortcut.stopped``). See the module docstring."""
     y = np.asarray(y, dtype=float)
     out = Shortcut(np.arange(len(y)))
     if len(y) < 3:
@@ -119,6 +121,11 @@ def shortcut_path(y: np.ndarray, valid: Callable[[np.ndarray], np.ndarray], reso
     path = _shortest(cuts.weights)
     edges = sorted(cuts.open)  # first round: the midpoint of every shortcut
     while edges:
+        if stop is not None and stop():
+            for e in cuts.open:
+                cuts.weights[e] = np.inf  # unchecked: not taken
+            path, out.stopped = _shortest(cuts.weights), True
+            break
         batches = [cuts.next_states(e) for e in edges]
         counts = [len(b) for b in batches]
         ok = valid(np.concatenate(batches))

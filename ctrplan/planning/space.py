@@ -27,7 +27,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ctrplan.model.robot import TURN, JointDomain, Robot, box_names
+from ctrplan.model.robot import TURN, JointDomain, Robot
 
 
 @dataclass(frozen=True)
@@ -83,8 +83,8 @@ class BoxSpace:
     def names(self) -> tuple[str, ...]:
         """Names of the searched coordinates (OMPL dimension names)."""
         n = self.domain.n_tubes
-        full = [name.replace(" - ", "_minus_") for name in box_names(n)[:n]]
-        full += [f"alpha{i}_mm" for i in range(1, n + 1)]
+        full = [name.replace(" - ", "_minus_") for name in self.domain.names]
+        full = full[:n] + [f"{name}_mm" for name in full[n:]]
         return tuple(name for name, f in zip(full, self.free, strict=True) if f)
 
     @property

@@ -72,7 +72,7 @@ import numpy as np
 
 from ctrplan.base.errors import InputError
 from ctrplan.base.yamlio import YamlDoc, load_yaml
-from ctrplan.model.robot import Robot, box_keys
+from ctrplan.model.robot import JointDomain, Robot
 from ctrplan.scene.geometry import ANATOMY_PAIRS, frame_from_z, make_pose, rpy_matrix
 from ctrplan.scene.objects import Obstacle, PlannerSettings, Scene, TargetRegion
 from ctrplan.scene.orientation import anatomy_code, code_matrix, declared_space
@@ -84,10 +84,10 @@ MESH_SUFFIXES = (".stl", ".obj", ".ply")
 # ---- loading ---------------------------------------------------------------------------------------
 _TOP_KEYS = {"name", "description", "robot", "base_pose", "obstacles", "target", "start", "planner",
              "joint_limits", "anatomy"}
-def joint_limit_keys(n_tubes: int) -> tuple[str, ...]:
+def joint_limit_keys(domain: JointDomain) -> tuple[str, ...]:
     """Keys of a scene's ``joint_limits`` (box coordinates; translations in mm, rotations in deg):
     the robot file's domain keys with ``alphaI_deg`` for the rotations."""
-    return tuple(k.replace("_rad", "_deg") for k in box_keys(n_tubes))
+    return tuple(k.replace("_rad", "_deg") for k in domain.keys)
 
 
 
@@ -383,7 +383,7 @@ def _anatomy(doc: YamlDoc, raw: Any) -> dict[str, str]:
 
 def _joint_limits(doc: YamlDoc, raw: Any, robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     keys = ("joint_limits",)
-    names = joint_limit_keys(robot.n_tubes)
+    names = joint_limit_keys(robot.domain)
     spec = _mapping(doc, keys, raw, set(names))
     lo, hi = robot.domain.box_lower.copy(), robot.domain.box_upper.copy()
     for i, name in enumerate(names):
@@ -456,7 +456,7 @@ def scene_from_yaml(doc: YamlDoc, *, check_start: bool = True, robot: Robot | No
         out = np.flatnonzero((box < limits[0] - 1e-9) | (box > limits[1] + 1e-9))
         if out.size and check_start:
             i = int(out[0])
-            names = joint_limit_keys(robot.n_tubes)
+            names = joint_limit_keys(robot.domain)
             raise doc.error(("start",), f"outside the scene's joint_limits: {names[i]}")
 
     name = d.get("name", doc.path.stem)

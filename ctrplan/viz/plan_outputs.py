@@ -14,7 +14,7 @@ from ctrplan.base.dataio import atomic_write, format_csv, output_dir
 from ctrplan.collision.checker import RobotCollisionChecker, StructureClearance
 from ctrplan.collision.world import CollisionWorld
 from ctrplan.kinematics import CosseratBackend
-from ctrplan.planning.trajectory import segment_positions, time_parametrise
+from ctrplan.planning.execution import DEFAULT_RATE_HZ, trajectory_table
 from ctrplan.planning.validate import clearance_along
 from ctrplan.viz.plan_plot import plot_plan
 from ctrplan.viz.style import CLEARANCE_CAP_MM
@@ -69,9 +69,11 @@ def structure_line(c: dict, rich: bool = False) -> str:
             + (f" {flag}" if flag else ""))
 
 
-def write_plan_outputs(out: Path, sc, result, doc: dict, world: CollisionWorld | None = None) -> None:
-    """path.json, obstacles.ply, plan.png, plan.html and, for a solved plan, trajectory.csv; each file
-    is written completely or not at all. ``world``: the scene's collision world, if built already."""
+def write_plan_outputs(out: Path, sc, result, doc: dict, world: CollisionWorld | None = None,
+                       rate_hz: float = DEFAULT_RATE_HZ) -> None:
+    """path.json, obstacles.ply, plan.png, plan.html and, for a solved plan, trajectory.csv (rows at
+    ``rate_hz``); each file is written completely or not at all. ``world``: the scene's collision
+    world, if built already."""
     output_dir(out)
     full = dict(doc)
     clearance = None
@@ -85,7 +87,7 @@ def write_plan_outputs(out: Path, sc, result, doc: dict, world: CollisionWorld |
         full["backbones_backend"] = "cosserat"
         full["frame"] = "scene (mm)"
         if result.solved:
-            write_trajectory(out / "trajectory.csv", sc, result, bbs[:, -1, :], np.nanmin(clearance, axis=1))
+            write_trajectory(out / "trajectory.csv", sc, result, world, rate_hz)
     else:  # nothing planned: show the start
         b = CosseratBackend(sc.robot).forward(sc.start, points=sc.settings.points, check=False)
         bbs, radii = sc.to_scene(b.positions_mm), b.radius_mm
@@ -107,15 +109,12 @@ def write_plan_outputs(out: Path, sc, result, doc: dict, world: CollisionWorld |
     tmp_html.replace(out / "plan.html")
 
 
-def write_trajectory(path: Path, sc, result, tips_mm: np.ndarray, clearance_mm: np.ndarray) -> None:
-    """trajectory.csv: the validated path timed within the robot's joint limits (`ctrplan.planning.
-    trajectory`), one row per exactly validated state: time_s, joints (mm, rad), the tip (scene frame,
-    mm) and the exact model's clearance (mm; `TRAJECTORY_CLEARANCE_CAP_MM` where it is larger)."""
-    dense = result.dense.dense_q
-    trajectory = time_parametrise(result.path, sc.robot.limits)
-    times = trajectory.time_of(*segment_positions(np.asarray(result.path), dense))
-    header = ["time_s", *sc.robot.joint_names, "tip_x", "tip_y", "tip_z", "clearance_mm"]
-    rows = np.column_stack([times, dense, tips_mm, clearance_mm])
+def write_trajectory(path: Path, sc, result, world: CollisionWorld | None = None,
+                     rate_hz: float = DEFAULT_RATE_HZ) -> None:
+    """trajectory.csv (`ctrplan.planning.execution.trajectory_table`): the validated path timed
+    within the robot's joint limits, passing waypoints where the exact model allows, at ``rate_hz``
+    rows per second with velocities, actuator units, tip and clearance."""
+    header, rows, _ = trajectory_table(sc, np.asarray(result.path), rate_hz, world)
     with atomic_write(path) as fh:
         fh.write(format_csv(header, rows, ["%.6f"] * rows.shape[1]))
 

@@ -127,10 +127,10 @@ def test_fix_never_writes_a_start_from_which_the_target_cannot_be_reached(tmp_pa
     """The target sits in a closed cage (a hollow shell: the sampled reach, which ignores obstacles,
     finds it; no robot gets in), and the start collides: collision-free starts exist, but from none
     does the exact model reach the target, so --fix says there is no fix and writes nothing."""
-    import ctrplan.planning.scene_check as scene_check
+    import ctrplan.planning.start_fix as start_fix
 
-    monkeypatch.setattr(scene_check, "FIX_SEARCH_STATES", 1500)  # the verdict holds for any budget
-    monkeypatch.setattr(scene_check, "FIX_CANDIDATES", 2)
+    monkeypatch.setattr(start_fix, "FIX_SEARCH_STATES", 1500)  # the verdict holds for any budget
+    monkeypatch.setattr(start_fix, "FIX_CANDIDATES", 2)
     scene = load_scene(scene_file(tmp_path, OPEN))
     outer = trimesh.creation.icosphere(subdivisions=2, radius=14.0)
     inner = trimesh.creation.icosphere(subdivisions=2, radius=10.0)
@@ -139,9 +139,10 @@ def test_fix_never_writes_a_start_from_which_the_target_cannot_be_reached(tmp_pa
     cage.apply_translation(scene.target.center)
     cage.export(tmp_path / "cage.stl")
     centre = CosseratBackend(scene.robot).forward(scene.start, points=11).positions_mm[0, 4]
-    text = OPEN.replace("obstacles:\n", f"obstacles:\n- {{name: cage, mesh: cage.stl}}\n- {{name: blocker, "
-                                        f"sphere: {{center: {np.round(centre, 3).tolist()}, radius: 3.0}}}}\n")
+    blocker = f"{{name: blocker, sphere: {{center: {np.round(centre, 3).tolist()}, radius: 3.0}}}}"
+    text = OPEN.replace("obstacles:\n", f"obstacles:\n- {{name: cage, mesh: cage.stl}}\n- {blocker}\n")
     code, err, _ = check(scene_file(tmp_path, text), capsys, "--fix", str(tmp_path / "fixed.yaml"))
     assert code == 2 and len(err) == 1, err
-    assert "in collision with blocker" in err[0] and "no fix: from none of the 2 nearest valid starts" in err[0]
+    assert "in collision with blocker" in err[0]
+    assert "no fix: from none of the 2 nearest valid starts" in err[0]
     assert not (tmp_path / "fixed.yaml").exists()

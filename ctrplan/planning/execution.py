@@ -1,0 +1,59 @@
+"""``trajectory.csv``: what a controller executes (issue 41, item 11).
+
+The validated path is timed within the robot's joint limits without stopping at waypoints where the
+exact model allows (`ctrplan.planning.trajectory.executed_trajectory`: blends checked with the exact
+model at the planner's resolution, a waypoint whose blend fails becomes a stop), then sampled at a
+fixed rate. Each row: ``time_s``, the joints (mm, rad), their velocities (``beta1_mm_per_s`` ...,
+``alpha1_rad_per_s`` ...), the robot file's actuators (``actuators:``: value and rate in counts,
+`ctrplan.model.actuators`), the exact tip (scene frame, mm) and the exact model's clearance to the
+nearest obstacle (mm, capped).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ctrplan.collision.world import CollisionWorld
+from ctrplan.planning.model import PlanningModel
+from ctrplan.planning.trajectory import Trajectory, executed_trajectory, sample_times
+from ctrplan.planning.validate import clearance_along
+from ctrplan.planning.validity import ConfigurationChecker
+from ctrplan.scene.objects import Scene
+
+#: trajectory.csv's rows per second when no rate is given.
+DEFAULT_RATE_HZ = 50.0
+#: Clearances are reported up to this (mm); larger ones as this.
+CLEARANCE_CAP_MM = 50.0
+
+
+def scene_trajectory(scene: Scene, path_q: np.ndarray, world: CollisionWorld | None = None) -> Trajectory:
+    """The executed trajectory of a validated path (joints (K, 2N)) in ``scene``: blends checked
+    with the exact model (the scene's margins, stability) at the scene's resolution."""
+    checker = ConfigurationChecker(PlanningModel.of(scene, world=world))
+    space = checker.space
+
+    def spacing(q: np.ndarray) -> np.ndarray:
+        return space.distance(q[:-1], q[1:])
+
+    return executed_trajectory(path_q, scene.robot.limits, lambda q: checker.check(q).astype(bool), spacing,
+                               scene.settings.resolution_mm)
+
+
+def trajectory_table(scene: Scene, path_q: np.ndarray, rate_hz: float = DEFAULT_RATE_HZ,
+                     world: CollisionWorld | None = None) -> tuple[list[str], np.ndarray, Trajectory]:
+    """The header, the rows (see the module docstring) at ``rate_hz`` and the trajectory."""
+    robot = scene.robot
+    world = world or CollisionWorld.from_scene(scene)
+    traj = scene_trajectory(scene, path_q, world)
+    t = sample_times(traj.duration_s, rate_hz)
+    q, qd = traj.at(t)
+    model = PlanningModel.of(scene, world=world)
+    bb = model.exact.forward(q, points=scene.settings.points, check=False)
+    clearance = np.nanmin(clearance_along(scene, bb, CLEARANCE_CAP_MM, world), axis=1)
+    n = robot.n_tubes
+    rates = [f"{name}_mm_per_s" if i < n else f"{name}_rad_per_s" for i, name in enumerate(robot.joint_names)]
+    actuators = [a.name for a in robot.actuators] + [f"{a.name}_per_s" for a in robot.actuators]
+    header = ["time_s", *robot.joint_names, *rates, *actuators, "tip_x", "tip_y", "tip_z", "clearance_mm"]
+    columns = [t[:, None], q, qd] + [a.position(q)[:, None] for a in robot.actuators] \
+        + [a.rate(qd)[:, None] for a in robot.actuators] + [scene.to_scene(bb.tip_mm), clearance[:, None]]
+    return header, np.column_stack(columns), traj
