@@ -51,7 +51,7 @@ def from_labels(
     """
     from ctrplan.scene.labels import scene_from_labels
 
-    console = Console(stderr=True)
+    console = Console(stderr=True, soft_wrap=True, highlight=False)
     with console.status("meshing labels", spinner="dots") if console.is_terminal else nullcontext():
         made = scene_from_labels(labels, names, template, out, unnamed)
     volume = made.volume

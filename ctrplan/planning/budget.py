@@ -155,3 +155,24 @@ class PlanClock:
 
     def elapsed(self) -> float:
         return time.perf_counter() - self.t0
+
+
+def clock_record(clock: PlanClock | None, time_limit_s: float, backend: str) -> dict:
+    """How the clock bounded a plan: a time limit (``wall_limit_s``, and the wall time after kernel
+    compilation it used) or a guard, and the reference rate its work budget was sized with."""
+    return {"mode": "guard" if clock is None else "time limit", "time_limit_s": time_limit_s,
+            "wall_limit_s": None if clock is None else WALL_FACTOR * clock.limit_s,
+            "wall_s": None if clock is None else round(clock.elapsed(), 4),
+            "reference_states_per_s": reference_rate(backend)}
+
+
+def clock_message(clock: PlanClock | None, max_states: int) -> str:
+    """What a plan's message adds when the clock cut a search short: that its verdict depends on the
+    machine, and, for a time limit, the work budget that makes it reproducible."""
+    if clock is None:
+        return (" (a search was cut short by its wall-clock guard: this verdict depends on the machine's "
+                "speed and load)")
+    return (f" (the time limit of {clock.limit_s:g} s stopped a search before its work budget of "
+            f"{max_states:,} states was used: this verdict depends on the machine's speed and load; for "
+            f"a reproducible one, give the work budget instead: --max-states {max_states} without "
+            f"--time-limit)")

@@ -35,11 +35,11 @@ from ctrplan.kinematics.blas import single_threaded_blas
 from ctrplan.kinematics.pinn import ROW_BLOCKS
 from ctrplan.planning.budget import (
     GUARD_FACTOR,
-    WALL_FACTOR,
     PlanClock,
     SearchBudget,
     check_max_states,
-    reference_rate,
+    clock_message,
+    clock_record,
     states_for,
 )
 from ctrplan.planning.goal import ANGLE_WEIGHT_MM_PER_RAD, GoalSampler, TipGoal, tip_tangents
@@ -579,16 +579,8 @@ def _verdict(report: Validation, repair: bool) -> str:
 def _report_guard(result: PlanResult, clock: PlanClock | None) -> None:
     """Say so when the clock cut a search of the plan short (then, and only then, the verdict depends
     on the machine's speed and load), and, for a time limit, how to make it reproducible."""
-    if not result.cut_short or "wall-clock guard" in result.message or "--max-states" in result.message:
-        return
-    if clock is None:
-        result.message += (" (a search was cut short by its wall-clock guard: this verdict depends on the "
-                           "machine's speed and load)")
-        return
-    result.message += (f" (the time limit of {clock.limit_s:g} s stopped a search before its work budget of "
-                       f"{result.max_states:,} states was used: this verdict depends on the machine's speed "
-                       f"and load; for a reproducible one, give the work budget instead: --max-states "
-                       f"{result.max_states} without --time-limit)")
+    if result.cut_short and "wall-clock guard" not in result.message and "--max-states" not in result.message:
+        result.message += clock_message(clock, result.max_states)
 
 
 def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | None = None,
@@ -668,17 +660,8 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
         result.solved = vp.report.ok
         result.message = _verdict(vp.report, repair)
     _report_guard(result, clock)
-    result.details["clock"] = _clock_record(result, clock, model.backend.name)
+    result.details["clock"] = clock_record(clock, time_limit_s, model.backend.name)
     return result
-
-
-def _clock_record(result: PlanResult, clock: PlanClock | None, backend: str) -> dict:
-    """How the clock bounded the plan: a time limit (``wall_limit_s``, the wall time after kernel
-    compilation it used) or a guard, and the reference rate the work budget was sized with."""
-    return {"mode": "guard" if clock is None else "time limit", "time_limit_s": result.time_limit_s,
-            "wall_limit_s": None if clock is None else WALL_FACTOR * clock.limit_s,
-            "wall_s": None if clock is None else round(clock.elapsed(), 4),
-            "reference_states_per_s": reference_rate(backend)}
 
 
 def _record_search(result: PlanResult, outcome: SearchOutcome, checker: ConfigurationChecker) -> None:
