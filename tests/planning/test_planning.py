@@ -441,10 +441,10 @@ def test_compilation_is_outside_the_time_limit(open_scene):
 
 
 def test_a_tiny_budget_ends_the_search_by_work_not_by_the_clock(open_scene, exact):
-    """A 1 ms time budget buys 5 exact states: the first goal-sampling batch (hundreds of states) uses
-    them up. The work budget decides (the 5 ms guard has passed too, but work is checked first), so
-    the verdict does not depend on the machine."""
-    res = plan(open_scene, exact, seed=0, time_limit_s=0.001)
+    """A work budget of 5 exact states (what 1 ms buys), no time limit: the first goal-sampling batch
+    (hundreds of states) uses them up. The work budget decides (the 30 ms guard has passed too, but
+    work is checked first), so the verdict does not depend on the machine."""
+    res = plan(open_scene, exact, seed=0, time_limit_s=0.001, max_states=5)
     assert not res.solved and res.status == "TIMEOUT"
     assert res.max_states == 5 and "budget used up while sampling goal configurations" in res.message
     assert res.details["budget"]["states"] >= 5 and not res.cut_short
