@@ -180,5 +180,5 @@ def executed_trajectory(path_q: np.ndarray, limits: JointLimits, valid: Callable
 
 def sample_times(duration_s: float, rate_hz: float) -> np.ndarray:
     """Times (s) at a fixed rate from 0, and the end (its own row when it falls between two)."""
-    t = np.arange(0.0, duration_s, 1.0 / rate_hz)
+    t = np.arange(0.0, duration_s, 1.0 / rate_hz) if duration_s > 0 else np.zeros(1)
     return np.append(t, duration_s) if duration_s - t[-1] > 1e-9 else t
