@@ -96,3 +96,18 @@ def test_the_corridor_planner_turns_the_short_way_round(ring_scene):
     path = checker.space.unwrap(out.path_q)
     assert np.ptp(path[:, 3]) < 0.5  # 0.28 rad the short way; the long way is 6 rad and blocked
     assert checker.space.distance(path[-1], q_of(-3.0)) < 1e-6
+
+
+def test_fk_takes_an_angle_one_turn_on_as_the_same_robot(tmp_path, capsys):
+    """alpha2 = 4 rad lies outside [-pi, pi] as written but inside the full-turn domain: the same tip
+    as 4 - 2 pi (the row was refused before rotations wrapped)."""
+    from ctrplan.cli.app import main
+
+    configs = tmp_path / "configs.csv"
+    configs.write_text(f"beta1,beta2,beta3,alpha1,alpha2,alpha3\n-20,-10,-5,0,4,0\n"
+                       f"-20,-10,-5,0,{4 - 2 * math.pi!r},0\n")
+    capsys.readouterr()
+    assert main(["fk", str(configs), "--backend", "cosserat"]) == 0
+    rows = [line.split(",") for line in capsys.readouterr().out.strip().splitlines()[1:]]
+    np.testing.assert_allclose(np.array(rows[0][6:9], dtype=float), np.array(rows[1][6:9], dtype=float),
+                               atol=1e-9)
