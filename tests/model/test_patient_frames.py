@@ -11,7 +11,6 @@ import math
 import warnings
 from pathlib import Path
 
-import nibabel as nib
 import nrrd
 import numpy as np
 import pytest
@@ -26,6 +25,7 @@ from ctrplan.scene.labels import scene_from_labels
 from ctrplan.scene.loader import load_scene
 from ctrplan.scene.orientation import code_matrix, declared_space
 from ctrplan.scene.segmentation import MAX_FACES, label_mesh, read_label_volume
+from tests.model.test_scene_labels import save_nifti
 
 SPACING = np.array([0.8, 0.8, 1.2])  # mm along i, j, k
 ROTATION = Rotation.from_euler("z", 10.0, degrees=True).as_matrix()
@@ -101,9 +101,7 @@ def template(folder: Path, anatomy: str = "") -> Path:
 @pytest.fixture(scope="module")
 def files(tmp_path_factory) -> dict[str, Path]:
     folder = tmp_path_factory.mktemp("patient")
-    image = nib.Nifti1Image(nifti_labels(), affine_ras())
-    image.header.set_xyzt_units("mm")
-    nib.save(image, folder / "labels.nii.gz")
+    save_nifti(folder / "labels.nii.gz", nifti_labels(), affine_ras())
     write_seg_nrrd(folder / "labels.seg.nrrd")
     (folder / "names.yaml").write_text(NAMES)
     return {"folder": folder, "nifti": folder / "labels.nii.gz", "seg": folder / "labels.seg.nrrd",
