@@ -48,6 +48,7 @@ from ctrplan.design.study import finished_trials
 from ctrplan.design.task import DesignTask
 from ctrplan.kinematics import EXACT_MODEL, make_backend
 from ctrplan.kinematics.stability import certify, is_certified
+from ctrplan.planning.execution import TrajectoryTable, trajectory_table
 from ctrplan.planning.result import PlanResult
 from ctrplan.scene.objects import Scene
 
@@ -57,13 +58,15 @@ OVERVIEW_POINTS = 60
 
 @dataclass(frozen=True)
 class BestPath:
-    """A reached target of the best design: its folder, scene, scene file and the trial's path
-    validated again with the exact model, clearances measured (what ``ctrplan plan --out`` writes)."""
+    """A reached target of the best design: its folder, scene, scene file, the trial's path
+    validated again with the exact model, clearances measured, and its timed trajectory (what
+    ``ctrplan plan --out`` writes)."""
 
     folder: Path
     scene: Scene
     scene_file: Path
     result: PlanResult
+    trajectory: TrajectoryTable
 
 
 @dataclass(frozen=True)
@@ -195,7 +198,7 @@ def write_best(task: DesignTask, best: Design, out: Path, study: str) -> dict[st
         scene_file = write_target_scene(task, target, start, out / "best_robot.yaml", folder / "scene.yaml")
         if result.reached:
             scene, plan = validate_target_path(task, exact, scene_file, result)
-            paths[target.name] = BestPath(folder, scene, scene_file, plan)
+            paths[target.name] = BestPath(folder, scene, scene_file, plan, trajectory_table(scene, plan.path))
     return paths
 
 

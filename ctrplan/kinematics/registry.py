@@ -65,8 +65,11 @@ def _hybrid(robot: Robot, model: str | Path | None) -> Backend:
     return HybridBackend(robot, model)
 
 
-#: Rates: `ctrplan bench plan scenes/skullbase.yaml` (docs/benchmarks.md), searches that use their whole 10 s
-#: (RRT, RRT*: 15,000-17,000 with the PINN, 4,900-5,300 with the exact backends).
+#: Rates of the idle reference machine (2-core AMD EPYC): `ctrplan bench plan scenes/skullbase.yaml`
+#: (docs/benchmarks.md), searches that use their whole 10 s (RRT, RRT*: 15,000-17,000 with the PINN,
+#: 4,900-5,300 with the exact backends). `scripts/reference_rates.py` measures them again (docs/benchmarks.md
+#: "Reference rates": on the same box shared with other sessions, load 7-8, 8,200 states per CPU-second
+#: with the PINN and 2,600-2,800 with the exact backends, the same 3:1 ratio).
 BACKEND_KINDS: dict[str, BackendKind] = {kind.name: kind for kind in (
     BackendKind("cosserat", _cosserat, uses_model=False, reference_states_per_s=5000.0),
     BackendKind("pinn", _pinn, uses_model=True, reference_states_per_s=16000.0, exact_companion=EXACT_MODEL),

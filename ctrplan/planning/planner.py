@@ -24,7 +24,14 @@ from ctrplan.collision.world import CollisionWorld
 from ctrplan.kinematics import DEFAULT_PLANNING_BACKEND, make_backend
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
-from ctrplan.planning.budget import GUARD_FACTOR, check_max_states, states_for
+from ctrplan.planning.budget import (
+    GUARD_FACTOR,
+    PlanClock,
+    check_max_states,
+    clock_message,
+    clock_record,
+    states_for,
+)
 from ctrplan.planning.goal import ANGLE_WEIGHT_MM_PER_RAD, tip_tangents
 from ctrplan.planning.ik import backend_tip_jacobian, compile_ik, solve_ik
 from ctrplan.planning.model import PlanningModel
@@ -129,12 +136,13 @@ def exact_goal(path_q: np.ndarray, checker: ConfigurationChecker) -> np.ndarray:
 
 
 def _replanner(checker: ConfigurationChecker, seed: int | None, hints: np.ndarray,
-               time_s: float) -> tuple[Callable[..., np.ndarray | None], dict]:
+               time_s: float, wall_end: float | None = None) -> tuple[Callable[..., np.ndarray | None], dict]:
     """``replan(start_q, goal_q)`` for `repair_path`: RRTConnect searches with ``checker`` (of the
     exact model), not shortcut (a shortcut hugs the obstacles: with the exact model's bare margin,
     one checked at the planner's resolution can fail the finer exact validation), sharing one work
     budget (what ``time_s`` buys with the exact model; each search gets what is left, at least a
-    tenth) and one wall-clock guard; and the budget's running count (``max_states``, ``states``,
+    tenth) and one wall-clock guard, or the plan's time limit (``wall_end``, perf_counter: every
+    search stops by then); and the budget's running count (``max_states``, ``states``,
     ``cut_short``), updated by every search."""
     total = states_for(checker.backend.name, time_s)
     guard_end = time.perf_counter() + GUARD_FACTOR * time_s
@@ -143,9 +151,10 @@ def _replanner(checker: ConfigurationChecker, seed: int | None, hints: np.ndarra
     def replan(start_q: np.ndarray, goal_q: np.ndarray | None) -> np.ndarray | None:
         left = max(total - used["states"], total // 10)
         limit = max(guard_end - time.perf_counter(), 0.5 * GUARD_FACTOR) / GUARD_FACTOR
+        wall = None if wall_end is None else max(0.0, wall_end - time.perf_counter())
         out = search(checker, start=start_q, goal_q=goal_q, planner="rrtconnect", time_limit_s=limit,
                      max_states=left, seed=seed, goal_hints=hints if goal_q is None else None,
-                     simplify=False)
+                     simplify=False, wall_s=wall)
         used["states"] += out.budget.states
         used["cut_short"] = used["cut_short"] or out.budget.cut_short
         return out.path_q
@@ -154,19 +163,26 @@ def _replanner(checker: ConfigurationChecker, seed: int | None, hints: np.ndarra
 
 
 def _repair(model: PlanningModel, first: ValidatedPath, path_q: np.ndarray, seed: int | None,
-            time_limit_s: float, progress: Progress, goals: list[np.ndarray]
+            time_limit_s: float, progress: Progress, goals: list[np.ndarray], clock: PlanClock | None
             ) -> tuple[ValidatedPath, np.ndarray, RepairRecord]:
     """Re-plan the stretches of a path that failed exact validation (``first``) with the exact model
     and validate the repaired path again -- an end re-planned to the target samples its exact goals
     from the path's last state and the search's ``goals`` first (exact inverse kinematics from scratch
     costs most of a repair). Returns the validated path (the repaired one if it passes, else
-    ``first``), its joints, and the repair's record."""
-    progress("repair")
+    ``first``), its joints, and the repair's record. With the plan's ``clock`` (a time limit) the
+    repair's searches stop in time to validate the repaired path before it runs out."""
     t_rep = time.perf_counter()
     rep_checker = ConfigurationChecker(model.exact_search())
+    wall_end = None if clock is None else t_rep + clock.left() - 1.5 * first.report.time_s
     hints = np.stack([path_q[-1], *goals])
-    replan, used = _replanner(rep_checker, None if seed is None else seed + 1, hints, max(5.0, time_limit_s))
-    fixed = repair_path(first, replan)
+    replan, used = _replanner(rep_checker, None if seed is None else seed + 1, hints, max(5.0, time_limit_s),
+                              wall_end)
+    if wall_end is not None and wall_end <= t_rep:
+        used["cut_short"] = True
+        fixed, failure = None, "not tried: no time left within the time limit"
+    else:
+        progress("repair")
+        fixed, failure = repair_path(first, replan), "re-planning with the exact model failed"
     rep_time = time.perf_counter() - t_rep
 
     def record(failure: str | None) -> RepairRecord:
@@ -174,7 +190,8 @@ def _repair(model: PlanningModel, first: ValidatedPath, path_q: np.ndarray, seed
                             rep_checker.counters.kinematics_calls, first.report, failure)
 
     if fixed is None:
-        return first, path_q, record("re-planning with the exact model failed")
+        return first, path_q, record(failure)
+    fixed = model.space.unwrap(fixed)
     second = validate_planned_path(model, fixed)
     second.report.repaired = True
     if second.report.ok:
@@ -199,12 +216,12 @@ def _verdict(report: Validation, repair: bool) -> str:
     return "not solved: " + "; ".join(why) + ("" if repair else " (repair disabled)")
 
 
-def _guard_note(message: str, cut_short: bool) -> str:
-    """``message``, saying so when a wall-clock guard cut a search of the plan short: then, and only
-    then, the verdict depends on the machine's speed and load."""
-    if cut_short and "wall-clock guard" not in message:
-        return message + (" (a search was cut short by its wall-clock guard: this verdict depends on the "
-                          "machine's speed and load)")
+def _guard_note(message: str, cut_short: bool, clock: PlanClock | None, max_states: int) -> str:
+    """``message``, saying so when the clock cut a search of the plan short (then, and only then, the
+    verdict depends on the machine's speed and load), and, for a time limit, how to make it
+    reproducible."""
+    if cut_short and "wall-clock guard" not in message and "--max-states" not in message:
+        return message + clock_message(clock, max_states)
     return message
 
 
@@ -213,7 +230,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
          progress: Progress = no_progress,
          exact: Backend | None = None, repair: bool | None = None,
          goal_hints: np.ndarray | None = None, world: CollisionWorld | None = None,
-         clearances: bool = False) -> PlanResult:
+         clearances: bool = False, wall_limit: bool | None = None) -> PlanResult:
     """Plan a collision-free motion from the scene's start to its target, then validate it exactly.
 
     With an approximate backend (the PINN) the capsules get extra radius while planning: its
@@ -232,8 +249,15 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     where goal sampling starts. ``world``: the scene's collision world if already built (a design
     study plans many targets in one anatomy); by default it is built here. ``clearances``: also
     measure the validated path's clearances for the outputs (`measure_clearance`; after the clock).
+
+    The clock (`ctrplan.planning.budget`): with ``wall_limit`` (default: when no work budget is given,
+    neither ``max_states`` nor the scene's) ``time_limit_s`` is a time limit -- everything after
+    kernel compilation ends within `WALL_FACTOR` x it; otherwise the work budget decides and the
+    clock only guards.
     """
+    t_entry = time.perf_counter()
     s = scene.settings
+    wall_limit = (max_states is None and s.max_states is None) if wall_limit is None else wall_limit
     planner, _ = scene_planner(scene, planner)
     time_limit_s = _time_limit(scene, time_limit_s)
     max_states = check_max_states(max_states) or s.max_states
@@ -245,6 +269,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     model = PlanningModel.build(scene, resolve_backend(backend, scene.robot), exact, world)
     start_bb = compile_kernels(model, progress)
     compile_s = time.perf_counter() - t_compile
+    clock = PlanClock(time_limit_s, t_entry + compile_s) if wall_limit else None
     progress("start")  # the collision world: its distance grid and kernels on first use
     check_start(model, start_bb)  # the start under the exact model, solved once
     checker = ConfigurationChecker(model)
@@ -254,8 +279,9 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
         return PlanResult(planner=planner, backend=model.backend.name, scene=scene.name,
                           target_mm=scene.target.center, goal_tolerance_mm=scene.target.tolerance_mm,
                           base_pose=scene.base_pose, status=status, seed=seed, time_limit_s=time_limit_s,
-                          max_states=max_states, start=start_bb, work=work,
-                          message=_guard_note(message, found.get("cut_short", False)),
+                          max_states=max_states, start=start_bb,
+                          work=replace(work, clock=clock_record(clock, time_limit_s, model.backend.name)),
+                          message=_guard_note(message, found.get("cut_short", False), clock, max_states),
                           **{"solved": False, "path": np.zeros((0, len(scene.start))), **found})
 
     if not checker.is_valid(scene.start):  # under the planning backend: cached for the search
@@ -266,21 +292,22 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
                       f"with {s.margin_mm:g} mm",
                       PlanWork(model.margin_mm, model.margin_source, compile_s, copy(checker.counters)))
     outcome = search(checker, planner=planner, time_limit_s=time_limit_s, max_states=max_states,
-                     seed=seed, progress=progress, goal_hints=goal_hints)
+                     seed=seed, progress=progress, goal_hints=goal_hints,
+                     wall_s=None if clock is None else clock.search_left())
     work = PlanWork(model.margin_mm, model.margin_source, compile_s, copy(checker.counters), outcome.record)
     searched = {"planning_time_s": outcome.time_s, "kinematics_calls": checker.counters.kinematics_calls,
                 "cut_short": outcome.budget.cut_short}
     if outcome.path_q is None:
         return result(outcome.status, outcome.message, work, **searched)
     t_goal = time.perf_counter()
-    path_q = exact_goal(outcome.path_q, checker)
+    path_q = model.space.unwrap(exact_goal(outcome.path_q, checker))
     goal = ExactGoal(len(path_q) > len(outcome.path_q), time.perf_counter() - t_goal)
     progress("validate")
     vp = validate_planned_path(model, path_q)
     work = replace(work, exact_goal=goal, validation_time_s=vp.report.time_s)
     planning_time_s = searched["planning_time_s"] + goal.time_s
     if not vp.report.ok and repair:
-        vp, path_q, fixed = _repair(model, vp, path_q, seed, time_limit_s, progress, outcome.goals)
+        vp, path_q, fixed = _repair(model, vp, path_q, seed, time_limit_s, progress, outcome.goals, clock)
         work = replace(work, repair=fixed)
         planning_time_s += fixed.time_s
         searched.update(kinematics_calls=searched["kinematics_calls"] + fixed.kinematics_calls,

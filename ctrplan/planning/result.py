@@ -21,14 +21,15 @@ from ctrplan.planning.validity import Counters
 @dataclass(frozen=True)
 class BudgetUse:
     """How much of its work budget a search used (`ctrplan.planning.budget.SearchBudget`): states
-    allowed and evaluated, the wall-clock guard and the time taken (s), and whether the guard cut it
-    short."""
+    allowed and evaluated, the wall-clock stop and the time taken (s), whether the clock cut it short,
+    and what the clock was (``time limit`` of a plan, or a ``guard``)."""
 
     max_states: int
     states: int
     guard_s: float
     elapsed_s: float
     cut_short: bool
+    clock: str = "guard"
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -89,7 +90,8 @@ class PlanWork:
     """How a plan got to its verdict: the search's capsule margin (mm) and where it comes from
     (`ctrplan.planning.model.planning_backend`), the kernel compile time (s, outside the planning
     time), the search's counters, and -- where the plan got that far -- the search record, the exact
-    goal correction, the first exact validation's time (s) and the repair."""
+    goal correction, the first exact validation's time (s), the repair, and how the clock bounded
+    the plan (`ctrplan.planning.budget.clock_record`)."""
 
     planning_margin_mm: float
     margin_source: dict
@@ -99,6 +101,7 @@ class PlanWork:
     exact_goal: ExactGoal | None = None
     validation_time_s: float | None = None
     repair: RepairRecord | None = None
+    clock: dict | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The ``details`` of the plan document."""
@@ -119,6 +122,8 @@ class PlanWork:
             doc["first_validation"] = r.first_validation.to_json()
             if r.failure is not None:
                 doc["repair"] = r.failure
+        if self.clock is not None:
+            doc["clock"] = self.clock
         return doc
 
 

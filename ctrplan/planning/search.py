@@ -238,19 +238,21 @@ def _setup_planner(spec: PlannerSpec, problem: PlanningProblem, range_mm: float 
     return pl
 
 
-def _simplified_path(problem: PlanningProblem, simplify: bool, timings: dict) -> np.ndarray:
-    """The solution as joints (K, 2N), shortcut first if ``simplify`` (`shortcut_path`: batched,
-    lazy checks at the motion validator's resolution)."""
-    path_q = _path_q(problem, problem.pdef.getSolutionPath())
-    if not simplify:
-        return path_q
-    t_simp = time.perf_counter()
+def _simplified_path(problem: PlanningProblem, simplify: bool, timings: dict,
+                     stop: Callable[[], bool] | None = None) -> tuple[np.ndarray, bool]:
+    """The solution as joints (K, 2N), continuous (`BoxSpace.unwrap`), shortcut first if ``simplify``
+    (`shortcut_path`: batched, lazy checks at the motion validator's resolution, until ``stop()``);
+    and whether ``stop`` ended the shortcut early."""
     box, checker = problem.box, problem.checker
+    path_q = box.unwrap(_path_q(problem, problem.pdef.getSolutionPath()))
+    if not simplify:
+        return path_q, False
+    t_simp = time.perf_counter()
     cut = shortcut_path(box.to_coords(path_q), lambda y: checker.validate(box.to_joints(y))[0],
-                        problem.motion_validator.resolution)
+                        problem.motion_validator.resolution, box.difference, stop)
     timings["simplify_s"] = time.perf_counter() - t_simp
     timings["simplify_states"] = cut.states
-    return path_q[cut.vertices]
+    return path_q[cut.vertices], cut.stopped
 
 
 def _failure_message(problem: PlanningProblem, budget: SearchBudget, to_configuration: bool) -> str:
@@ -270,7 +272,7 @@ def _failure_message(problem: PlanningProblem, budget: SearchBudget, to_configur
 def search(checker: ConfigurationChecker, *, start: np.ndarray | None = None, planner: str | None = None,
            time_limit_s: float | None = None, max_states: int | None = None, seed: int | None = None,
            progress: Progress = no_progress, simplify: bool | None = None, goal_q: np.ndarray | None = None,
-           goal_hints: np.ndarray | None = None) -> SearchOutcome:
+           goal_hints: np.ndarray | None = None, wall_s: float | None = None) -> SearchOutcome:
     """One OMPL search from ``start`` (default: the scene's) to the target region (or to the
     configuration ``goal_q``) with the planning model of ``checker``, whose counters and cache it
     extends; ``goal_hints`` (K, 2N): where goal sampling starts (see `GoalSampler`).
@@ -278,8 +280,9 @@ def search(checker: ConfigurationChecker, *, start: np.ndarray | None = None, pl
     Budget (`ctrplan.planning.budget`): ``max_states`` states evaluated (goal sampling included;
     default: the scene's ``max_states``, else what ``time_limit_s`` buys with this backend on the
     reference machine), under a
-    wall-clock guard of `GUARD_FACTOR` x ``time_limit_s`` (default: the scene's). The outcome's
-    ``budget`` says how much was used and whether the guard cut the search short.
+    wall-clock guard of `GUARD_FACTOR` x ``time_limit_s`` (default: the scene's), or, with ``wall_s``,
+    the time limit of a plan: stopped after ``wall_s`` seconds. The outcome's ``budget`` says how much
+    was used and whether the clock cut the search short.
 
     Steps: build the problem, sample goal configurations, set up the planner, solve, simplify."""
     model = checker.model
@@ -292,8 +295,8 @@ def search(checker: ConfigurationChecker, *, start: np.ndarray | None = None, pl
                           goal_hints=goal_hints)
     sampler = problem.sampler
     budget = SearchBudget.start(max_states or s.max_states or states_for(model.backend.name, limit_s),
-                                GUARD_FACTOR * limit_s,
-                                lambda: checker.counters.kinematics_calls)
+                                GUARD_FACTOR * limit_s if wall_s is None else wall_s,
+                                lambda: checker.counters.kinematics_calls, time_limit=wall_s is not None)
     with single_threaded_blas(), numba_threads_at_most(ROW_BLOCKS), gc_paused(), \
             _hooked(checker, _progress_hook(problem, budget, progress)):
         region_goal = isinstance(problem.goal, TipGoal)
@@ -319,8 +322,9 @@ def search(checker: ConfigurationChecker, *, start: np.ndarray | None = None, pl
             reached = sampler.stats.ik_reached
             why = f": {reached} IK solutions reached the target, all {model.stability.invalid}" \
                 if reached and not sampler.goals else ""
+            ended = "time limit reached" if budget.cut_short and budget.time_limit else "budget used up"
             return outcome(None, "TIMEOUT", False,
-                           f"budget used up while sampling goal configurations ({len(sampler.goals)} "
+                           f"{ended} while sampling goal configurations ({len(sampler.goals)} "
                            f"found{why}; {budget.describe()})")
         if spec.fixed_goal_set and region_goal:
             _fix_goal_set(problem, budget)
@@ -336,4 +340,7 @@ def search(checker: ConfigurationChecker, *, start: np.ndarray | None = None, pl
                            _failure_message(problem, budget, goal_q is not None))
         if simplify:
             progress("simplify", elapsed=budget.elapsed())
-        return outcome(_simplified_path(problem, simplify, timings), status_name, True, "")
+        stop = (lambda: budget.elapsed() >= budget.guard_s) if budget.time_limit else None
+        path_q, stopped = _simplified_path(problem, simplify, timings, stop)
+        budget.cut_short = budget.cut_short or stopped
+        return outcome(path_q, status_name, True, "")

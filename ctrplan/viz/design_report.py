@@ -33,7 +33,7 @@ def write_study_figures(outcome: StudyOutcome, out: Path) -> None:
     obstacles.ply), ``pareto.png`` and then ``report.html``, which embeds them."""
     for best in outcome.paths.values():
         doc = plan_document(best.result, best.scene, best.scene_file, None)
-        write_plan_outputs(best.folder, best.scene, best.result, doc)
+        write_plan_outputs(best.folder, best.scene, best.result, doc, best.trajectory)
     pareto_figure(outcome.task, outcome.designs, outcome.front, outcome.best, outcome.nominal,
                   out / "pareto.png")
     write_report(outcome, out)

@@ -17,12 +17,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ctrplan.base.dataio import atomic_write, format_csv, output_dir
-from ctrplan.planning.trajectory import segment_positions, time_parametrise
 from ctrplan.viz.plan_plot import plot_plan
 from ctrplan.viz.style import CLEARANCE_CAP_MM
 from ctrplan.viz.viewer import viewer_data, write_viewer
 
 if TYPE_CHECKING:
+    from ctrplan.planning.execution import TrajectoryTable
     from ctrplan.planning.result import PlanResult
 
 
@@ -58,9 +58,11 @@ def structure_line(c: dict, rich: bool = False) -> str:
             + (f" {flag}" if flag else ""))
 
 
-def write_plan_outputs(out: Path, sc, result: PlanResult, doc: dict) -> None:
-    """path.json, obstacles.ply, plan.png, plan.html and, for a solved plan, trajectory.csv; each file
-    is written completely or not at all. A validated path must carry its measured clearances."""
+def write_plan_outputs(out: Path, sc, result: PlanResult, doc: dict,
+                       trajectory: TrajectoryTable | None = None) -> None:
+    """path.json, obstacles.ply, plan.png, plan.html and, for a solved plan, trajectory.csv (its
+    ``trajectory``, `ctrplan.planning.execution.trajectory_table`); each file is written completely
+    or not at all. A validated path must carry its measured clearances."""
     output_dir(out)
     full = dict(doc)
     clearance = None
@@ -76,7 +78,9 @@ def write_plan_outputs(out: Path, sc, result: PlanResult, doc: dict) -> None:
         full["backbones_backend"] = result.dense.report.backend
         full["frame"] = "scene (mm)"
         if result.solved:
-            write_trajectory(out / "trajectory.csv", sc, result, bbs[:, -1, :], np.nanmin(clearance, axis=1))
+            if trajectory is None:
+                raise ValueError("write_plan_outputs: a solved plan needs its trajectory (trajectory_table)")
+            write_trajectory(out / "trajectory.csv", trajectory)
     else:  # nothing planned: show the start
         bbs, radii = sc.to_scene(result.start.positions_mm), result.start.radius_mm
     with atomic_write(out / "path.json") as fh:
@@ -97,17 +101,10 @@ def write_plan_outputs(out: Path, sc, result: PlanResult, doc: dict) -> None:
     tmp_html.replace(out / "plan.html")
 
 
-def write_trajectory(path: Path, sc, result: PlanResult, tips_mm: np.ndarray,
-                     clearance_mm: np.ndarray) -> None:
-    """trajectory.csv: the validated path timed within the robot's joint limits (`ctrplan.planning.
-    trajectory`), one row per exactly validated state: time_s, joints (mm, rad), the tip (scene frame,
-    mm) and the exact model's clearance (mm, as measured: at most
-    `ctrplan.planning.validate.CLEARANCE_CAP_MM`)."""
-    dense = result.dense.dense_q
-    trajectory = time_parametrise(result.path, sc.robot.limits)
-    times = trajectory.time_of(*segment_positions(np.asarray(result.path), dense))
-    header = ["time_s", *sc.robot.joint_names, "tip_x", "tip_y", "tip_z", "clearance_mm"]
-    rows = np.column_stack([times, dense, tips_mm, clearance_mm])
+def write_trajectory(path: Path, table: TrajectoryTable) -> None:
+    """trajectory.csv: the rows of ``table`` (`ctrplan.planning.execution`: time, joints, their
+    velocities, actuator units, the exact tip and clearance at a fixed rate)."""
+    header, rows = table.header, table.rows
     with atomic_write(path) as fh:
         fh.write(format_csv(header, rows, ["%.6f"] * rows.shape[1]))
 
