@@ -1,0 +1,100 @@
+"""Tissue that moves: the sweep index and the roadmap repair on a small roadmap of open.yaml, checked
+against flags computed from scratch (every node and edge of the roadmap checked in the moved scene)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from ctrplan.base.errors import InputError
+from ctrplan.base.parallel import InlinePool
+from ctrplan.collision.world import CollisionWorld
+from ctrplan.planning.roadmap._adapter import checker_with_world, edge_states
+from ctrplan.planning.roadmap.build import Source, build
+from ctrplan.planning.roadmap.repair import LiveRoadmap
+from ctrplan.planning.roadmap.sweep import CellGrid, SweepIndex, build_sweep
+from tests.paths import SCENES
+
+OPEN = SCENES / "open.yaml"
+
+
+@pytest.fixture(scope="module")
+def indexed(tmp_path_factory):
+    """A 400-node roadmap of open.yaml and its sweep index (saved and read back)."""
+    folder = tmp_path_factory.mktemp("roadmap")
+    source = Source(str(OPEN), "pinn")
+    ctx = source()
+    rm = build(ctx, source, folder, InlinePool(context=lambda: ctx), time_limit_s=600.0, seed=1, workers=1,
+               executor="test", max_nodes=400)
+    build_sweep(ctx, rm).save(folder)
+    return ctx, rm, SweepIndex.load(folder, rm)
+
+
+def _flags_from_scratch(live: LiveRoadmap) -> tuple[np.ndarray, np.ndarray]:
+    """Every node and every edge's interior of the built roadmap checked in the scene as it is now."""
+    ctx, rm = live.ctx, live.built
+    checker = checker_with_world(ctx, CollisionWorld(ctx.scene.obstacles))
+    nodes = checker.validate(rm.q)[0]
+    states, edge = edge_states(ctx, rm.q[rm.edges[:, 0]], rm.q[rm.edges[:, 1]])
+    edges = np.ones(len(rm.edges), dtype=bool)
+    edges[np.unique(edge[~checker.validate(states)[0]])] = False
+    return nodes, edges
+
+
+def _ball_onto_the_roadmap(ctx, rm) -> np.ndarray:
+    """A shift (mm) that puts the ball's centre 4 mm beside the tip of a connected node near it."""
+    ball = next(o for o in ctx.scene.obstacles if o.name == "ball")
+    centre = ball.pose[:3, 3]
+    tips = rm.tips[rm.connected]
+    near = tips[np.argsort(np.linalg.norm(tips - centre, axis=1))[:20]]
+    aim = near[np.argmax(np.linalg.norm(near - centre, axis=1) > 8.0)]
+    return aim + 4.0 * (centre - aim) / np.linalg.norm(centre - aim) - centre
+
+
+def test_the_index_lists_every_cell_a_sample_lies_in(indexed):
+    """The index read back has the roadmap's counts; a node's own tip cell lists it."""
+    ctx, rm, index = indexed
+    assert (index.nodes, index.edges) == (rm.n_nodes, len(rm.edges))
+    grid = CellGrid.for_scene(ctx.scene)
+    for node in (0, rm.n_nodes // 2, rm.n_nodes - 1):
+        assert node in index.nodes_in(grid.ids(rm.tips[node])[None])
+    assert 0 < index.reach_mm < 3.0
+
+
+def test_repaired_flags_equal_flags_from_scratch_through_moves_and_back(indexed):
+    """The ball moves onto the roadmap, then further, the block moves too, then both go home: after
+    every move the repaired flags are the flags computed from scratch; at home all are usable again,
+    and a move checks only a part of the roadmap."""
+    ctx, rm, index = indexed
+    live = LiveRoadmap(ctx, rm, index)
+    shift = _ball_onto_the_roadmap(ctx, rm)
+    moves = [("ball", shift), ("ball", shift + [1.5, -2.0, 1.0]), ("block", np.array([3.0, 4.0, -2.0])),
+             ("ball", np.zeros(3)), ("block", np.zeros(3))]
+    blocked_any = False
+    for name, t in moves:
+        rep = live.move(name, t)
+        nodes, edges = _flags_from_scratch(live)
+        np.testing.assert_array_equal(live.node_ok, nodes)
+        np.testing.assert_array_equal(live.edge_ok, edges)
+        assert rep.checked["nodes"] < rm.n_nodes
+        blocked_any |= rep.blocked["nodes"] + rep.blocked["edges"] > 0
+    assert blocked_any
+    assert live.node_ok.all() and live.edge_ok.all()
+    np.testing.assert_allclose(live.roadmap.dist, rm.dist, rtol=1e-5, atol=1e-4)
+
+
+def test_an_unknown_structure_is_refused(indexed):
+    ctx, rm, index = indexed
+    with pytest.raises(InputError, match="no structure named 'bone'"):
+        LiveRoadmap(ctx, rm, index).move("bone", np.zeros(3))
+
+
+def test_a_stale_index_is_not_used(indexed, tmp_path):
+    """An index made for another roadmap (other counts) reads as none."""
+    ctx, rm, index = indexed
+    index.save(tmp_path)
+    fewer = replace(rm, edges=rm.edges[:-1], lengths=rm.lengths[:-1])
+    assert SweepIndex.load(tmp_path, fewer) is None
+    assert SweepIndex.load(tmp_path, rm) is not None
