@@ -1,0 +1,200 @@
+"""One planning session of `ctrplan serve`: a scene whose structures may move, its planner (a roadmap
+repaired as tissue moves, else the single-query planner), the target and the last answer.
+
+Every request -- from the page or the JSON API -- goes through `PlanSession`, one at a time (a lock):
+`plan` answers a target with a document shaped like one entry of ``plan --roadmap --targets --json``,
+`move` shifts a structure (the roadmap is repaired, the collision world changed around it), `save`
+writes what ``plan --out`` writes for the last answer. Results are computed here and rendered by the
+page (`ctrplan.serve.page`) and the API (`ctrplan.serve.api`).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ctrplan.base.errors import InputError
+from ctrplan.kinematics.base import Backend
+from ctrplan.planning import plan
+from ctrplan.planning.planner import PlanResult
+from ctrplan.planning.roadmap._adapter import PlanningContext, planning_context, with_world
+from ctrplan.planning.roadmap.query import QueryResult, RoadmapPlanner
+from ctrplan.planning.roadmap.repair import LiveRoadmap, Repair
+from ctrplan.planning.roadmap.store import fingerprints, load_roadmap
+from ctrplan.planning.roadmap.sweep import SweepIndex, build_sweep
+from ctrplan.scene.objects import Scene, TargetRegion
+from ctrplan.viz.plan_outputs import plan_document, structure_clearances, write_plan_outputs
+
+#: Largest shift (mm) of a structure from its place in the scene file that `move` accepts.
+MAX_SHIFT_MM = 30.0
+
+
+@dataclass
+class Answer:
+    """A planned target: the result (`QueryResult`: also what the single-query planner found), the
+    `PlanResult` the ``plan --out`` writers take, the clearance to every structure along the path
+    (nearest first; empty without a path), the scene it was planned in and a running number."""
+
+    result: QueryResult
+    plan_result: PlanResult
+    structures: list[dict]
+    scene: Scene
+    number: int
+
+    def to_json(self) -> dict:
+        """One entry of ``plan --roadmap --targets --json`` plus ``structures`` and ``number``."""
+        return {**self.result.to_json(), "planner": self.plan_result.planner, "structures": self.structures,
+                "number": self.number}
+
+
+class PlanSession:
+    """The state behind `ctrplan serve` (see the module docstring). ``roadmap_dir``: answer from the
+    roadmap there (its sweep index is built and saved beside it when missing, `progress` told), else
+    plan each target from scratch."""
+
+    def __init__(self, scene: Scene, backend: Backend, model: str | None = None,
+                 roadmap_dir: Path | None = None, progress=lambda text: None):
+        self.lock = threading.RLock()
+        self.model, self.roadmap_dir = model, roadmap_dir
+        progress("compiling kernels (first run only)")
+        ctx = planning_context(scene, backend, model)
+        self.live: LiveRoadmap | None = None
+        self.planner: RoadmapPlanner | None = None
+        if roadmap_dir is not None:
+            rm = load_roadmap(roadmap_dir, fingerprints(scene, backend))
+            index = SweepIndex.load(roadmap_dir, rm)
+            if index is None:
+                progress(f"indexing the roadmap's sweep of the workspace ({rm.n_nodes:,} nodes, "
+                         f"{len(rm.edges):,} edges; once)")
+                index = build_sweep(ctx, rm, lambda done, total: progress(
+                    f"indexing the roadmap's sweep: {done:,}/{total:,} elements"))
+                index.save(roadmap_dir)
+            self.live = LiveRoadmap(ctx, rm, index)
+            self.planner = RoadmapPlanner(ctx, rm)
+        self._ctx = ctx
+        self._shifts: dict[str, np.ndarray] = {}  # without a roadmap (the roadmap keeps its own)
+        self.target = scene.target
+        self.last: Answer | None = None
+        self.repairs: list[Repair] = []
+        self.count = 0
+
+    @property
+    def ctx(self) -> PlanningContext:
+        """The planning context of the scene as it is now (moved structures in place)."""
+        return self.live.ctx if self.live is not None else self._ctx
+
+    @property
+    def scene(self) -> Scene:
+        return self.ctx.scene
+
+    def shift_of(self, name: str) -> np.ndarray:
+        """The shift (3,) (mm) of structure ``name`` from its place in the scene file."""
+        return self.live.shift_of(name) if self.live is not None else self._shifts.get(name, np.zeros(3))
+
+    # ---- requests ---------------------------------------------------------------------------------
+    def plan(self, center_mm, tolerance_mm: float) -> Answer:
+        """Answer the sphere of ``tolerance_mm`` around ``center_mm`` (scene frame, mm)."""
+        region = TargetRegion.sphere(np.asarray(center_mm, dtype=float), float(tolerance_mm))
+        with self.lock:
+            scene = replace(self.scene, target=region)
+            if self.planner is not None:
+                result = self.planner.answer(region)
+                planned = _as_plan_result(result, scene, self.ctx.backend.name)
+            else:
+                planned = plan(scene, self.ctx.loaded, exact=self.ctx.exact, world=self.ctx.checker.world)
+                result = _as_query_result(planned, region)
+            structures = []
+            if result.dense is not None:
+                found = structure_clearances(scene, result.dense.exact, self.ctx.checker.world)
+                structures = sorted((c.to_json() for c in found),
+                                    key=lambda c: np.inf if c["clearance_mm"] is None else c["clearance_mm"])
+            self.count += 1
+            self.target = region
+            self.last = Answer(result, planned, structures, scene, self.count)
+            return self.last
+
+    def move(self, name: str, translation_mm) -> dict:
+        """Move structure ``name`` by ``translation_mm`` (3,) (mm, scene frame) from where it is now;
+        the roadmap is repaired. Returns the structure's shift from its scene-file place and the
+        repair record (None without a roadmap)."""
+        with self.lock:
+            names = [o.name for o in self.scene.obstacles]
+            if name not in names:
+                raise InputError(f"no structure named {name!r} (structures: {', '.join(names)})")
+            shift = self.shift_of(name) + np.asarray(translation_mm, dtype=float)
+            if np.linalg.norm(shift) > MAX_SHIFT_MM:
+                raise InputError(f"translation_mm: {name} would be {np.linalg.norm(shift):.1f} mm from its "
+                                 f"place in the scene file; at most {MAX_SHIFT_MM:g} mm")
+            t0 = time.perf_counter()
+            if self.live is not None:
+                rep = self.live.move(name, shift)
+                self.repairs.append(rep)
+                self.planner = RoadmapPlanner(self.live.ctx, self.live.roadmap)
+                record = rep.to_json()
+            else:
+                original = next(o for o in self._ctx.scene.obstacles if o.name == name)
+                moved = original.translated(shift)
+                scene = replace(self.scene, obstacles=tuple(moved if o.name == name else o
+                                                             for o in self.scene.obstacles))
+                self._ctx = with_world(self._ctx, scene, self._ctx.checker.world.moved(moved))
+                self._shifts[name] = shift
+                record = None
+            return {"structure": name, "shift_mm": np.round(shift, 4).tolist(), "repair": record,
+                    "seconds": round(time.perf_counter() - t0, 4)}
+
+    def save(self, out: Path, scene_file: Path) -> list[Path]:
+        """Write ``plan --out``'s files for the last answer into ``out``; the paths written."""
+        with self.lock:
+            if self.last is None:
+                raise InputError("nothing planned yet: no plan to write")
+            a = self.last
+            world = None if a.result.dense is None else a.result.dense.world
+            doc = plan_document(a.plan_result, a.scene, scene_file, self.model, world)
+            write_plan_outputs(out, a.scene, a.plan_result, doc, world)
+            names = ["path.json", "trajectory.csv", "obstacles.ply", "plan.png", "plan.html"]
+            return [out / n for n in names if (out / n).exists()]
+
+    def describe(self) -> dict:
+        """``GET /api/scene``: structures (name, margin, shift), base pose, target, roadmap summary."""
+        with self.lock:
+            sc, t = self.scene, self.target
+            roadmap = None
+            if self.live is not None:
+                rm = self.live.built
+                roadmap = {"folder": str(self.roadmap_dir), "nodes": rm.n_nodes, "edges": len(rm.edges),
+                           "usable_nodes": int(self.live.node_ok.sum()),
+                           "usable_edges": int(self.live.usable_edges().sum()),
+                           "connected_nodes": int(self.live.roadmap.connected.sum()),
+                           "build_s": rm.meta.get("build_s"), "backend": rm.meta.get("backend"),
+                           "repairs": len(self.repairs)}
+            return {"scene": sc.name,
+                    "structures": [{"name": o.name, "margin_mm": float(o.margin_mm),
+                                    "shift_mm": np.round(self.shift_of(o.name), 4).tolist()}
+                                   for o in sc.obstacles],
+                    "base_pose": np.asarray(sc.base_pose).tolist(),
+                    "target": {"center_mm": t.center.tolist(), "tolerance_mm": t.tolerance_mm,
+                               "region": t.to_dict()},
+                    "planner": "roadmap" if self.live is not None else "single-query",
+                    "roadmap": roadmap}
+
+
+def _as_plan_result(result: QueryResult, scene: Scene, backend: str) -> PlanResult:
+    """A roadmap answer as the `PlanResult` the ``plan --out`` writers take (planner ``roadmap``)."""
+    v = result.validated
+    return PlanResult(result.solved, "roadmap", backend, result.query_time_s, 0, result.path,
+                      scene.target.center, scene.target.tolerance_mm, scene.base_pose,
+                      tip_mm=None if v is None else np.asarray(v.tip_mm), validated=v,
+                      message=result.message, status="Exact solution" if result.solved else "",
+                      scene=scene.name, dense=result.dense,
+                      details={"validation_time_s": result.validation_time_s, "attempts": result.attempts})
+
+
+def _as_query_result(planned: PlanResult, region: TargetRegion) -> QueryResult:
+    """A single-query plan as a roadmap answer (its planning time as the query time)."""
+    return QueryResult(region, planned.solved, np.asarray(planned.path), planned.planning_time_s,
+                       float(planned.details.get("validation_time_s", 0.0)), planned.validated, planned.dense,
+                       1, planned.message)
