@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
-import io
 import time
 from pathlib import Path
 from typing import Annotated
@@ -60,41 +58,13 @@ def serve_command(
 
 
 def _serve(session, scene_file: Path, host: str, port: int, out: Path) -> None:
-    """Start viser on a private port and the front (page + API) on ``host:port``; run until Ctrl-C."""
-    import viser
+    """Serve until Ctrl-C (`ctrplan.serve.app.serving`)."""
+    from ctrplan.serve.app import serving
 
-    from ctrplan.serve import api
-    from ctrplan.serve.front import FrontServer
-    from ctrplan.serve.page import Page
-
-    with contextlib.redirect_stdout(io.StringIO()):  # viser prints its private address: not ours
-        server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    page = front = None
     try:
-        page = Page(server, session, out, scene_file)
-
-        def on_change(kind: str, value) -> None:
-            if kind == "plan":
-                page.show(value)
-            else:
-                page.show_move(value)
-                page.request(session.target.center, session.target.tolerance_mm)
-
-        front = FrontServer(host, port, server.get_port(),
-                            lambda method, path, body: api.handle(session, method, path, body, on_change))
-        try:
-            front.start()
-        except OSError as exc:
-            raise InputError(f"--port: cannot listen on {host}:{port} ({exc.strerror or exc})") from None
-        page.request(session.target.center, session.target.tolerance_mm)
-        shown = "127.0.0.1" if host in ("0.0.0.0", "") else host
-        typer.echo(f"ctrplan serve: http://{shown}:{front.port}/ (API under /api/; Ctrl-C stops)", err=True)
-        while True:
-            time.sleep(0.5)
-    finally:
-        if front is not None:
-            front.stop()
-        if page is not None:
-            page.close()
-        with contextlib.redirect_stdout(io.StringIO()):
-            server.stop()
+        with serving(session, scene_file, host, port, out) as running:
+            typer.echo(f"ctrplan serve: {running.url} (API under /api/; Ctrl-C stops)", err=True)
+            while True:
+                time.sleep(0.5)
+    except OSError as exc:  # the port (the loop itself raises none)
+        raise InputError(f"--port: cannot listen on {host}:{port} ({exc.strerror or exc})") from None

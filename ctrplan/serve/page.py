@@ -32,7 +32,7 @@ from ctrplan.viz.style import TARGET_COLOR, scene_colors
 #: Width of the drawn backbone (mm) and of the tip path (mm); the gizmo's size (mm).
 BACKBONE_MM = 1.5
 TIP_PATH_MM = 0.6
-GIZMO_MM = 14.0
+GIZMO_MM = 24.0
 #: An obstacle much larger than the target region's neighbourhood (the face plate) is drawn faint.
 BACKDROP_MM = 150.0
 
@@ -76,7 +76,7 @@ class Page:
                                                       position=tuple(t.center), depth_test=False)
         self.ball = srv.scene.add_icosphere("/target/region", radius=float(t.tolerance_mm),
                                             color=hex_rgb(TARGET_COLOR), opacity=0.55)
-        self.gizmo.on_update(lambda _e: self.request(np.asarray(self.gizmo.position), self.tolerance.value))
+        self.gizmo.on_update(lambda _e: self._dragged())
         start = self.session.ctx.checker.forward(sc.start[None])
         self.start_backbone = sc.to_scene(start.positions_mm[0])
         self._draw_backbone(self.start_backbone, None)
@@ -89,12 +89,12 @@ class Page:
         gui.add_markdown(f"**ctrplan** &middot; {self.session.scene.name} &middot; drag the target's arrows, "
                          "or click a structure to put the target on its surface")
         self.vector = gui.add_vector3("target (mm)", tuple(np.round(t.center, 2)), step=0.1)
-        self.vector.on_update(lambda _e: self._typed())
+        self.vector.on_update(lambda e: e.client is not None and self._typed())
         self.tolerance = gui.add_number("tolerance (mm)", float(t.tolerance_mm), min=0.1, max=20.0, step=0.1)
-        self.tolerance.on_update(lambda _e: self._typed())
+        self.tolerance.on_update(lambda e: e.client is not None and self._typed())
         self.result = gui.add_markdown("planning the scene's target ...")
         self.slider = gui.add_slider("along the path", 0, 1, 1, 1, disabled=True)
-        self.slider.on_update(lambda _e: self._show_state())
+        self.slider.on_update(lambda e: e.client is not None and self._show_state())
         save = gui.add_button("write path.json + trajectory.csv")
         save.on_click(lambda event: self._save(event.client))
         self.saved = gui.add_markdown("")
@@ -136,6 +136,11 @@ class Page:
             except Exception as exc:  # noqa: BLE001 - a failed plan is shown, the page lives on
                 self.result.content = f"**planning failed**: {type(exc).__name__}: {exc}"
 
+    def _dragged(self) -> None:
+        centre = np.asarray(self.gizmo.position, dtype=float)
+        self.vector.value = tuple(np.round(centre, 2))  # a server-side change: no callback of ours runs
+        self.request(centre, self.tolerance.value)
+
     def _typed(self) -> None:
         centre = np.asarray(self.vector.value, dtype=float)
         self.gizmo.position = tuple(centre)
@@ -149,6 +154,7 @@ class Page:
                       np.asarray(event.ray_direction))
         if hit is not None:
             self.gizmo.position = tuple(hit)
+            self.vector.value = tuple(np.round(hit, 2))
             self.request(hit, self.tolerance.value)
 
     def _move(self) -> None:
@@ -169,23 +175,26 @@ class Page:
         text = f"**{name}** now {np.round(record['shift_mm'], 2).tolist()} mm from its place"
         if rep:
             text += (f"; roadmap repaired in {1e3 * rep['seconds']['total_s']:.0f} ms: "
-                     f"{rep['checked']['nodes']:,} states and {rep['checked']['edges']:,} edges checked, "
-                     f"{rep['blocked']['nodes']:,} / {rep['blocked']['edges']:,} blocked, "
-                     f"{rep['freed']['nodes']:,} / {rep['freed']['edges']:,} freed")
+                     f"{rep['suspect']['nodes']:,} of {rep['total']['nodes']:,} states and "
+                     f"{rep['suspect']['edges']:,} of {rep['total']['edges']:,} edges near it to check "
+                     f"when a path uses them, {rep['reopened']['nodes']:,} / {rep['reopened']['edges']:,} "
+                     "blocked ones reopened")
         self.moved.content = text
 
-    def show(self, answer: Answer) -> None:
-        """Draw an answer (unless a newer one is drawn already): target, path, result, slider."""
+    def show(self, answer: Answer, move_target: bool = False) -> None:
+        """Draw an answer (unless a newer one is drawn already): path, result, slider; with
+        ``move_target`` (a target set elsewhere: the API) the target too. A dragged target is never
+        moved back to where an older answer was planned."""
         with self._draw_lock:
             if answer.number <= self._drawn:
                 return
             self._drawn, self._shown = answer.number, answer
             doc = answer.to_json()
-            centre = np.asarray(doc["target_mm"])
             with self.server.atomic():
                 self.ball.radius = float(doc["tolerance_mm"])
-                if np.linalg.norm(np.asarray(self.gizmo.position) - centre) > 1e-6:
-                    self.gizmo.position = tuple(centre)
+                if move_target:
+                    self.gizmo.position = tuple(doc["target_mm"])
+                    self.vector.value = tuple(np.round(doc["target_mm"], 2))
                 self._draw_path(answer)
                 self.result.content = result_markdown(doc, answer.plan_result.planner)
             self.server.flush()

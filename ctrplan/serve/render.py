@@ -59,14 +59,17 @@ def segment_colours(rgb: np.ndarray) -> np.ndarray:
 
 def first_camera(start_tip: np.ndarray, target: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Camera position and look-at point (mm): across the corridor from the start's tip to the
-    target, a little from above, far enough to see both."""
+    target, a little from above and from the front, far enough to see both (and at least 120 mm
+    away)."""
     d = target - start_tip
-    length = float(np.linalg.norm(d)) or 100.0
+    length = max(float(np.linalg.norm(d)), 1e-9)
     d = d / length
     side = np.cross(d, up)
     side = side / (np.linalg.norm(side) or 1.0)
     look = start_tip + 0.6 * (target - start_tip)
-    return look + 0.95 * length * side + 0.35 * length * up, look
+    distance = max(120.0, 1.4 * length)
+    view = 0.85 * side + 0.35 * up - 0.4 * d
+    return look + distance * view / np.linalg.norm(view), look
 
 
 def result_markdown(doc: dict, planner: str) -> str:

@@ -1,5 +1,6 @@
 """One planning session of `ctrplan serve`: a scene whose structures may move, its planner (a roadmap
-repaired as tissue moves, else the single-query planner), the target and the last answer.
+repaired as tissue moves, else the single-query planner -- also where the roadmap has no path, e.g.
+when moved tissue blocks its routes), the target and the last answer.
 
 Every request -- from the page or the JSON API -- goes through `PlanSession`, one at a time (a lock):
 `plan` answers a target with a document shaped like one entry of ``plan --roadmap --targets --json``,
@@ -23,7 +24,7 @@ from ctrplan.planning import plan
 from ctrplan.planning.planner import PlanResult
 from ctrplan.planning.roadmap._adapter import PlanningContext, planning_context, with_world
 from ctrplan.planning.roadmap.query import QueryResult, RoadmapPlanner
-from ctrplan.planning.roadmap.repair import LiveRoadmap, Repair
+from ctrplan.planning.roadmap.repair import BLOCKED, SUSPECT, LiveRoadmap, Repair
 from ctrplan.planning.roadmap.store import fingerprints, load_roadmap
 from ctrplan.planning.roadmap.sweep import SweepIndex, build_sweep
 from ctrplan.scene.objects import Scene, TargetRegion
@@ -74,7 +75,7 @@ class PlanSession:
                     f"indexing the roadmap's sweep: {done:,}/{total:,} elements"))
                 index.save(roadmap_dir)
             self.live = LiveRoadmap(ctx, rm, index)
-            self.planner = RoadmapPlanner(ctx, rm)
+            self.planner = RoadmapPlanner(ctx, rm, self.live)
         self._ctx = ctx
         self._shifts: dict[str, np.ndarray] = {}  # without a roadmap (the roadmap keeps its own)
         self.target = scene.target
@@ -101,11 +102,13 @@ class PlanSession:
         region = TargetRegion.sphere(np.asarray(center_mm, dtype=float), float(tolerance_mm))
         with self.lock:
             scene = replace(self.scene, target=region)
-            if self.planner is not None:
-                result = self.planner.answer(region)
+            result = None if self.planner is None else self.planner.answer(region)
+            if result is not None and result.solved:
                 planned = _as_plan_result(result, scene, self.ctx.backend.name)
-            else:
+            else:  # no roadmap, or it has no path (tissue moved across its routes): plan from scratch
                 planned = plan(scene, self.ctx.loaded, exact=self.ctx.exact, world=self.ctx.checker.world)
+                if result is not None:
+                    planned.message += f" (single-query planner: the roadmap had no path, {result.message})"
                 result = _as_query_result(planned, region)
             structures = []
             if result.dense is not None:
@@ -133,7 +136,7 @@ class PlanSession:
             if self.live is not None:
                 rep = self.live.move(name, shift)
                 self.repairs.append(rep)
-                self.planner = RoadmapPlanner(self.live.ctx, self.live.roadmap)
+                self.planner = RoadmapPlanner(self.live.ctx, self.live.roadmap, self.live)
                 record = rep.to_json()
             else:
                 original = next(o for o in self._ctx.scene.obstacles if o.name == name)
@@ -165,12 +168,17 @@ class PlanSession:
             roadmap = None
             if self.live is not None:
                 rm = self.live.built
+                live = self.live
                 roadmap = {"folder": str(self.roadmap_dir), "nodes": rm.n_nodes, "edges": len(rm.edges),
-                           "usable_nodes": int(self.live.node_ok.sum()),
-                           "usable_edges": int(self.live.usable_edges().sum()),
-                           "connected_nodes": int(self.live.roadmap.connected.sum()),
+                           "blocked_nodes": int((live.node_state == BLOCKED).sum()),
+                           "blocked_edges": int((live.edge_state == BLOCKED).sum()),
+                           "suspect_nodes": int((live.node_state == SUSPECT).sum()),
+                           "suspect_edges": int((live.edge_state == SUSPECT).sum()),
+                           "connected_nodes": int(live.roadmap.connected.sum()),
                            "build_s": rm.meta.get("build_s"), "backend": rm.meta.get("backend"),
-                           "repairs": len(self.repairs)}
+                           "reach": rm.meta.get("reach"), "repairs": len(self.repairs),
+                           "lazy_checks": {k: round(v, 4) if isinstance(v, float) else v
+                                           for k, v in live.lazy.items()}}
             return {"scene": sc.name,
                     "structures": [{"name": o.name, "margin_mm": float(o.margin_mm),
                                     "shift_mm": np.round(self.shift_of(o.name), 4).tolist()}

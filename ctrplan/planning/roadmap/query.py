@@ -18,7 +18,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -39,6 +39,9 @@ from ctrplan.planning.roadmap._adapter import (
 from ctrplan.planning.roadmap.store import Roadmap
 from ctrplan.scene.objects import TargetRegion
 
+if TYPE_CHECKING:
+    from ctrplan.planning.roadmap.repair import LiveRoadmap
+
 #: Connected nodes whose tips are nearest the target that IK starts from.
 NEAREST = 24
 #: IK iterations per query (the nearest tips lie within a few mm).
@@ -50,6 +53,8 @@ MAX_ATTEMPTS = 3
 #: Waypoints at the end of a candidate path checked with the exact model before it is chosen (the
 #: last state: its exact tip decides the goal correction; the rest is left to the exact validation).
 EXACT_TAIL = 1
+#: Tree paths to one node tried on a live roadmap (each found blocked changes the tree).
+LAZY_TRIES = 8
 #: A node ends a path itself when its tip lies this far (mm) inside the target (the planning
 #: backend's tip error leaves the exact tip inside too, no exact goal correction needed).
 DIRECT_INSET_MM = 0.2
@@ -84,10 +89,11 @@ class QueryResult:
 
 class RoadmapPlanner:
     """Queries on one roadmap in one planning context (KD-tree of the connected nodes' tips built
-    once here)."""
+    once here). With ``live`` (a `ctrplan.planning.roadmap.repair.LiveRoadmap` whose tree ``roadmap``
+    is) the SUSPECT elements of a path are checked before it is used (lazy repair)."""
 
-    def __init__(self, ctx: PlanningContext, roadmap: Roadmap):
-        self.ctx, self.roadmap = ctx, roadmap
+    def __init__(self, ctx: PlanningContext, roadmap: Roadmap, live: LiveRoadmap | None = None):
+        self.ctx, self.roadmap, self.live = ctx, roadmap, live
         self.nodes = np.flatnonzero(roadmap.connected)
         self.tree = cKDTree(roadmap.tips[self.nodes])
 
@@ -143,6 +149,8 @@ class RoadmapPlanner:
                         keep = a + new[valid]
                         edges[new[valid]] = check_edges(self.ctx, self.roadmap.q[nodes[keep]], q[keep])
             for i in a + np.flatnonzero(edges):
+                if not self._usable(int(nodes[i]), steps):
+                    continue
                 tree = self.roadmap.path_to(int(nodes[i]))
                 path = tree if direct[i] else np.vstack([tree, q[i]])
                 with steps.timed("exact_end"):
@@ -155,6 +163,23 @@ class RoadmapPlanner:
                 with steps.timed("exact_goal"):
                     return exact_goal_state(self.ctx, scene, path), int(i)
         return None, -1
+
+    def _usable(self, node: int, steps: Steps) -> bool:
+        """Whether the tree path to ``node`` can be used: connected to the start and, on a live
+        roadmap, every SUSPECT element on it checked and found OK; when one is BLOCKED the live
+        roadmap's tree is computed again and the new path to the node tried (`LAZY_TRIES` times)."""
+        for _ in range(LAZY_TRIES):
+            if not np.isfinite(self.roadmap.dist[node]):
+                return False
+            if self.live is None:
+                return True
+            with steps.timed("lazy"):
+                ok = self.live.resolve_path(node)
+                self.roadmap = self.live.roadmap
+            if ok:
+                return True
+            steps.count("lazy_blocked")  # the tree changed: its new path to the node is tried
+        return False
 
     def answer(self, target: TargetRegion) -> QueryResult:
         """Query, validate exactly, repair locally (see the module docstring)."""

@@ -139,10 +139,12 @@ class SweepIndex:
         return np.append(picked, self.grid.size) if beyond else picked
 
     def nodes_in(self, cells: np.ndarray) -> np.ndarray:
-        return _gather(self.node_ptr, self.node_ids, cells)
+        """The nodes (ids, ascending) that sweep any of ``cells``."""
+        return _gather(self.node_ptr, self.node_ids, cells, self.nodes)
 
     def edges_in(self, cells: np.ndarray) -> np.ndarray:
-        return _gather(self.edge_ptr, self.edge_ids, cells)
+        """The edges (ids, ascending) that sweep any of ``cells``."""
+        return _gather(self.edge_ptr, self.edge_ids, cells, self.edges)
 
     @property
     def entries(self) -> int:
@@ -175,64 +177,84 @@ class SweepIndex:
         return index if fits and (index.nodes, index.edges) == (roadmap.n_nodes, len(roadmap.edges)) else None
 
 
-def _gather(ptr: np.ndarray, ids: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """The unique element ids listed under ``cells`` of a cell -> elements CSR."""
+def _gather(ptr: np.ndarray, ids: np.ndarray, cells: np.ndarray, count: int) -> np.ndarray:
+    """The element ids (of ``count``) listed under ``cells`` of a cell -> elements CSR, each once."""
     cells = np.asarray(cells, dtype=np.int64)
-    if not len(cells):
-        return np.zeros(0, dtype=np.int64)
     start, stop = ptr[cells], ptr[cells + 1]
     n = stop - start
-    if not n.sum():
+    if not len(cells) or not n.sum():
         return np.zeros(0, dtype=np.int64)
     offsets = np.repeat(start - np.concatenate([[0], np.cumsum(n)[:-1]]), n)
-    return np.unique(ids[np.arange(int(n.sum())) + offsets])
+    seen = np.zeros(count, dtype=bool)
+    seen[ids[np.arange(int(n.sum())) + offsets]] = True
+    return np.flatnonzero(seen)
 
 
-def _csr(cells: np.ndarray, owners: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
-    """Cell -> owners rows (ptr (size + 2,), ids) from (cell, owner) pairs."""
-    order = np.lexsort((owners, cells))
-    counts = np.bincount(cells, minlength=size + 1)
-    ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    return ptr, owners[order].astype(np.int32)
-
-
-def _state_chunks(ctx: PlanningContext, roadmap: Roadmap
-                  ) -> Iterator[tuple[str, np.ndarray, np.ndarray, int]]:
-    """(kind, states, owner ids, elements covered) in chunks of about `CHUNK_STATES` states: the
-    nodes, then the edges' interior states (an edge shorter than the resolution has none)."""
+def _state_chunks(ctx: PlanningContext, roadmap: Roadmap) -> Iterator[dict]:
+    """Jobs of about `CHUNK_STATES` states each: the nodes, then the edges' interior states (an
+    edge shorter than the resolution has none), with the owner of each state and the elements the
+    job covers."""
     for a in range(0, roadmap.n_nodes, CHUNK_STATES):
         b = min(a + CHUNK_STATES, roadmap.n_nodes)
-        yield "node", roadmap.q[a:b], np.arange(a, b), b - a
+        yield {"kind": "node", "q": roadmap.q[a:b], "owner": np.arange(a, b), "covered": b - a}
     e = roadmap.edges
     per = max(1, CHUNK_STATES // 8)
     for a in range(0, len(e), per):
         b = min(a + per, len(e))
         states, edge = edge_states(ctx, roadmap.q[e[a:b, 0]], roadmap.q[e[a:b, 1]])
-        yield "edge", states, edge + a, b - a
+        yield {"kind": "edge", "q": states, "owner": edge + a, "covered": b - a}
 
 
-def build_sweep(ctx: PlanningContext, roadmap: Roadmap,
-                progress: Callable[[int, int], None] | None = None) -> SweepIndex:
-    """The sweep index of ``roadmap`` in context ``ctx`` (every node and edge; ``progress(done,
-    total)`` in elements)."""
+def sweep_job(ctx: PlanningContext, job: dict) -> dict:
+    """A worker's part of `build_sweep`: the (cell, element) pairs of the job's states."""
+    if not len(job["q"]):
+        return {"kind": job["kind"], "cells": np.zeros(0, np.int64), "owners": np.zeros(0, np.int64),
+                "radius": 0.0, "covered": job["covered"]}
+    cells, owners, radius = sweep_pairs(ctx, job["grid"], job["q"], job["owner"])
+    return {"kind": job["kind"], "cells": cells.astype(np.int32), "owners": owners.astype(np.int32),
+            "radius": radius, "covered": job["covered"]}
+
+
+def build_sweep(ctx: PlanningContext, roadmap: Roadmap, progress: Callable[[int, int], None] | None = None,
+                pool=None, in_flight: int = 4) -> SweepIndex:
+    """The sweep index of ``roadmap`` in context ``ctx`` (every node and edge), its jobs run on
+    ``pool`` (`ctrplan.planning.roadmap.build.Pool`: jobs are called ``fn(ctx, spec)``; None: here),
+    ``in_flight`` at a time; ``progress(done, total)`` in elements."""
     grid = CellGrid.for_scene(ctx.scene)
-    pairs = {"node": ([], []), "edge": ([], [])}
-    radius = 0.0
-    total = roadmap.n_nodes + len(roadmap.edges)
-    done = 0
-    for kind, states, owner, covered in _state_chunks(ctx, roadmap):
-        if len(states):
-            cells, ids, r = sweep_pairs(ctx, grid, states, owner)
-            pairs[kind][0].append(cells)
-            pairs[kind][1].append(ids)
-            radius = max(radius, r)
-        done += covered
+    pairs: dict[str, list] = {"node": [], "edge": []}
+    radius, done, total = 0.0, 0, roadmap.n_nodes + len(roadmap.edges)
+
+    def add(out: dict) -> None:
+        nonlocal radius, done
+        pairs[out["kind"]].append((out["cells"], out["owners"]))
+        radius = max(radius, out["radius"])
+        done += out["covered"]
         if progress:
             progress(done, total)
-    rows = {}
-    for kind, (cells, ids) in pairs.items():
-        c = np.concatenate(cells) if cells else np.zeros(0, dtype=np.int64)
-        i = np.concatenate(ids) if ids else np.zeros(0, dtype=np.int64)
-        rows[kind] = _csr(c, i, grid.size)
-    return SweepIndex(grid, radius + 0.5 * SAMPLE_MM, *rows["node"], *rows["edge"], roadmap.n_nodes,
-                      len(roadmap.edges))
+
+    jobs = ({**job, "grid": grid} for job in _state_chunks(ctx, roadmap))
+    if pool is None:
+        for job in jobs:
+            add(sweep_job(ctx, job))
+    else:
+        waiting = 0
+        for job in jobs:
+            pool.submit(sweep_job, job)
+            waiting += 1
+            if waiting >= in_flight:
+                add(pool.next_done()[1])
+                waiting -= 1
+        for _ in range(waiting):
+            add(pool.next_done()[1])
+    rows = [_csr(pairs[kind], grid.size) for kind in ("node", "edge")]
+    return SweepIndex(grid, radius + 0.5 * SAMPLE_MM, *rows[0], *rows[1], roadmap.n_nodes, len(roadmap.edges))
+
+
+def _csr(parts: list[tuple[np.ndarray, np.ndarray]], size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cell -> owners rows (ptr (size + 2,) int64, owner ids int32 sorted per cell) from (cell,
+    owner) pairs."""
+    cells = np.concatenate([c for c, _ in parts]) if parts else np.zeros(0, np.int32)
+    owners = np.concatenate([o for _, o in parts]) if parts else np.zeros(0, np.int32)
+    order = np.lexsort((owners, cells))
+    counts = np.bincount(cells, minlength=size + 1)
+    return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), owners[order].astype(np.int32)
