@@ -196,7 +196,8 @@ class Page:
                     self.gizmo.position = tuple(doc["target_mm"])
                     self.vector.value = tuple(np.round(doc["target_mm"], 2))
                 self._draw_path(answer)
-                self.result.content = result_markdown(doc, answer.plan_result.planner)
+                moved = {o.name: self.session.shift_of(o.name) for o in answer.scene.obstacles}
+                self.result.content = result_markdown(doc, answer.plan_result.planner, moved)
             self.server.flush()
 
     def _draw_path(self, answer: Answer) -> None:

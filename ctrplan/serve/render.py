@@ -72,8 +72,9 @@ def first_camera(start_tip: np.ndarray, target: np.ndarray, up: np.ndarray) -> t
     return look + distance * view / np.linalg.norm(view), look
 
 
-def result_markdown(doc: dict, planner: str) -> str:
-    """The result panel: plan number, verdict, times, the exact check and the nearest structures."""
+def result_markdown(doc: dict, planner: str, moved: dict[str, np.ndarray] | None = None) -> str:
+    """The result panel: plan number, verdict, times, the exact check, the path, the structures that
+    moved (name -> shift from the scene file, mm) and the nearest structures."""
     t = doc["target_mm"]
     lines = [f"**plan #{doc['number']}** ({planner}) &middot; target ({t[0]:.1f}, {t[1]:.1f}, {t[2]:.1f}) "
              f"mm, tolerance {doc['tolerance_mm']:g} mm", ""]
@@ -84,8 +85,15 @@ def result_markdown(doc: dict, planner: str) -> str:
     if not doc["solved"]:
         lines += ["", f"why: {doc['message']}"]
     if v is not None:
+        tip = v["tip_mm"]
         lines += ["", f"exact model: {'collision-free' if v['collision_free'] else 'COLLIDES'}, tip "
-                      f"{'in' if v['tip_in_target'] else 'OUTSIDE'} the target, {v['states']} states checked"]
+                      f"{'in' if v['tip_in_target'] else 'OUTSIDE'} the target, {v['states']} states checked",
+                  "", f"path: {len(doc['path'])} waypoints, exact tip at ({tip[0]:.2f}, {tip[1]:.2f}, "
+                      f"{tip[2]:.2f}) mm"]
+    shifted = [f"{name} by ({t[0]:.1f}, {t[1]:.1f}, {t[2]:.1f}) mm" for name, t in (moved or {}).items()
+               if np.any(t != 0)]
+    if shifted:
+        lines += ["", "tissue moved: " + ", ".join(shifted)]
     listed = [c for i, c in enumerate(doc.get("structures", [])) if i < LISTED or c["below_margin"]]
     if listed:
         lines += ["", "| nearest structures | clearance | needs |", "|---|---|---|"]
