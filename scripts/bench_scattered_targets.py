@@ -5,6 +5,11 @@ fossa, the tuberculum a steep approach), each answered from a roadmap and planne
 single-query RRTConnect, as ``ctrplan bench roadmap`` does for random targets in the scene's region.
 
     python scripts/bench_scattered_targets.py --roadmap DIR [--single-time-limit 10] [--out DIR]
+        [--query-module OLD_QUERY.py]
+
+``--query-module`` answers with the `RoadmapPlanner` of another version of
+``ctrplan/planning/roadmap/query.py`` (e.g. ``git show REV:ctrplan/planning/roadmap/query.py >
+old.py``): the same roadmap and targets before and after a change.
 
 Writes ``targets.csv`` (the targets: header x,y,z,tolerance_mm, usable with ``plan --roadmap
 --targets``), ``results.json`` (every run, the summary per planner and per region) and prints the
@@ -50,6 +55,7 @@ def main() -> None:
     ap.add_argument("--scene", type=Path, default=REPO / "scenes" / "skullbase.yaml")
     ap.add_argument("--single-time-limit", type=float, default=10.0, help="s; 0 skips single-query planning")
     ap.add_argument("--out", type=Path, default=REPO / "runs" / "bench_scattered")
+    ap.add_argument("--query-module", type=Path, help="another query.py to answer with")
     args = ap.parse_args()
 
     from ctrplan.bench import roadmap as bench
@@ -64,7 +70,16 @@ def main() -> None:
     be = make_backend("pinn", sc.robot)
     rm = load_roadmap(args.roadmap, fingerprints(sc, be))
     ctx = planning_context(sc, be)
-    planner = RoadmapPlanner(ctx, rm)
+    if args.query_module is not None:
+        import importlib.util
+
+        name = "ctrplan.planning.roadmap._query_other"
+        spec = importlib.util.spec_from_file_location(name, args.query_module)
+        other = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(other)
+        planner = other.RoadmapPlanner(ctx, rm)
+    else:
+        planner = RoadmapPlanner(ctx, rm)
     named = scattered_targets()
     targets = [TargetRegion.sphere(c, TOLERANCE_MM) for _, c in named]
     args.out.mkdir(parents=True, exist_ok=True)
@@ -79,7 +94,8 @@ def main() -> None:
     summary = {"all": bench.summarize(records)}
     for name, *_ in REGIONS:
         summary[name] = bench.summarize([r for r in records if r["region"] == name])
-    doc = {"roadmap": str(args.roadmap), "nodes": rm.n_nodes, "summary": summary, "runs": records}
+    doc = {"roadmap": str(args.roadmap), "nodes": rm.n_nodes, "query_module": str(args.query_module or ""),
+           "load_average": list(__import__("os").getloadavg()), "summary": summary, "runs": records}
     (args.out / "results.json").write_text(json.dumps(doc, indent=1))
     print(json.dumps(summary, indent=1))
 

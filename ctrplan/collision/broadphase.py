@@ -319,33 +319,52 @@ class DistanceGrid:
         the distance field moves with its obstacles)."""
         return replace(self, lo=self.lo + np.asarray(shift_mm, dtype=float))
 
-    def covers(self, obstacle: Obstacle) -> bool:
-        """Whether every cell within the band and margin of ``obstacle`` lies inside this grid (a grid
-        says nothing about obstacles beyond its edge: it reads "at least the band away" there)."""
+    def grown_to(self, obstacle: Obstacle) -> DistanceGrid:
+        """This grid, grown (on the same lattice) to cover every cell within the band and margin of
+        ``obstacle``: the new cells are at least the band from every obstacle the grid was built
+        from (the grid reached that far beyond them), so they hold the cap -- exact until
+        ``obstacle`` is painted in (`repainted`)."""
         b = obstacle_bounds(obstacle)
         reach = self.band_mm + obstacle.margin_mm + self.cell_mm
-        hi = self.lo + np.array(self.values.shape) * self.cell_mm
-        return bool(np.all(b[0] - reach >= self.lo) and np.all(b[1] + reach <= hi))
+        shape = np.array(self.values.shape)
+        below = np.maximum(0, np.ceil((self.lo - (b[0] - reach)) / self.cell_mm)).astype(int)
+        hi = self.lo + shape * self.cell_mm
+        above = np.maximum(0, np.ceil((b[1] + reach - hi) / self.cell_mm)).astype(int)
+        if not below.any() and not above.any():
+            return self
+        values = np.full(tuple(shape + below + above), _LEVELS, dtype=np.uint8)
+        values[tuple(slice(a, a + n) for a, n in zip(below, shape, strict=True))] = self.values
+        return replace(self, lo=self.lo - below * self.cell_mm, values=values)
 
-    def repainted(self, obstacles: Sequence[Obstacle], box_mm: np.ndarray) -> DistanceGrid:
-        """A copy whose cells within ``box_mm`` (2, 3) (scene frame, mm) are computed again from
-        ``obstacles``: the grid of ``obstacles`` when they differ from the ones this grid was built from
-        only within the box shrunk by the band and the margins (a structure moved inside it; see
-        `ctrplan.collision.world.CollisionWorld.moved`). Only the obstacles near the box are rasterised."""
+    def cells_of(self, box_mm: np.ndarray) -> tuple[slice, ...]:
+        """The index ranges of the cells within ``box_mm`` (2, 3) (scene frame, mm), clipped to the
+        grid."""
         shape = np.array(self.values.shape)
         i0 = np.clip(np.floor((box_mm[0] - self.lo) / self.cell_mm).astype(int), 0, shape)
         i1 = np.clip(np.ceil((box_mm[1] - self.lo) / self.cell_mm).astype(int), 0, shape)
-        values = self.values.copy()
+        return tuple(slice(int(a), int(b)) for a, b in zip(i0, i1, strict=True))
+
+    def painted(self, obstacles: Sequence[Obstacle], cells: tuple[slice, ...]) -> np.ndarray:
+        """The values ``obstacles`` alone give the ``cells`` (`cells_of`) of this grid's lattice;
+        only the obstacles near them are rasterised."""
+        i0 = np.array([c.start for c in cells])
+        i1 = np.array([c.stop for c in cells])
         sub = np.full(tuple(i1 - i0), _LEVELS, dtype=np.uint8)
-        lo = self.lo + i0 * self.cell_mm
-        hi = self.lo + i1 * self.cell_mm
+        lo, hi = self.lo + i0 * self.cell_mm, self.lo + i1 * self.cell_mm
         near = [o for o in obstacles
                 if np.all(obstacle_bounds(o)[0] - self.band_mm - o.margin_mm <= hi)
                 and np.all(obstacle_bounds(o)[1] + self.band_mm + o.margin_mm >= lo)]
         if sub.size:
             _paint(near, lo, self.cell_mm, self.band_mm, sub)
-            values[tuple(slice(a, b) for a, b in zip(i0, i1, strict=True))] = sub
-        return replace(self, values=values)
+        return sub
+
+    def with_cells(self, cells: tuple[slice, ...], values: np.ndarray) -> DistanceGrid:
+        """A copy with ``values`` in ``cells``: the grid of a set of obstacles that differs from the
+        one this grid holds only within those cells shrunk by the band and the margins (see
+        `ctrplan.collision.world.CollisionWorld.moved`)."""
+        out = self.values.copy()
+        out[cells] = values
+        return replace(self, values=out)
 
     def segment_lower_bounds(self, points: np.ndarray, radii: np.ndarray | None = None) -> np.ndarray:
         """Lower bounds (B, N-1) of the margin-reduced distance (mm) from each segment of polylines

@@ -38,6 +38,11 @@ def _split_mesh(V: np.ndarray, F: np.ndarray, max_faces: int) -> list[np.ndarray
     return out
 
 
+#: `CollisionWorld.moved` keeps what the other obstacles give the cells within this much (mm) of a
+#: moved structure's reach.
+OTHERS_PAD_MM = 6.0
+
+
 class CollisionWorld:
     """The scene's obstacles as FCL objects, built once, and their distance-grid broadphase.
 
@@ -64,6 +69,8 @@ class CollisionWorld:
         self._finish(lo, hi)
         #: the broadphase grid (None when disabled or without obstacles)
         self.grid: DistanceGrid | None = (grid or grid_for(self.obstacles)) if self.broadphase else None
+        #: after `moved`: (its obstacle's name, a box, what the other obstacles give the box's cells)
+        self._others: tuple | None = None
 
     def _add_obstacle(self, index: int, o: Obstacle, max_faces: int, lo: list, hi: list) -> None:
         """FCL objects of obstacle ``index`` (chunks of a mesh, or one primitive)."""
@@ -122,9 +129,8 @@ class CollisionWorld:
         """This world with the obstacle of ``obstacle``'s name replaced by ``obstacle`` (a structure
         that moved): the other obstacles' FCL objects are shared, the grid is repainted around the
         old and the new place only (`DistanceGrid.repainted`; milliseconds where a new grid of the
-        skull base takes seconds), or built anew when the new place leaves the grid."""
+        skull base takes seconds; grown first where the new place reaches beyond it)."""
         index = next(i for i, o in enumerate(self.obstacles) if o.name == obstacle.name)
-        old = self.obstacles[index]
         new = object.__new__(CollisionWorld)
         new.obstacles = self.obstacles[:index] + (obstacle,) + self.obstacles[index + 1:]
         new.broadphase = self.broadphase
@@ -141,17 +147,30 @@ class CollisionWorld:
                 hi.append(self.box_hi[k])
         new._add_obstacle(index, obstacle, max_faces, lo, hi)
         new._finish(lo, hi)
-        new.grid = None
+        new.grid, new._others = None, None
         if self.grid is not None:
-            if self.grid.covers(obstacle):
-                reach = self.grid.band_mm + max(old.margin_mm, obstacle.margin_mm) + 2 * self.grid.cell_mm
-                both = np.stack([obstacle_bounds(old), obstacle_bounds(obstacle)])
-                box = np.stack([both[:, 0].min(axis=0) - reach, both[:, 1].max(axis=0) + reach])
-                new.grid = self.grid.repainted(new.obstacles, box)
-            else:
-                new.grid = grid_for(new.obstacles)
+            new.grid, new._others = self._repainted(index, obstacle, new.obstacles)
         return new
 
+    def _repainted(self, index: int, obstacle: Obstacle, obstacles: tuple[Obstacle, ...]
+                   ) -> tuple[DistanceGrid, tuple | None]:
+        """The grid with obstacle ``index`` moved to ``obstacle``: the cells around its old and new
+        place painted again. What the other obstacles give the cells around it (grown by
+        `OTHERS_PAD_MM`) is kept with the result and reused when the same obstacle moves next,
+        within those cells (a structure dragged about then costs the painting of itself alone)."""
+        old = self.obstacles[index]
+        grid = self.grid.grown_to(obstacle)
+        reach = grid.band_mm + max(old.margin_mm, obstacle.margin_mm) + 2 * grid.cell_mm
+        both = np.stack([obstacle_bounds(old), obstacle_bounds(obstacle)])
+        box = np.stack([both[:, 0].min(axis=0) - reach, both[:, 1].max(axis=0) + reach])
+        kept = self._others
+        if kept is None or kept[0] != obstacle.name or grid is not self.grid \
+                or not (np.all(kept[1][0] <= box[0]) and np.all(box[1] <= kept[1][1])):
+            wide = np.stack([box[0] - OTHERS_PAD_MM, box[1] + OTHERS_PAD_MM])
+            others = [o for k, o in enumerate(obstacles) if k != index]
+            kept = (obstacle.name, wide, grid.painted(others, grid.cells_of(wide)))
+        cells = grid.cells_of(kept[1])
+        return grid.with_cells(cells, np.minimum(kept[2], grid.painted([obstacle], cells))), kept
 
     def near(self, points: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Capsules the broadphase cannot clear, (B, M) bool, and a priority (B, M) to test them in
