@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -76,6 +77,7 @@ def main() -> None:
         name = "ctrplan.planning.roadmap._query_other"
         spec = importlib.util.spec_from_file_location(name, args.query_module)
         other = importlib.util.module_from_spec(spec)
+        sys.modules[name] = other  # its dataclasses look their module up
         spec.loader.exec_module(other)
         planner = other.RoadmapPlanner(ctx, rm)
     else:

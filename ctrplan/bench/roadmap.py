@@ -46,7 +46,8 @@ def roadmap_record(scene: Scene, backend: str, seed: int, result: QueryResult) -
                    exact_collision_free=None if v is None else bool(v.collision_free),
                    exact_tip_in_target=None if v is None else bool(v.tip_in_target),
                    max_position_error_mm=None if v is None else _finite(v.max_position_error_mm),
-                   path_states=int(len(result.path)), message=result.message)
+                   path_states=int(len(result.path)), message=result.message,
+                   steps={k: round(v, 6) if isinstance(v, float) else v for k, v in result.steps.items()})
 
 
 def single_record(scene: Scene, backend, target: TargetRegion, seed: int, time_limit_s: float,

@@ -132,3 +132,20 @@ def ray_hit(vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray, directi
     if not hit.any():
         return None
     return origin + float(np.min(t[hit])) * d
+
+
+def screen_point(position: np.ndarray, look_at: np.ndarray, fov_rad: float, width: int, height: int,
+                 p: np.ndarray) -> tuple[float, float]:
+    """Pixel (x right, y down) of scene point ``p`` (mm) in a ``width`` x ``height`` view from a
+    perspective camera at ``position`` looking at ``look_at`` with vertical field of view ``fov_rad``
+    and +y up (the page's camera: for tests and benchmarks that drive the page)."""
+    pos = np.asarray(position, dtype=float)
+    fw = np.asarray(look_at, dtype=float) - pos
+    fw /= np.linalg.norm(fw)
+    rt = np.cross(fw, [0.0, 1.0, 0.0])
+    rt /= np.linalg.norm(rt)
+    up = np.cross(rt, fw)
+    v = np.asarray(p, dtype=float) - pos
+    z, t = float(v @ fw), float(np.tan(fov_rad / 2))
+    x = (1 + float(v @ rt) / (z * t * width / height)) / 2 * width
+    return x, (1 - float(v @ up) / (z * t)) / 2 * height

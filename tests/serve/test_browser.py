@@ -6,7 +6,6 @@ Skipped only where no ``chromium`` is installed."""
 
 from __future__ import annotations
 
-import math
 import re
 import shutil
 
@@ -15,6 +14,7 @@ import pytest
 from playwright.sync_api import sync_playwright
 
 from ctrplan.serve.page import GIZMO_MM
+from ctrplan.serve.render import screen_point
 from tests.independent.geometry import sphere_gap
 from tests.serve.conftest import call
 from tests.serve.test_api import BALL, BALL_RADIUS, TARGET, exact_backbones
@@ -59,24 +59,12 @@ def wait_for_plan(page, after: int, timeout_ms: int = 120_000) -> dict:
     return shown(page)
 
 
-def screen_point(camera, p: np.ndarray) -> tuple[float, float]:
-    """Pixel of scene point ``p`` (mm) for the page's camera (three.js perspective, +y up)."""
-    pos, look = np.asarray(camera.position), np.asarray(camera.look_at)
-    fw = (look - pos) / np.linalg.norm(look - pos)
-    rt = np.cross(fw, [0.0, 1.0, 0.0])
-    rt /= np.linalg.norm(rt)
-    up = np.cross(rt, fw)
-    v = p - pos
-    z, t = v @ fw, math.tan(camera.fov / 2)
-    return (1 + (v @ rt) / (z * t * W / H)) / 2 * W, (1 - (v @ up) / (z * t)) / 2 * H
-
-
 def drag_target_up(page, app, fraction: float) -> None:
     """Drag the gizmo's y arrow (superior) from 0.85 of its length to ``fraction`` of it."""
-    camera = next(iter(app.server.get_clients().values())).camera
-    c = np.asarray(app.page.gizmo.position)
-    x0, y0 = screen_point(camera, c + 0.85 * GIZMO_MM * np.array([0, 1.0, 0]))
-    x1, y1 = screen_point(camera, c + fraction * GIZMO_MM * np.array([0, 1.0, 0]))
+    cam = next(iter(app.server.get_clients().values())).camera
+    c, up = np.asarray(app.page.gizmo.position), np.array([0, GIZMO_MM, 0])
+    x0, y0 = screen_point(cam.position, cam.look_at, cam.fov, W, H, c + 0.85 * up)
+    x1, y1 = screen_point(cam.position, cam.look_at, cam.fov, W, H, c + fraction * up)
     page.mouse.move(x0 - 4, y0)
     page.mouse.move(x0, y0)
     page.mouse.down()
