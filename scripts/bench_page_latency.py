@@ -24,7 +24,6 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-W, H = 1280, 800
 FLAGS = ["--no-sandbox", "--enable-unsafe-swiftshader", "--use-angle=swiftshader"]
 #: Records in the page: pointer releases, and every change of the panel's plan line with the frame after.
 RECORDER = """() => {
@@ -41,12 +40,13 @@ RECORDER = """() => {
 }"""
 
 
-def drag(page, cam, centre: np.ndarray, axis: np.ndarray, gizmo_mm: float, fraction: float) -> None:
+def drag(page, cam, size: tuple[int, int], centre: np.ndarray, axis: np.ndarray, gizmo_mm: float,
+         fraction: float) -> None:
     """Drag the gizmo's arrow along ``axis`` from 0.85 of its length to ``fraction`` of it."""
     from ctrplan.serve.render import screen_point
 
-    x0, y0 = screen_point(cam.position, cam.look_at, cam.fov, W, H, centre + 0.85 * gizmo_mm * axis)
-    x1, y1 = screen_point(cam.position, cam.look_at, cam.fov, W, H, centre + fraction * gizmo_mm * axis)
+    x0, y0 = screen_point(cam.position, cam.look_at, cam.fov, *size, centre + 0.85 * gizmo_mm * axis)
+    x1, y1 = screen_point(cam.position, cam.look_at, cam.fov, *size, centre + fraction * gizmo_mm * axis)
     page.mouse.move(x0 - 4, y0)
     page.mouse.move(x0, y0)
     page.mouse.down()
@@ -61,6 +61,7 @@ def main() -> None:
     ap.add_argument("--roadmap", type=Path)
     ap.add_argument("--scene", type=Path, default=REPO / "scenes" / "skullbase.yaml")
     ap.add_argument("--drags", type=int, default=12)
+    ap.add_argument("--size", default="1280x800", help="viewport WxH (px)")
     ap.add_argument("--out", type=Path, default=REPO / "runs" / "bench_page_latency")
     args = ap.parse_args()
 
@@ -78,7 +79,8 @@ def main() -> None:
     latencies, records = [], []
     with serving(session, args.scene, "127.0.0.1", 0, args.out / "written") as app, sync_playwright() as p:
         browser = p.chromium.launch(executable_path=shutil.which("chromium"), args=FLAGS)
-        page = browser.new_page(viewport={"width": W, "height": H})
+        size = tuple(int(v) for v in args.size.split("x"))
+        page = browser.new_page(viewport={"width": size[0], "height": size[1]})
         page.goto(app.url)
         page.get_by_text(re.compile(r"plan #1 ")).wait_for(timeout=300_000)
         page.evaluate(RECORDER)
@@ -86,24 +88,30 @@ def main() -> None:
         cam = next(iter(app.server.get_clients().values())).camera
         for k in range(args.drags):
             axis = np.array([0.0, 1.0, 0.0])
-            drag(page, cam, np.asarray(app.page.gizmo.position), axis, GIZMO_MM, 1.0 if k % 2 == 0 else 0.7)
+            before = np.asarray(app.page.gizmo.position)
+            drag(page, cam, size, before, axis, GIZMO_MM, 1.0 if k % 2 == 0 else 0.7)
             time.sleep(0.3)  # the drag's last update reaches the server
             final = np.asarray(app.page.gizmo.position)
+            if np.allclose(final, before):
+                raise SystemExit(f"drag {k + 1} did not move the target (the gizmo hidden in this viewport?)")
             want = ", ".join(f"{v:.1f}" for v in final)
-            page.wait_for_function(f"() => window.shown.some(s => s.target === '{want}')", timeout=120_000)
+            page.wait_for_function(f"() => window.shown.some(s => s.target === '{want}' "
+                                   f"&& s.frame >= window.ups[window.ups.length - 1])", timeout=120_000)
             page.wait_for_timeout(300)
             ups, shown = page.evaluate("() => [window.ups, window.shown]")
-            first = next(s for s in shown if s["target"] == want and s["frame"] >= ups[-1] - 1e3)
+            first = next(s for s in shown if s["target"] == want and s["frame"] >= ups[-1])
             latencies.append(max(0.0, first["frame"] - ups[-1]))
             records.append({"target_mm": final.round(3).tolist(), "latency_ms": round(latencies[-1], 1),
-                            "plan": first["plan"]})
-            print(f"drag {k + 1}: target {want} drawn {latencies[-1]:.0f} ms after the release", flush=True)
+                            "panel_ms": round(max(0.0, first["seen"] - ups[-1]), 1), "plan": first["plan"]})
+            print(f"drag {k + 1}: target {want} drawn {latencies[-1]:.0f} ms after the release (panel "
+                  f"{records[-1]['panel_ms']:.0f} ms)", flush=True)
         page.screenshot(path=str(args.out / "page.png"))
         browser.close()
     v = np.array(latencies)
     summary = {"drags": len(v), "median_ms": round(float(np.median(v)), 1),
                "p95_ms": round(float(np.percentile(v, 95)), 1), "max_ms": round(float(v.max()), 1),
-               "load_average": list(os.getloadavg()), "roadmap": str(args.roadmap), "scene": str(args.scene)}
+               "load_average": list(os.getloadavg()), "viewport": args.size, "roadmap": str(args.roadmap),
+               "scene": str(args.scene)}
     (args.out / "latency.json").write_text(json.dumps({"summary": summary, "drags": records}, indent=1))
     print(json.dumps(summary))
 

@@ -33,6 +33,9 @@ from ctrplan.viz.style import TARGET_COLOR, scene_colors
 BACKBONE_MM = 1.5
 TIP_PATH_MM = 0.6
 GIZMO_MM = 24.0
+#: The exact clearances of an answer are measured once no new target came for this long (s): a
+#: measurement (a few hundred ms) never delays the path of a target that is still being dragged.
+SETTLE_S = 0.4
 #: An obstacle much larger than the target region's neighbourhood (the face plate) is drawn faint.
 BACKDROP_MM = 150.0
 
@@ -67,7 +70,8 @@ class Page:
             h = srv.scene.add_mesh_simple(
                 f"/anatomy/{o.name}", np.asarray(m.vertices, dtype=np.float32),
                 np.asarray(m.faces, dtype=np.uint32), color=hex_rgb(colours[o.name]),
-                opacity=0.08 if big else 0.45, side="double", flat_shading=True)
+                opacity=0.08 if big else 0.45, side="double", flat_shading=True, cast_shadow=False,
+                receive_shadow=False, visible=not big)
             h.on_click(self._clicked)
             self.meshes[o.name] = h
         self.legend = [(o.name, colours[o.name]) for o in sc.obstacles]
@@ -107,6 +111,11 @@ class Page:
             self.moved = gui.add_markdown("")
         with gui.add_folder("structures", expand_by_default=False):
             gui.add_html(legend_html(self.legend, TARGET_COLOR))
+            backdrops = [name for name, h in self.meshes.items() if not h.visible]
+            if backdrops:  # a plate far larger than the anatomy hides it and, in software WebGL, takes
+                # seconds a frame: off until asked for
+                show = gui.add_checkbox(f"show {', '.join(backdrops)}", False)
+                show.on_update(lambda _e: [setattr(self.meshes[n], "visible", show.value) for n in backdrops])
 
     # ---- planning ---------------------------------------------------------------------------------
     def request(self, centre: np.ndarray, tolerance_mm: float) -> None:
@@ -132,9 +141,29 @@ class Page:
                 centre, tol = self._pending
                 self._pending = None
             try:
-                self.show(self.session.plan(centre, tol))
+                self._plan(centre, tol)
             except Exception as exc:  # noqa: BLE001 - a failed plan is shown, the page lives on
                 self.result.content = f"**planning failed**: {type(exc).__name__}: {exc}"
+
+    def _plan(self, centre: np.ndarray, tol: float) -> None:
+        """Plan and draw; where the roadmap has no path, say so at once, then -- unless the target
+        has moved on meanwhile -- plan from scratch (seconds) and draw that; once the target rests,
+        measure the exact clearances and show them."""
+        answer = self.session.plan(centre, tol, use="roadmap", clearances=False)
+        self.show(answer)
+        if not answer.result.solved and self.session.live is not None and self._idle():
+            self.result.content += "\n\n*planning from scratch (the single-query planner) ...*"
+            answer = self.session.plan(centre, tol, use="single", clearances=False)
+            self.show(answer)
+        if answer.result.dense is not None and self._idle(SETTLE_S):
+            self.show(self.session.measure(answer), again=True)
+
+    def _idle(self, wait_s: float = 0.0) -> bool:
+        """No newer target waiting (after ``wait_s`` seconds, if none came meanwhile)."""
+        with self._wake:
+            if self._pending is None and wait_s > 0:
+                self._wake.wait(wait_s)
+            return self._pending is None and not self._stop
 
     def _dragged(self) -> None:
         centre = np.asarray(self.gizmo.position, dtype=float)
@@ -181,11 +210,16 @@ class Page:
                      "blocked ones reopened")
         self.moved.content = text
 
-    def show(self, answer: Answer, move_target: bool = False) -> None:
+    def show(self, answer: Answer, move_target: bool = False, again: bool = False) -> None:
         """Draw an answer (unless a newer one is drawn already): path, result, slider; with
         ``move_target`` (a target set elsewhere: the API) the target too. A dragged target is never
-        moved back to where an older answer was planned."""
+        moved back to where an older answer was planned. ``again``: the answer drawn last, now with
+        its clearances: the panel only."""
         with self._draw_lock:
+            if again and answer.number == self._drawn:
+                moved = {o.name: self.session.shift_of(o.name) for o in answer.scene.obstacles}
+                self.result.content = result_markdown(answer.to_json(), answer.plan_result.planner, moved)
+                return
             if answer.number <= self._drawn:
                 return
             self._drawn, self._shown = answer.number, answer

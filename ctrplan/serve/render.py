@@ -95,6 +95,8 @@ def result_markdown(doc: dict, planner: str, moved: dict[str, np.ndarray] | None
     if shifted:
         lines += ["", "tissue moved: " + ", ".join(shifted)]
     listed = [c for i, c in enumerate(doc.get("structures", [])) if i < LISTED or c["below_margin"]]
+    if doc["solved"] and not listed:
+        lines += ["", "*measuring the clearance to each structure ...*"]
     if listed:
         lines += ["", "| nearest structures | clearance | needs |", "|---|---|---|"]
         for c in listed:

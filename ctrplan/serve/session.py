@@ -19,7 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from ctrplan.base.errors import InputError
+from ctrplan.base.machine import numba_threads_at_most
 from ctrplan.kinematics.base import Backend
+from ctrplan.kinematics.blas import single_threaded_blas
 from ctrplan.planning import plan
 from ctrplan.planning.planner import PlanResult
 from ctrplan.planning.roadmap._adapter import PlanningContext, planning_context, with_world
@@ -97,28 +99,41 @@ class PlanSession:
         return self.live.shift_of(name) if self.live is not None else self._shifts.get(name, np.zeros(3))
 
     # ---- requests ---------------------------------------------------------------------------------
-    def plan(self, center_mm, tolerance_mm: float) -> Answer:
-        """Answer the sphere of ``tolerance_mm`` around ``center_mm`` (scene frame, mm)."""
+    def plan(self, center_mm, tolerance_mm: float, use: str = "any", clearances: bool = True) -> Answer:
+        """Answer the sphere of ``tolerance_mm`` around ``center_mm`` (scene frame, mm): from the
+        roadmap, and where it has no path (or there is none) by the single-query planner; ``use``
+        ``roadmap``: the roadmap's answer only (when there is one), ``single``: the single-query
+        planner only. With ``clearances`` the exact clearance to every structure along the path
+        (`measure`) too."""
         region = TargetRegion.sphere(np.asarray(center_mm, dtype=float), float(tolerance_mm))
-        with self.lock:
+        with self.lock, numba_threads_at_most(1), single_threaded_blas():
+            # one core: the browser showing the page draws on the other (and on a busy machine a
+            # two-thread region waits for its second thread: a validation took 54-77 ms on two,
+            # 34-55 ms on one, beside other jobs)
             scene = replace(self.scene, target=region)
-            result = None if self.planner is None else self.planner.answer(region)
-            if result is not None and result.solved:
+            result = None if self.planner is None or use == "single" else self.planner.answer(region)
+            if result is not None and (result.solved or use == "roadmap"):
                 planned = _as_plan_result(result, scene, self.ctx.backend.name)
             else:  # no roadmap, or it has no path (tissue moved across its routes): plan from scratch
                 planned = plan(scene, self.ctx.loaded, exact=self.ctx.exact, world=self.ctx.checker.world)
                 if result is not None:
                     planned.message += f" (single-query planner: the roadmap had no path, {result.message})"
                 result = _as_query_result(planned, region)
-            structures = []
-            if result.dense is not None:
-                found = structure_clearances(scene, result.dense.exact, self.ctx.checker.world)
-                structures = sorted((c.to_json() for c in found),
-                                    key=lambda c: np.inf if c["clearance_mm"] is None else c["clearance_mm"])
             self.count += 1
             self.target = region
-            self.last = Answer(result, planned, structures, scene, self.count)
+            self.last = Answer(result, planned, [], scene, self.count)
+            if clearances:
+                self.measure(self.last)
             return self.last
+
+    def measure(self, answer: Answer) -> Answer:
+        """Fill in ``answer.structures``: the exact clearance to every structure along its path,
+        nearest first (FCL distances: a few hundred ms on the skull base; none without a path)."""
+        if answer.result.dense is not None and not answer.structures:
+            dense = answer.result.dense
+            found = structure_clearances(answer.scene, dense.exact, dense.world)
+            answer.structures = sorted((c.to_json() for c in found), key=_nearest_first)
+        return answer
 
     def move(self, name: str, translation_mm) -> dict:
         """Move structure ``name`` by ``translation_mm`` (3,) (mm, scene frame) from where it is now;
@@ -188,6 +203,10 @@ class PlanSession:
                                "region": t.to_dict()},
                     "planner": "roadmap" if self.live is not None else "single-query",
                     "roadmap": roadmap}
+
+
+def _nearest_first(c: dict) -> float:
+    return np.inf if c["clearance_mm"] is None else c["clearance_mm"]
 
 
 def _as_plan_result(result: QueryResult, scene: Scene, backend: str) -> PlanResult:

@@ -36,6 +36,7 @@ def page(app):
         page = browser.new_page(viewport={"width": W, "height": H})
         page.goto(app.url)
         page.get_by_text(re.compile(r"plan #1 ")).wait_for(timeout=120_000)
+        wait_for_plan(page, 0)
         yield page
         browser.close()
 
@@ -53,9 +54,11 @@ def shown(page) -> dict:
 
 
 def wait_for_plan(page, after: int, timeout_ms: int = 120_000) -> dict:
-    """The panel once it shows a plan numbered above ``after``."""
-    page.wait_for_function(f"() => {{ const m = document.body.innerText.match(/plan #(\\d+) /); "
-                           f"return m && +m[1] > {after}; }}", timeout=timeout_ms)
+    """The panel once it shows a plan numbered above ``after`` with its clearances measured (they
+    follow the path once the target rests)."""
+    page.wait_for_function(f"() => {{ const t = document.body.innerText, m = t.match(/plan #(\\d+) /); "
+                           f"return m && +m[1] > {after} && (t.includes('nearest structures') "
+                           f"|| t.includes('no path')); }}", timeout=timeout_ms)
     return shown(page)
 
 

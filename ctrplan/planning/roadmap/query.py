@@ -47,14 +47,16 @@ NEAREST = 24
 #: IK iterations per query (the nearest tips lie within a few mm).
 IK_ITERATIONS = 8
 #: Candidate connections checked per batched call.
-CHECK_BATCH = 4
+CHECK_BATCH = 2
 #: Candidates whose exact validation may fail before the query gives up.
 MAX_ATTEMPTS = 3
 #: Waypoints at the end of a candidate path checked with the exact model before it is chosen (the
 #: last state: its exact tip decides the goal correction; the rest is left to the exact validation).
 EXACT_TAIL = 1
-#: Tree paths to one node tried on a live roadmap (each found blocked changes the tree).
+#: Tree paths to one node tried on a live roadmap (each found blocked changes the tree), and paths
+#: found blocked in one query before it gives up (each costs a new shortest-path tree).
 LAZY_TRIES = 8
+LAZY_TREES = 12
 #: A node ends a path itself when its tip lies this far (mm) inside the target (the planning
 #: backend's tip error leaves the exact tip inside too, no exact goal correction needed).
 DIRECT_INSET_MM = 0.2
@@ -173,6 +175,8 @@ class RoadmapPlanner:
                 return False
             if self.live is None:
                 return True
+            if steps.get("lazy_blocked", 0) >= LAZY_TREES:
+                return False  # moved tissue blocks path after path here: the caller says so
             with steps.timed("lazy"):
                 ok = self.live.resolve_path(node)
                 self.roadmap = self.live.roadmap
@@ -187,17 +191,20 @@ class RoadmapPlanner:
         steps = Steps()
         scene = replace(self.ctx.scene, target=target)
         t0 = time.perf_counter()
-        with _one_thread():
+        with _one_thread(), steps.cpu():
             found = self.candidates(target, steps)
         skip = 0  # rejected attempts and their validations count as query time (local repair)
         while res.attempts < MAX_ATTEMPTS:
-            with _one_thread():
+            with _one_thread(), steps.cpu():
                 path, used = self.connect(target, scene, found, skip, steps)
             if path is None:
                 nearest = float(self.tree.query(target.center)[0])
                 res.message = (f"no roadmap state connects to the target (the nearest roadmap tip is "
                                f"{nearest:.1f} mm from its centre)" if res.attempts == 0 else
                                f"not solved: {res.attempts} roadmap paths failed exact validation")
+                if steps.get("lazy_blocked", 0) >= LAZY_TREES:
+                    res.message = (f"not solved: {steps['lazy_blocked']} roadmap paths to the target "
+                                   "touch moved tissue")
                 break
             res.attempts += 1
             tv = time.perf_counter()
@@ -246,3 +253,13 @@ class Steps(dict):
 
     def count(self, name: str, n: int = 1) -> None:
         self[name] = self.get(name, 0) + int(n)
+
+    @contextmanager
+    def cpu(self) -> Iterator[None]:
+        """The CPU seconds of this thread inside (``cpu_s``): the query's work without the time the
+        operating system gave other processes (on a busy machine a 10-20 ms slice now and then)."""
+        t = time.thread_time()
+        try:
+            yield
+        finally:
+            self["cpu_s"] = self.get("cpu_s", 0.0) + time.thread_time() - t
