@@ -59,7 +59,7 @@ def segment_colours(rgb: np.ndarray) -> np.ndarray:
 
 def first_camera(start_tip: np.ndarray, target: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Camera position and look-at point (mm): across the corridor from the start's tip to the
-    target, a little from above and from the front, far enough to see both (and at least 120 mm
+    target, a little from above and from the front, far enough to see both (and at least 100 mm
     away)."""
     d = target - start_tip
     length = max(float(np.linalg.norm(d)), 1e-9)
@@ -67,7 +67,7 @@ def first_camera(start_tip: np.ndarray, target: np.ndarray, up: np.ndarray) -> t
     side = np.cross(d, up)
     side = side / (np.linalg.norm(side) or 1.0)
     look = start_tip + 0.6 * (target - start_tip)
-    distance = max(120.0, 1.4 * length)
+    distance = max(100.0, 1.15 * length)
     view = 0.85 * side + 0.35 * up - 0.4 * d
     return look + distance * view / np.linalg.norm(view), look
 
