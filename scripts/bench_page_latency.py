@@ -40,22 +40,6 @@ RECORDER = """() => {
 }"""
 
 
-def drag(page, cam, size: tuple[int, int], centre: np.ndarray, axis: np.ndarray, gizmo_mm: float,
-         fraction: float) -> None:
-    """Drag the gizmo's arrow along ``axis`` from 0.85 of its length to ``fraction`` of it."""
-    from ctrplan.serve.render import screen_point
-
-    x0, y0 = screen_point(cam.position, cam.look_at, cam.fov, *size, centre + 0.85 * gizmo_mm * axis)
-    x1, y1 = screen_point(cam.position, cam.look_at, cam.fov, *size, centre + fraction * gizmo_mm * axis)
-    page.mouse.move(x0 - 4, y0)
-    page.mouse.move(x0, y0)
-    page.mouse.down()
-    for k in range(1, 11):
-        page.mouse.move(x0 + (x1 - x0) * k / 10, y0 + (y1 - y0) * k / 10)
-        page.wait_for_timeout(25)
-    page.mouse.up()
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--roadmap", type=Path)
@@ -71,6 +55,7 @@ def main() -> None:
     from ctrplan.scene.loader import load_scene
     from ctrplan.serve.app import serving
     from ctrplan.serve.page import GIZMO_MM
+    from ctrplan.serve.render import drag_arrow
     from ctrplan.serve.session import PlanSession
 
     sc = load_scene(args.scene)
@@ -89,7 +74,7 @@ def main() -> None:
         for k in range(args.drags):
             axis = np.array([0.0, 1.0, 0.0])
             before = np.asarray(app.page.gizmo.position)
-            drag(page, cam, size, before, axis, GIZMO_MM, 1.0 if k % 2 == 0 else 0.7)
+            drag_arrow(page, cam, size, before, GIZMO_MM * axis, 0.85, 1.0 if k % 2 == 0 else 0.7)
             time.sleep(0.3)  # the drag's last update reaches the server
             final = np.asarray(app.page.gizmo.position)
             if np.allclose(final, before):

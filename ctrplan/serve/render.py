@@ -151,3 +151,19 @@ def screen_point(position: np.ndarray, look_at: np.ndarray, fov_rad: float, widt
     z, t = float(v @ fw), float(np.tan(fov_rad / 2))
     x = (1 + float(v @ rt) / (z * t * width / height)) / 2 * width
     return x, (1 - float(v @ up) / (z * t)) / 2 * height
+
+
+def drag_arrow(page, camera, size: tuple[int, int], centre: np.ndarray, arrow_mm: np.ndarray, start: float,
+               end: float, pause_ms: int = 25) -> None:
+    """Drag the page's gizmo arrow ``arrow_mm`` (3,) (its axis times its length, mm) at ``centre``
+    from ``start`` to ``end`` of its length, in ten steps: ``page`` is a Playwright page of the app,
+    ``camera`` a viser camera handle of its client (for the tests and benchmarks that drive the page)."""
+    x0, y0 = screen_point(camera.position, camera.look_at, camera.fov, *size, centre + start * arrow_mm)
+    x1, y1 = screen_point(camera.position, camera.look_at, camera.fov, *size, centre + end * arrow_mm)
+    page.mouse.move(x0 - 4, y0)  # onto the arrow from beside it: it lights up, then takes the press
+    page.mouse.move(x0, y0)
+    page.mouse.down()
+    for k in range(1, 11):
+        page.mouse.move(x0 + (x1 - x0) * k / 10, y0 + (y1 - y0) * k / 10)
+        page.wait_for_timeout(pause_ms)
+    page.mouse.up()

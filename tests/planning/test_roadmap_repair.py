@@ -11,27 +11,20 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from ctrplan.base.errors import InputError
-from ctrplan.base.parallel import InlinePool
 from ctrplan.collision.world import CollisionWorld
 from ctrplan.planning.roadmap._adapter import checker_with_world, edge_states
-from ctrplan.planning.roadmap.build import Source, build
 from ctrplan.planning.roadmap.query import RoadmapPlanner
 from ctrplan.planning.roadmap.repair import BLOCKED, OK, SUSPECT, LiveRoadmap
 from ctrplan.planning.roadmap.sweep import CellGrid, SweepIndex
 from ctrplan.scene.objects import TargetRegion
-from tests.paths import SCENES
-
-OPEN = SCENES / "open.yaml"
+from tests.roadmaps import small_roadmap
 
 
 @pytest.fixture(scope="module")
 def indexed(tmp_path_factory):
     """A 400-node roadmap of open.yaml and its sweep index (saved and read back)."""
     folder = tmp_path_factory.mktemp("roadmap")
-    source = Source(str(OPEN), "pinn")
-    ctx = source()
-    rm = build(ctx, source, folder, InlinePool(context=lambda: ctx), time_limit_s=600.0, seed=1, workers=1,
-               executor="test", max_nodes=400)
+    ctx, _, rm = small_roadmap(folder, 1, 400)
     return ctx, rm, SweepIndex.load(folder, rm)  # the build indexed it
 
 

@@ -9,21 +9,14 @@ import urllib.request
 
 import pytest
 
-from ctrplan.base.parallel import InlinePool
-from ctrplan.planning.roadmap.build import Source, build
-from tests.paths import SCENES
-
-OPEN = SCENES / "open.yaml"
+from tests.roadmaps import OPEN, small_roadmap
 
 
 @pytest.fixture(scope="session")
 def open_roadmap(tmp_path_factory):
     """A 300-node roadmap of open.yaml with its sweep index (a budget in work: the same every run)."""
     folder = tmp_path_factory.mktemp("serve_roadmap")
-    source = Source(str(OPEN), "pinn")
-    ctx = source()
-    build(ctx, source, folder, InlinePool(context=lambda: ctx), time_limit_s=600.0, seed=2, workers=1,
-          executor="test", max_nodes=300)
+    small_roadmap(folder, 2, 300)
     return folder
 
 

@@ -14,7 +14,7 @@ import pytest
 from playwright.sync_api import sync_playwright
 
 from ctrplan.serve.page import GIZMO_MM
-from ctrplan.serve.render import screen_point
+from ctrplan.serve.render import drag_arrow
 from tests.independent.geometry import sphere_gap
 from tests.serve.conftest import call
 from tests.serve.test_api import BALL, BALL_RADIUS, TARGET, exact_backbones
@@ -64,17 +64,9 @@ def wait_for_plan(page, after: int, timeout_ms: int = 120_000) -> dict:
 
 def drag_target_up(page, app, fraction: float) -> None:
     """Drag the gizmo's y arrow (superior) from 0.85 of its length to ``fraction`` of it."""
-    cam = next(iter(app.server.get_clients().values())).camera
-    c, up = np.asarray(app.page.gizmo.position), np.array([0, GIZMO_MM, 0])
-    x0, y0 = screen_point(cam.position, cam.look_at, cam.fov, W, H, c + 0.85 * up)
-    x1, y1 = screen_point(cam.position, cam.look_at, cam.fov, W, H, c + fraction * up)
-    page.mouse.move(x0 - 4, y0)
-    page.mouse.move(x0, y0)
-    page.mouse.down()
-    for k in range(1, 11):
-        page.mouse.move(x0 + (x1 - x0) * k / 10, y0 + (y1 - y0) * k / 10)
-        page.wait_for_timeout(20)
-    page.mouse.up()
+    camera = next(iter(app.server.get_clients().values())).camera
+    drag_arrow(page, camera, (W, H), np.asarray(app.page.gizmo.position), np.array([0, GIZMO_MM, 0]), 0.85,
+               fraction, pause_ms=20)
 
 
 def test_the_page_follows_a_dragged_target_and_one_set_through_the_api(app, page):
