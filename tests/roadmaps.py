@@ -12,11 +12,13 @@ from tests.paths import SCENES
 OPEN = SCENES / "open.yaml"
 
 
-def small_roadmap(folder: Path, seed: int, nodes: int):
+def small_roadmap(folder: Path, seed: int, nodes: int, focus: list | None = None):
     """(planning context, source, roadmap) of a roadmap of open.yaml grown in ``folder`` to ``nodes``
-    nodes in this process, with its sweep index."""
+    nodes in this process, with its sweep index; ``focus``: (name, region or None for the scene's
+    target) pairs, as `build` takes them."""
     source = Source(str(OPEN), "pinn")
     ctx = source()
+    regions = None if focus is None else [(n, r if r is not None else ctx.scene.target) for n, r in focus]
     rm = build(ctx, source, folder, InlinePool(context=lambda: ctx), time_limit_s=600.0, seed=seed, workers=1,
-               executor="test", max_nodes=nodes)
+               executor="test", max_nodes=nodes, focus=regions)
     return ctx, source, rm

@@ -60,6 +60,19 @@ def test_the_index_lists_every_cell_a_sample_lies_in(indexed):
     assert 0 < index.reach_mm < 3.0
 
 
+def test_the_build_records_how_close_it_came_to_each_focus_region(tmp_path):
+    """Two focus regions (the scene's target and a far sphere): the record's reach of each is the
+    distance of the nearest connected tip (computed here) and the count of tips inside."""
+    far = TargetRegion.sphere([60.0, 40.0, 150.0], 2.0)
+    ctx, _, rm = small_roadmap(tmp_path, 3, 150, focus=[("target", None), ("far", far)])
+    assert list(rm.meta["settings"]["focus"]) == ["target", "far"]
+    tips = rm.tips[rm.connected]
+    for name, region in (("target", ctx.scene.target), ("far", far)):
+        d = np.maximum(np.linalg.norm(tips - region.center, axis=1) - region.semi_axes[0], 0.0)
+        assert rm.meta["reach"][name]["closest_mm"] == pytest.approx(d.min(), abs=1e-3)
+        assert rm.meta["reach"][name]["inside"] == int((d <= 0).sum())
+
+
 def test_repaired_states_equal_states_from_scratch_through_moves_and_back(indexed):
     """The ball moves onto the roadmap, then a little further, the block moves too, then both go
     home. After every move: each element not SUSPECT has the state computed from scratch, a move
