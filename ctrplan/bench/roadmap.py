@@ -46,7 +46,9 @@ def roadmap_record(scene: Scene, backend: str, seed: int, result: QueryResult) -
                    exact_collision_free=None if v is None else bool(v.collision_free),
                    exact_tip_in_target=None if v is None else bool(v.tip_in_target),
                    max_position_error_mm=None if v is None else _finite(v.max_position_error_mm),
-                   path_states=int(len(result.path)), message=result.message)
+                   path_states=int(len(result.path)), message=result.message,
+                   steps={k: round(v, 6) if isinstance(v, float) else v
+                          for k, v in getattr(result, "steps", {}).items()})  # (older answers had none)
 
 
 def single_record(scene: Scene, backend, target: TargetRegion, seed: int, time_limit_s: float,
@@ -117,6 +119,9 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
                                    for r in rs),
                      "time": _ms([r["planning_time_s"] for r in rs]),
                      "validation": _ms([r["validation_s"] for r in solved])}
+        cpu = [r["steps"]["cpu_s"] for r in rs if "cpu_s" in r.get("steps", {})]
+        if cpu:
+            out[name]["cpu_time"] = _ms(cpu)  # the roadmap query's own CPU seconds
     road = {tuple(r["target_mm"]): r["solved"] for r in records if r["planner"] == ROADMAP_PLANNER}
     single = [tuple(r["target_mm"]) for r in records if r["planner"] == "rrtconnect" and r["solved"]]
     if single:

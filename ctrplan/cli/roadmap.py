@@ -48,6 +48,10 @@ def build_command(
         "--backend", metavar="NAME",
         help=f"Planning backend: {' | '.join(PLANNING_ORDER)}.")] = DEFAULT_PLANNING_BACKEND,
     model: ModelOpt = None,
+    focus: Annotated[Path | None, typer.Option(
+        "--focus", metavar="TARGETS.csv", show_default=False,
+        help="Grow towards these regions too, in turn with the scene's target (header x,y,z,tolerance_mm; "
+             "scene frame, mm; as plan --targets).")] = None,
 ) -> None:
     """Build (or continue) a roadmap of valid states and edges for a scene.
 
@@ -63,6 +67,8 @@ def build_command(
     from ctrplan.scene.loader import load_scene
 
     limit_s = parse_duration(time_limit, "s")
+    rows = [] if focus is None else read_targets(focus)
+    regions = [("target", None)] + [(f"{focus.name} row {i}", r) for i, r in enumerate(rows, 2)]
     flags = {"workers": "--workers", "ray": "--ray"}
     try:
         check_workers(workers, ray)
@@ -84,23 +90,35 @@ def build_command(
             if "starting" in info:
                 status(f"starting {executor} (each loads the model and the scene)")
                 return
+            if "indexing" in info:
+                done, total = info["indexing"]
+                status(f"indexing the workspace each node and edge sweeps: {done:,}/{total:,}")
+                return
             st = info["stats"]
             status(f"{info['nodes']:,} nodes ({info['connected']:,} connected), {st.edges_valid:,} edges, "
-                   f"{st.jobs} jobs", info["elapsed_s"])
+                   f"{st.jobs} jobs; {_reach_text(st.reach)}", info["elapsed_s"])
 
         if workers > 1 or ray:  # the main process only makes jobs and adds results: one thread
             limit_threads()
         here = workers == 1 and not ray  # jobs run in this process: they use the context built above
         with open_pool(workers, ray, context=(lambda: ctx) if here else source) as pool:
             rm = build(ctx, source, out, pool, time_limit_s=limit_s, seed=seed, workers=workers,
-                       executor=executor, progress=progress)
+                       executor=executor, progress=progress,
+                       focus=[(name, region or sc.target) for name, region in regions])
     run = rm.meta["runs"][-1]
     minutes = max(run["seconds"], 1e-9) / 60.0
     added = run["nodes_after"] - run["nodes_before"]
     typer.echo(f"roadmap {out}: {rm.n_nodes:,} nodes ({int(rm.connected.sum()):,} connected to the start), "
                f"{len(rm.edges):,} edges; this run added {added:,} nodes in {run['seconds']:.0f} s "
                f"({added / minutes:,.0f} per minute, {executor}); total build time "
-               f"{rm.meta['build_s']:.0f} s")
+               f"{rm.meta['build_s']:.0f} s; {_reach_text(rm.meta['reach'])}")
+
+
+def _reach_text(reach: dict) -> str:
+    """How close the roadmap came to each focus region, in words."""
+    parts = [f"{name}: {r['inside']:,} tips inside" if r["inside"] else
+             f"{name}: NOT reached, nearest tip {r['closest_mm']:.1f} mm away" for name, r in reach.items()]
+    return "; ".join(parts) if parts else "focus not reached yet"
 
 
 class _BuildProgress:

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ctrplan.planning.search import search
 from ctrplan.planning.scene_check import StartFix, valid_starts
+from ctrplan.planning.search import search
 from ctrplan.planning.validity import ConfigurationChecker
 from ctrplan.scene.objects import Scene
 

@@ -60,6 +60,15 @@ class Obstacle:
         m.apply_transform(self.pose)
         return m
 
+    def translated(self, shift_mm) -> Obstacle:
+        """The obstacle moved by ``shift_mm`` (3,) (mm, scene frame): tissue that shifted."""
+        shift = np.asarray(shift_mm, dtype=float)
+        if self.kind == "mesh":
+            return replace(self, vertices=np.asarray(self.vertices, dtype=float) + shift)
+        pose = np.array(self.pose, dtype=float)
+        pose[:3, 3] += shift
+        return replace(self, pose=pose)
+
     @property
     def bounds(self) -> np.ndarray:
         """Axis-aligned bounds (2, 3) in the scene frame."""

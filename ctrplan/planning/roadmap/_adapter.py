@@ -178,3 +178,18 @@ def single_query_path(ctx: PlanningContext, region: TargetRegion, seed: int, max
 def densify(ctx: PlanningContext, path_q: np.ndarray, step_mm: float) -> np.ndarray:
     """The path with states added so consecutive ones are at most ``step_mm`` apart (planning metric)."""
     return ctx.space.densify(path_q, step_mm)
+
+
+def with_world(ctx: PlanningContext, scene: Scene, world) -> PlanningContext:
+    """``ctx`` on ``scene`` -- the same robot, start and joint box with obstacles that moved -- whose
+    collision world is ``world`` (`ctrplan.collision.world.CollisionWorld.moved`): planning and exact
+    checkers made again, backends, margins and kernels kept."""
+    model = replace(ctx.checker.model, scene=scene, world=world)
+    return replace(ctx, scene=scene, checker=ConfigurationChecker(model),
+                   exact_checker=ConfigurationChecker(model.exact_search()))
+
+
+def checker_with_world(ctx: PlanningContext, world) -> ConfigurationChecker:
+    """A planning checker of ``ctx`` (backend and margins) against ``world`` alone (e.g. one structure
+    that moved)."""
+    return ConfigurationChecker(replace(ctx.checker.model, world=world))
