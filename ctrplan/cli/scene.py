@@ -132,7 +132,8 @@ def write_fixed(scene_file: Path, out: Path, start, robot: str | None) -> None:
 
 @scene_app.command("place")
 def place(
-    scene_file: Annotated[Path, typer.Argument(metavar="SCENE.yaml", help="The scene whose robot is placed.")],
+    scene_file: Annotated[Path, typer.Argument(metavar="SCENE.yaml",
+                                               help="The scene whose robot is placed.")],
     entry: Annotated[str, typer.Option(
         "--entry", metavar="X,Y,Z",
         help="The point the robot enters through (e.g. the nostril), scene frame, mm.")],
@@ -146,7 +147,8 @@ def place(
     max_states: max_states_option("Work budget of each verification plan (default: 4 s of the backend's "
                                   "reference rate).") = None,
     seed: seed_option("Seed of the sampled configurations and the verification plans.") = 0,
-    as_json: json_option("Print the placement (chosen pose, start, every verified candidate) as JSON.") = False,
+    as_json: json_option("Print the placement (the chosen pose and start, every verified candidate) "
+                         "as JSON.") = False,
 ) -> None:
     """Find a base pose and a start that enter through --entry and reach the target.
 
@@ -185,12 +187,13 @@ def place(
     with atomic_write(target) as fh:
         fh.write(text)
     counts = report.counts
-    console.print(f"placed in {report.time_s:.1f} s: {counts['free_goals']:,} collision-free goals through the "
-                  f"entry of {counts['placements']:,} placements, {len(report.verified)} planned")
-    console.print(f"base at {np.round(c.base_pose[:3, 3], 2).tolist()} mm, {c.base_distance_mm:.1f} mm from the "
-                  f"entry, insertion axis {c.tilt_deg:.1f} deg from the line entry -> target")
-    console.print(f"start {np.round(c.start, 4).tolist()}: tip {c.depth_mm:.1f} mm past the entry; verified plan "
-                  f"({report.backend}, {c.plan.states:,} states): path clearance {c.path_clearance_mm:.2f} mm")
+    console.print(f"placed in {report.time_s:.1f} s: {counts['free_goals']:,} collision-free goals "
+                  f"through the entry of {counts['placements']:,} placements, {len(report.verified)} planned")
+    console.print(f"base at {np.round(c.base_pose[:3, 3], 2).tolist()} mm, {c.base_distance_mm:.1f} mm "
+                  f"from the entry, insertion axis {c.tilt_deg:.1f} deg from the line entry -> target")
+    console.print(f"start {np.round(c.start, 4).tolist()}: tip {c.depth_mm:.1f} mm past the entry; "
+                  f"verified plan ({report.backend}, {c.plan.states:,} states): path clearance "
+                  f"{c.path_clearance_mm:.2f} mm")
     console.print(f"wrote {target}" + ("" if kept else " (its comments were not kept: the file is not in "
                                                         "block style)"))
 
@@ -208,7 +211,8 @@ def _point(text: str, option: str) -> np.ndarray:
     return p
 
 
-def placed_scene_text(scene_file: Path, out: Path, base_pose: np.ndarray, start, robot: str | None) -> tuple[str, bool]:
+def placed_scene_text(scene_file: Path, out: Path, base_pose: np.ndarray, start,
+                      robot: str | None) -> tuple[str, bool]:
     """The text of ``scene_file`` with ``base_pose`` (4x4), ``start`` and ``robot`` (if given) as a file at
     ``out`` says them (paths relative to it), comments kept where the file allows (`with_keys`)."""
     from ctrplan.base.yamlio import load_yaml

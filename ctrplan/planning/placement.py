@@ -105,8 +105,9 @@ class Candidate:
     def to_json(self) -> dict:
         p = self.plan
         return {"tilt_deg": round(self.tilt_deg, 2), "start_depth_mm": round(self.depth_mm, 2),
-                "base_distance_mm": round(self.base_distance_mm, 2), "start": np.round(self.start, 6).tolist(),
-                "goal": np.round(self.goal, 6).tolist(), "goal_clearance_mm": round(self.goal_clearance_mm, 3),
+                "base_distance_mm": round(self.base_distance_mm, 2),
+                "start": np.round(self.start, 6).tolist(), "goal": np.round(self.goal, 6).tolist(),
+                "goal_clearance_mm": round(self.goal_clearance_mm, 3),
                 "start_clearance_mm": round(self.start_clearance_mm, 3), "solved": self.solved,
                 "path_clearance_mm": round(self.path_clearance_mm, 3) if self.solved else None,
                 "states": None if p is None else p.states, "message": None if p is None else p.message}
@@ -211,7 +212,8 @@ class _Goals:
         return _Goals(*(getattr(self, f)[idx] for f in self.__dataclass_fields__))
 
     def join(self, other: _Goals) -> _Goals:
-        return _Goals(*(np.concatenate([getattr(self, f), getattr(other, f)]) for f in self.__dataclass_fields__))
+        return _Goals(*(np.concatenate([getattr(self, f), getattr(other, f)])
+                        for f in self.__dataclass_fields__))
 
 
 def _placed_goals(scene: Scene, exact: Backend, y: np.ndarray, rolls: np.ndarray, entry: np.ndarray,
@@ -236,7 +238,8 @@ def _placed_goals(scene: Scene, exact: Backend, y: np.ndarray, rolls: np.ndarray
 def _search_goals(scene: Scene, exact: Backend, entry: np.ndarray, line: np.ndarray, world: CollisionWorld,
                   rng: np.random.Generator, progress) -> _Goals:
     """Steps 1-2: `REACH_SAMPLES` uniform configurations and rolls placed through the entry, then
-    `REFINE_ROUNDS` rounds in which the `ELITE` placements nearest to free each spawn `CHILDREN`
+    up to `REFINE_ROUNDS` rounds (until `GOALS_KEPT` have the capped clearance) in which the `ELITE`
+    placements nearest to free each spawn `CHILDREN`
     perturbed ones (`REFINE_STEP_MM` in the planning metric, the roll by as many mm at the tip's
     distance); all placements, their clearances found."""
     space = BoxSpace.for_scene(scene)
@@ -244,6 +247,8 @@ def _search_goals(scene: Scene, exact: Backend, entry: np.ndarray, line: np.ndar
                           rng.uniform(0, 2 * math.pi, REACH_SAMPLES), entry, line, world)
     reach = float(np.linalg.norm(scene.target.center - entry))
     for r in range(REFINE_ROUNDS):
+        if (goals.clearance >= CLEARANCE_CAP_MM).sum() >= GOALS_KEPT:
+            break  # enough placements with the largest clearance that counts
         progress(f"refining the placements nearest to free ({r + 1}/{REFINE_ROUNDS}): "
                  f"{int((goals.clearance >= 0).sum())} free of {len(goals.q):,}")
         elite = np.argsort(-goals.clearance)[:ELITE]
@@ -258,7 +263,8 @@ def _search_goals(scene: Scene, exact: Backend, entry: np.ndarray, line: np.ndar
 
 
 def _starts(scene: Scene, exact: Backend, goals: _Goals, entry: np.ndarray, line: np.ndarray,
-            world: CollisionWorld, checker: RobotCollisionChecker) -> list[tuple[int, np.ndarray, float, float]]:
+            world: CollisionWorld, checker: RobotCollisionChecker
+            ) -> list[tuple[int, np.ndarray, float, float]]:
     """Step 3: for each goal, the most retracted free stable start with its tip past the entry:
     (goal index, start, its depth past the entry (mm), its clearance (mm))."""
     domain = scene.robot.domain
@@ -273,7 +279,8 @@ def _starts(scene: Scene, exact: Backend, goals: _Goals, entry: np.ndarray, line
     bb = exact.forward(q, points=POINTS, check=False)
     rep = np.repeat(np.arange(len(goals.q)), len(f))
     pts = np.einsum("kij,kpj->kpi", goals.rotations[rep], bb.positions_mm) + goals.bases[rep, None, :]
-    clear = _judged(_clearance(world, pts, bb.radius_mm, scene.settings.margin_mm), pts, bb.radius_mm, checker)
+    clear = _clearance(world, pts, bb.radius_mm, scene.settings.margin_mm)
+    clear = _judged(clear, pts, bb.radius_mm, checker)
     depth = (pts[:, -1] - entry) @ line
     usable = (bb.stable & (clear >= 0) & (depth >= START_DEPTH_MM)).reshape(len(goals.q), len(f))
     out = []
@@ -285,15 +292,16 @@ def _starts(scene: Scene, exact: Backend, goals: _Goals, entry: np.ndarray, line
 
 
 def _blocked_reason(goals: _Goals, checker: RobotCollisionChecker) -> str:
-    """Why no goal passes through the entry: the structures the nearest-to-free placements touch."""
+    """Why no goal passes through the entry: the structures the nearest-to-free placements touch, with
+    how many touch each."""
     hits: Counter = Counter()
     order = np.argsort(-goals.clearance)[:100]
     for i in order:
-        hits.update(checker.blockers(goals.points[i], goals.radius[i]))
+        hits.update(checker.blockers(goals.points[i], goals.radius[i]).keys())
     named = ", ".join(f"{n} ({k})" for n, k in hits.most_common(4))
-    return (f"no configuration passes through the entry to the target without touching the anatomy (of the "
-            f"{len(order)} placements nearest to free, with the margins: {named or 'none named'}); check the "
-            f"entry point, or make the margins smaller")
+    return (f"every configuration through the entry to the target touches the anatomy (of the {len(order)} "
+            f"placements nearest to free, how many touch each, with the margins: {named or 'none named'}); "
+            f"check the entry point, or make the margins smaller")
 
 
 def _verify(scene: Scene, backend: Backend, world: CollisionWorld, found: list[Candidate], max_states: int,
@@ -304,8 +312,9 @@ def _verify(scene: Scene, backend: Backend, world: CollisionWorld, found: list[C
         progress(f"verifying placement {len(done) + 1}/{min(VERIFY, len(found))} (tilt {c.tilt_deg:.0f} deg, "
                  f"start tip {c.depth_mm:.0f} mm past the entry)")
         try:
-            result = plan(replace(scene, base_pose=c.base_pose, start=c.start), backend, max_states=max_states,
-                          seed=seed, wall_limit=False, world=world, explain=False, goal_hints=c.goal[None])
+            placed = replace(scene, base_pose=c.base_pose, start=c.start)
+            result = plan(placed, backend, max_states=max_states, seed=seed, wall_limit=False, world=world,
+                          explain=False, goal_hints=c.goal[None])
         except InputError:
             continue
         done.append(replace(c, plan=result))
@@ -323,7 +332,8 @@ def _candidates(goals: _Goals, starts, entry: np.ndarray) -> list[Candidate]:
         T[:3, :3], T[:3, 3] = goals.rotations[g], goals.bases[g]
         out.append(Candidate(T, start, goals.q[g], float(goals.tilts[g]), depth,
                              float(np.linalg.norm(entry - goals.bases[g])), float(goals.clearance[g]), clear))
-    out.sort(key=lambda c: (-round(c.goal_clearance_mm / 0.5), -round(c.start_clearance_mm / 0.5), c.tilt_deg))
+    out.sort(key=lambda c: (-round(c.goal_clearance_mm / 0.5), -round(c.start_clearance_mm / 0.5),
+                            c.tilt_deg))
     return out
 
 
@@ -347,11 +357,13 @@ def place_robot(scene: Scene, entry_mm, backend: Backend, *, seed: int = 0, max_
     report = dict(entry_mm=entry, line=line, backend=backend.name)
 
     def failed(reason: str) -> PlacementReport:
-        return PlacementReport(chosen=None, verified=(), reason=reason, time_s=time.perf_counter() - t0, **report)
+        return PlacementReport(chosen=None, verified=(), reason=reason, time_s=time.perf_counter() - t0,
+                               **report)
 
     progress(f"placing {REACH_SAMPLES:,} configurations through the entry (exact model)")
     goals = _search_goals(scene, exact, entry, line, world, np.random.default_rng(seed), progress)
-    counts = report["counts"] = {"placements": len(goals.q), "through_entry": int(np.isfinite(goals.clearance).sum())}
+    counts = report["counts"] = {"placements": len(goals.q),
+                                 "through_entry": int(np.isfinite(goals.clearance).sum())}
     if not counts["through_entry"]:
         return failed(_unreachable_reason(scene, exact, entry))
     if not (goals.clearance >= 0).any():
