@@ -17,11 +17,16 @@ base poses first and asking afterwards whether the target can be reached wastes 
    margin; FCL judges the nearest to free when the grid clears none).
 3. **Starts**: for the `GOALS_KEPT` best free goals (clearance capped at `CLEARANCE_CAP_MM`, then
    tilt), the goal pulled back along its own insertion (translations moved towards fully retracted,
-   rotations kept, `RETRACTIONS`): the most retracted that is free, stable and still has its tip
-   `START_DEPTH_MM` past the entry is the placement's start -- the robot already through the opening.
-4. **Verification**: the best placements (`VERIFY`) are planned (`ctrplan.planning.plan`, a work budget,
-   seeded, the goal as a hint) until `ACCEPT` are solved -- a path the exact model confirms into the
-   target -- and the solved one whose path keeps the largest clearance is chosen.
+   rotations kept, `RETRACTIONS`), with its tip still `START_DEPTH_MM` past the entry (the robot
+   already through the opening): the most retracted that is free and stable (a *retracted* start:
+   the plan must find the way in), and the most retracted from which every pull-back state on to the
+   goal is free and stable (a *pulled-back* start: a straight way in is known; in a tight airway it
+   may lie near the goal).
+4. **Verification**: the retracted starts of the `RETRACTED_TRIES` best placements, then the
+   pulled-back starts of the best (`VERIFY` plans in all), are planned (`ctrplan.planning.plan`, a
+   work budget, seeded, the goal as a hint) until a retracted start or `ACCEPT` starts are solved -- a
+   path the exact model confirms into the target; a solved retracted start is chosen first, else the
+   solved start whose path keeps the largest clearance.
 
 Nothing found is a one-line reason: the robot's reach against the distance, what the nearest-to-free
 placements touch (structures, counts), or what the verification plans said.
@@ -52,10 +57,12 @@ REACH_SAMPLES = 3000
 POINTS = 40
 #: Refinement: rounds, placements nearest to free kept per round, perturbed children of each, and the
 #: perturbation's size (mm in the planning metric).
-REFINE_ROUNDS = 3
+REFINE_ROUNDS = 8
 ELITE = 100
 CHILDREN = 10
 REFINE_STEP_MM = 2.0
+#: Each round's perturbation is this fraction of the previous one's.
+REFINE_SHRINK = 0.8
 #: Insertion axes turned further than this (degrees) from the line entry -> target are not used.
 MAX_TILT_DEG = 35.0
 #: Clearances beyond this (mm) rank equal.
@@ -64,11 +71,12 @@ CLEARANCE_CAP_MM = 2.0
 GOALS_KEPT = 40
 #: Fractions of the goal's insertion kept by the candidate starts (0: fully retracted), and how far (mm,
 #: along the line) a start's tip must lie past the entry.
-RETRACTIONS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8)
+RETRACTIONS = tuple(np.arange(0.0, 1.0, 0.05))
 START_DEPTH_MM = 3.0
 #: Placements planned at most, and solved ones after which it stops.
-VERIFY = 6
+VERIFY = 4
 ACCEPT = 2
+RETRACTED_TRIES = 1
 #: Work budget of a verification plan: seconds of search on the reference machine (states from the
 #: backend's reference rate, `ctrplan.planning.budget`).
 VERIFY_TIME_S = 4.0
@@ -90,6 +98,7 @@ class Candidate:
     base_distance_mm: float
     goal_clearance_mm: float
     start_clearance_mm: float
+    retracted: bool = False
     plan: PlanResult | None = None
 
     @property
@@ -104,7 +113,8 @@ class Candidate:
 
     def to_json(self) -> dict:
         p = self.plan
-        return {"tilt_deg": round(self.tilt_deg, 2), "start_depth_mm": round(self.depth_mm, 2),
+        return {"start_kind": "retracted" if self.retracted else "pulled back",
+                "tilt_deg": round(self.tilt_deg, 2), "start_depth_mm": round(self.depth_mm, 2),
                 "base_distance_mm": round(self.base_distance_mm, 2),
                 "start": np.round(self.start, 6).tolist(), "goal": np.round(self.goal, 6).tolist(),
                 "goal_clearance_mm": round(self.goal_clearance_mm, 3),
@@ -256,17 +266,18 @@ def _search_goals(scene: Scene, exact: Backend, entry: np.ndarray, line: np.ndar
         if not len(elite):
             break
         parent = np.repeat(elite, CHILDREN)
-        y = space.clip(goals.y[parent] + rng.normal(0, REFINE_STEP_MM, (len(parent), goals.y.shape[1])))
-        rolls = goals.rolls[parent] + rng.normal(0, REFINE_STEP_MM / reach, len(parent))
+        step = REFINE_STEP_MM * REFINE_SHRINK**r
+        y = space.clip(goals.y[parent] + rng.normal(0, step, (len(parent), goals.y.shape[1])))
+        rolls = goals.rolls[parent] + rng.normal(0, step / reach, len(parent))
         goals = goals.join(_placed_goals(scene, exact, y, rolls, entry, line, world))
     return goals
 
 
 def _starts(scene: Scene, exact: Backend, goals: _Goals, entry: np.ndarray, line: np.ndarray,
             world: CollisionWorld, checker: RobotCollisionChecker
-            ) -> list[tuple[int, np.ndarray, float, float]]:
-    """Step 3: for each goal, the most retracted free stable start with its tip past the entry:
-    (goal index, start, its depth past the entry (mm), its clearance (mm))."""
+            ) -> list[tuple[int, np.ndarray, float, float, bool]]:
+    """Step 3: for each goal, its retracted and its pulled-back start (one if they are the same):
+    (goal index, start, its depth past the entry (mm), its clearance (mm), whether retracted)."""
     domain = scene.robot.domain
     n = scene.robot.n_tubes
     lo, hi = scene.joint_box
@@ -280,14 +291,18 @@ def _starts(scene: Scene, exact: Backend, goals: _Goals, entry: np.ndarray, line
     rep = np.repeat(np.arange(len(goals.q)), len(f))
     pts = np.einsum("kij,kpj->kpi", goals.rotations[rep], bb.positions_mm) + goals.bases[rep, None, :]
     clear = _clearance(world, pts, bb.radius_mm, scene.settings.margin_mm)
-    clear = _judged(clear, pts, bb.radius_mm, checker)
+    clear = _judged(clear, pts, bb.radius_mm, checker, n=len(clear))
     depth = (pts[:, -1] - entry) @ line
-    usable = (bb.stable & (clear >= 0) & (depth >= START_DEPTH_MM)).reshape(len(goals.q), len(f))
+    free = (bb.stable & (clear >= 0)).reshape(len(goals.q), len(f))
+    chain = np.flip(np.logical_and.accumulate(np.flip(free, axis=1), axis=1), axis=1)  # free from here on
+    deep = (depth >= START_DEPTH_MM).reshape(chain.shape)
     out = []
     for g in range(len(goals.q)):
-        if usable[g].any():
-            i = g * len(f) + int(np.argmax(usable[g]))
-            out.append((g, q[i], float(depth[i]), float(clear[i])))
+        kinds = {}  # start index -> retracted: the pulled-back start may be the retracted one
+        for usable, retracted in ((chain[g] & deep[g], False), (free[g] & deep[g], True)):
+            if usable.any():
+                kinds[g * len(f) + int(np.argmax(usable))] = retracted
+        out += [(g, q[i], float(depth[i]), float(clear[i]), retracted) for i, retracted in kinds.items()]
     return out
 
 
@@ -306,11 +321,13 @@ def _blocked_reason(goals: _Goals, checker: RobotCollisionChecker) -> str:
 
 def _verify(scene: Scene, backend: Backend, world: CollisionWorld, found: list[Candidate], max_states: int,
             seed: int, progress) -> list[Candidate]:
-    """Plan from the best candidates until `ACCEPT` are solved or `VERIFY` were tried."""
+    """Plan from the candidates (`_candidates`: in the order to try) until a retracted start or
+    `ACCEPT` starts are solved or `VERIFY` were tried."""
     done = []
     for c in found[:VERIFY]:
+        kind = "retracted" if c.retracted else "pulled-back"
         progress(f"verifying placement {len(done) + 1}/{min(VERIFY, len(found))} (tilt {c.tilt_deg:.0f} deg, "
-                 f"start tip {c.depth_mm:.0f} mm past the entry)")
+                 f"{kind} start, tip {c.depth_mm:.0f} mm past the entry)")
         try:
             placed = replace(scene, base_pose=c.base_pose, start=c.start)
             result = plan(placed, backend, max_states=max_states, seed=seed, wall_limit=False, world=world,
@@ -318,23 +335,26 @@ def _verify(scene: Scene, backend: Backend, world: CollisionWorld, found: list[C
         except InputError:
             continue
         done.append(replace(c, plan=result))
-        if sum(v.solved for v in done) >= ACCEPT:
+        if (c.retracted and result.solved) or sum(v.solved for v in done) >= ACCEPT:
             break
     return done
 
 
 def _candidates(goals: _Goals, starts, entry: np.ndarray) -> list[Candidate]:
-    """The placements with a start, best first: goal clearance (in steps of 0.5 mm), start clearance,
-    tilt."""
+    """The placements with a start in the order to try: the retracted starts of the `RETRACTED_TRIES`
+    best placements, then the pulled-back ones, each best first (goal clearance in steps of 0.5 mm,
+    start clearance, tilt)."""
     out = []
-    for g, start, depth, clear in starts:
+    for g, start, depth, clear, retracted in starts:
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = goals.rotations[g], goals.bases[g]
         out.append(Candidate(T, start, goals.q[g], float(goals.tilts[g]), depth,
-                             float(np.linalg.norm(entry - goals.bases[g])), float(goals.clearance[g]), clear))
+                             float(np.linalg.norm(entry - goals.bases[g])), float(goals.clearance[g]), clear,
+                             retracted))
     out.sort(key=lambda c: (-round(c.goal_clearance_mm / 0.5), -round(c.start_clearance_mm / 0.5),
                             c.tilt_deg))
-    return out
+    retracted = [c for c in out if c.retracted][:RETRACTED_TRIES]
+    return retracted + [c for c in out if not c.retracted]
 
 
 def place_robot(scene: Scene, entry_mm, backend: Backend, *, seed: int = 0, max_states: int | None = None,
@@ -366,8 +386,7 @@ def place_robot(scene: Scene, entry_mm, backend: Backend, *, seed: int = 0, max_
                                  "through_entry": int(np.isfinite(goals.clearance).sum())}
     if not counts["through_entry"]:
         return failed(_unreachable_reason(scene, exact, entry))
-    if not (goals.clearance >= 0).any():
-        goals = replace(goals, clearance=_judged(goals.clearance, goals.points, goals.radius, checker))
+    goals = replace(goals, clearance=_judged(goals.clearance, goals.points, goals.radius, checker))
     free = np.flatnonzero(goals.clearance >= 0)
     counts["free_goals"] = len(free)
     if not len(free):
@@ -383,7 +402,7 @@ def place_robot(scene: Scene, entry_mm, backend: Backend, *, seed: int = 0, max_
     budget = max_states or states_for(backend.name, VERIFY_TIME_S)
     verified = _verify(scene, backend, world, found, budget, seed, progress)
     solved = [c for c in verified if c.solved]
-    chosen = max(solved, key=lambda c: c.path_clearance_mm) if solved else None
+    chosen = max(solved, key=lambda c: (c.retracted, c.path_clearance_mm)) if solved else None
     reason = "" if solved else _unverified_reason(verified, budget)
     return PlacementReport(chosen=chosen, verified=tuple(verified), reason=reason,
                            time_s=time.perf_counter() - t0, verify_states=budget, **report)

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ctrplan.base.dataio import atomic_write, format_csv, output_dir
-from ctrplan.viz.plan_plot import plot_plan
+from ctrplan.viz.plan_plot import Mark, plot_plan
 from ctrplan.viz.style import CLEARANCE_CAP_MM
 from ctrplan.viz.viewer import viewer_data, write_viewer
 
@@ -91,7 +91,8 @@ def write_plan_outputs(out: Path, sc, result: PlanResult, doc: dict,
     tmp_png = out / ".plan.png.tmp.png"
     plot_plan(sc, bbs, tmp_png, tip_path=bbs[:, -1, :],
               title=f"{sc.name}: {result.planner}/{result.backend}, "
-                    f"{'solved' if result.solved else 'not solved'}", notes=_figure_notes(result, doc))
+                    f"{'solved' if result.solved else 'not solved'}", notes=_figure_notes(result, doc),
+              marks=figure_marks(result, doc, bbs))
     tmp_png.replace(out / "plan.png")
     tmp_html = out / ".plan.html.tmp.html"
     shown = None if clearance is None else np.minimum(clearance, CLEARANCE_CAP_MM)
@@ -107,6 +108,38 @@ def write_trajectory(path: Path, table: TrajectoryTable) -> None:
     header, rows = table.header, table.rows
     with atomic_write(path) as fh:
         fh.write(format_csv(header, rows, ["%.6f"] * rows.shape[1]))
+
+
+#: Structures named on plan.png: the nearest and those below their margin, at most this many.
+MARKS = 3
+
+
+def figure_marks(result: PlanResult, doc: dict, bbs: np.ndarray) -> list[Mark]:
+    """The structures plan.png names where they are: along a measured path, the nearest one and every
+    one below its margin, each at the robot's point nearest it (its state and arc length, on the
+    backbones ``bbs`` (K, N, 3) scene frame) with its clearance; for a failed search, the structures
+    that block the most goal candidates and path attempts, on their cuts."""
+    listed = [c for c in listed_structures(doc) if c["clearance_mm"] is not None and c["state"] is not None]
+    if listed and result.dense is not None:
+        s_mm = result.dense.exact.s_mm
+        chosen = [listed[0], *[c for c in listed[1:] if c["below_margin"]]][:MARKS]
+        marks = []
+        for c in chosen:
+            k = int(c["state"])
+            point = np.array([np.interp(c["arc_length_mm"], s_mm[k], bbs[k, :, i]) for i in range(3)])
+            text = f"{c['name']}: {c['clearance_mm']:.2f} mm (need {c['required_mm']:g})"
+            marks.append(Mark(c["name"], text, point, c["below_margin"]))
+        return marks
+    if result.failure is None:
+        return []
+    return [Mark(b.name, f"{b.name}: blocks {_blocked_counts(b)}", None, True)
+            for b in result.failure.blockers[:MARKS - 1]]
+
+
+def _blocked_counts(blocker) -> str:
+    parts = [f"{n} {what}" for n, what in ((blocker.goal_candidates, "goal candidates"),
+                                           (blocker.path_attempts, "path attempts")) if n]
+    return " and ".join(parts) or "nothing examined"
 
 
 def _figure_notes(result: PlanResult, doc: dict) -> list[tuple[str, bool]]:
