@@ -23,6 +23,7 @@ from ctrplan.viz.viewer import viewer_data, write_viewer
 
 if TYPE_CHECKING:
     from ctrplan.planning.execution import TrajectoryTable
+    from ctrplan.planning.failure import FailureAnalysis
     from ctrplan.planning.result import PlanResult
 
 
@@ -92,7 +93,7 @@ def write_plan_outputs(out: Path, sc, result: PlanResult, doc: dict,
     plot_plan(sc, bbs, tmp_png, tip_path=bbs[:, -1, :],
               title=f"{sc.name}: {result.planner}/{result.backend}, "
                     f"{'solved' if result.solved else 'not solved'}", notes=_figure_notes(result, doc),
-              marks=figure_marks(result, doc, bbs))
+              marks=figure_marks(doc, result.failure))
     tmp_png.replace(out / "plan.png")
     tmp_html = out / ".plan.html.tmp.html"
     shown = None if clearance is None else np.minimum(clearance, CLEARANCE_CAP_MM)
@@ -114,26 +115,21 @@ def write_trajectory(path: Path, table: TrajectoryTable) -> None:
 MARKS = 3
 
 
-def figure_marks(result: PlanResult, doc: dict, bbs: np.ndarray) -> list[Mark]:
-    """The structures plan.png names where they are: along a measured path, the nearest one and every
-    one below its margin, each at the robot's point nearest it (its state and arc length, on the
-    backbones ``bbs`` (K, N, 3) scene frame) with its clearance; for a failed search, the structures
-    that block the most goal candidates and path attempts, on their cuts."""
-    listed = [c for c in listed_structures(doc) if c["clearance_mm"] is not None and c["state"] is not None]
-    if listed and result.dense is not None:
-        s_mm = result.dense.exact.s_mm
+def figure_marks(doc: dict, failure: FailureAnalysis | None) -> list[Mark]:
+    """The structures plan.png names where they are: along a measured path (``doc``'s
+    ``validated.structures``), the nearest one and every one below its margin, each by its clearance
+    drawn from the robot's point nearest it to the structure's; for a failed search (``failure``), the
+    structures that block the most goal candidates and path attempts, on their cuts."""
+    listed = [c for c in listed_structures(doc) if c["clearance_mm"] is not None and c.get("robot_point_mm")]
+    if listed:
         chosen = [listed[0], *[c for c in listed[1:] if c["below_margin"]]][:MARKS]
-        marks = []
-        for c in chosen:
-            k = int(c["state"])
-            point = np.array([np.interp(c["arc_length_mm"], s_mm[k], bbs[k, :, i]) for i in range(3)])
-            text = f"{c['name']}: {c['clearance_mm']:.2f} mm (need {c['required_mm']:g})"
-            marks.append(Mark(c["name"], text, point, c["below_margin"]))
-        return marks
-    if result.failure is None:
+        return [Mark(c["name"], f"{c['name']}: {c['clearance_mm']:.2f} mm (need {c['required_mm']:g})",
+                     np.asarray(c["robot_point_mm"]), c["below_margin"], np.asarray(c["structure_point_mm"]))
+                for c in chosen]
+    if failure is None:
         return []
     return [Mark(b.name, f"{b.name}: blocks {_blocked_counts(b)}", None, True)
-            for b in result.failure.blockers[:MARKS - 1]]
+            for b in failure.blockers[:MARKS - 1]]
 
 
 def _blocked_counts(blocker) -> str:

@@ -11,28 +11,35 @@ from typing import Any
 import numpy as np
 
 from ctrplan.scene.objects import Scene
-from ctrplan.viz.framing import corridor_bounds, corridor_direction, finite_points, section
+from ctrplan.viz.framing import corridor_bounds, corridor_direction, finite_points
 from ctrplan.viz.sections import Section, curved_section, guide_heights
 from ctrplan.viz.style import TARGET_COLOR, axis_labels, pyplot, scene_colors, view_name, write_png
 
-#: A projection shows the obstacles within this distance (mm) of the path in its hidden axis.
-SECTION_MM = 4.0
+#: The overview draws the obstacles' triangles when there are at most this many near the path.
+OVERVIEW_TRIANGLES = 6000
 
 
-def triangles_in(scene: Scene, bounds: np.ndarray, max_triangles: int = 6000):
-    """(name, triangles (T, 3, 3)) of every obstacle, clipped to triangles touching ``bounds``."""
+def triangles_in(scene: Scene, bounds: np.ndarray, max_triangles: int | None = 6000):
+    """(name, triangles (T, 3, 3)) of every obstacle, clipped to triangles touching ``bounds``; thinned
+    out uniformly to ``max_triangles`` in all (None: never)."""
+    out = [(n, t) for n, t, _ in obstacles_in(scene, bounds)]
+    total = sum(len(t) for _, t in out)
+    if max_triangles is not None and total > max_triangles:  # thin out uniformly for speed
+        step = int(np.ceil(total / max_triangles))
+        out = [(n, t[::step]) for n, t in out]
+    return out
+
+
+def obstacles_in(scene: Scene, bounds: np.ndarray) -> list[tuple[str, np.ndarray, bool]]:
+    """(name, triangles (T, 3, 3) touching ``bounds``, whether the mesh is closed) of every obstacle
+    that reaches into ``bounds``."""
     out = []
     for o in scene.obstacles:
         m = o.to_trimesh()
         tri = np.asarray(m.vertices)[np.asarray(m.faces)]
-        lo, hi = tri.min(axis=1), tri.max(axis=1)
-        keep = np.all((hi >= bounds[0]) & (lo <= bounds[1]), axis=1)
+        keep = np.all((tri.max(axis=1) >= bounds[0]) & (tri.min(axis=1) <= bounds[1]), axis=1)
         if keep.any():
-            out.append((o.name, tri[keep]))
-    total = sum(len(t) for _, t in out)
-    if total > max_triangles:  # thin out uniformly for speed
-        step = int(np.ceil(total / max_triangles))
-        out = [(n, t[::step]) for n, t in out]
+            out.append((o.name, tri[keep], bool(m.is_watertight)))
     return out
 
 
@@ -50,12 +57,14 @@ def plot_plan(scene: Scene, backbones_scene: np.ndarray, path: str | Path, *, ti
 @dataclass(frozen=True)
 class Mark:
     """A structure named on the picture: ``text`` (e.g. its clearance), the robot's point nearest it
-    (3,) (scene frame, mm; None: the label goes on the structure's cut), ``warn``: in red."""
+    (3,) (scene frame, mm; None: the label goes on the structure's cut), ``warn``: in red, and the
+    structure's point nearest the robot (3,), joined to the robot's by a line (the clearance)."""
 
     structure: str
     text: str
     point: np.ndarray | None = None
     warn: bool = False
+    structure_point: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -107,9 +116,9 @@ def plan_figure(scene: Scene, backbones_scene: np.ndarray, *, title: str = "",
     outlined and named), and a column of ``notes`` (text, warn: warnings in red) -- the result,
     the reason of a failure, the clearances. A projection shows the anatomy cut by the surface that
     follows the final backbone (then the target) in the axis it projects away -- filled where a mesh is
-    closed, outlined where it is a sheet (`ctrplan.viz.sections`) -- over the obstacles within
-    `SECTION_MM` of it, faint; the overview shows the obstacles near the path and the outlines of the
-    first projection's cuts in 3-D. ``marks`` name structures: at the robot's point nearest them
+    closed, outlined where it is a sheet (`ctrplan.viz.sections`); the overview shows the outlines of
+    both projections' cuts in 3-D over the obstacles near the path (translucent, where they have
+    few enough triangles to draw whole). ``marks`` name structures: at the robot's point nearest them
     (with their clearance), or on their cut. Axes are named with the scene's patient
     directions when it gives them; the legend names every obstacle; touching obstacles get
     distinguishable colours (`scene_colors`).
@@ -132,7 +141,7 @@ def plan_figure(scene: Scene, backbones_scene: np.ndarray, *, title: str = "",
                             right=0.99, top=0.92, bottom=bottom)
     zoom = corridor_bounds(bbs, scene)
     views = _views(d, zoom)
-    _overview(fig.add_subplot(grid[:, 0], projection="3d"), d, views[0], zoom)
+    _overview(fig.add_subplot(grid[:, 0], projection="3d"), d, views, zoom)
     _projections(fig, grid, d, views, zoom)
     _notes(fig.add_subplot(grid[:, 3]), notes)
     _legend(fig, d, names, ncol)
@@ -140,19 +149,22 @@ def plan_figure(scene: Scene, backbones_scene: np.ndarray, *, title: str = "",
     return fig
 
 
-def _overview(ax3, d: _Drawing, view: _View, bounds: np.ndarray) -> None:
+def _overview(ax3, d: _Drawing, views: list[_View], bounds: np.ndarray) -> None:
     """The 3-D overview of the corridor (``bounds`` (2, 3): where the robot meets the anatomy, and the
-    target): obstacles there (a face plate faint), the outlines of ``view``'s cuts (the anatomy along
-    the path), the backbones on top (cut at the bounds), the marks."""
+    target): the outlines of the ``views``' cuts (the anatomy along the path), the obstacles there
+    (translucent, a face plate faint; none when they have more than `OVERVIEW_TRIANGLES`, which
+    thinned would be dots), the backbones on top (cut at the bounds), the marks."""
     from matplotlib.ticker import MaxNLocator
     from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
     ax3.computed_zorder = False  # drawn in zorder: the backbones over the translucent obstacles
-    for n, t in triangles_in(d.scene, bounds):
+    tris = triangles_in(d.scene, bounds, max_triangles=None)
+    for n, t in tris if sum(len(t) for _, t in tris) <= OVERVIEW_TRIANGLES else ():
         backdrop = np.ptp(t.reshape(-1, 3), axis=0).max() > 0.8 * np.ptp(bounds, axis=0).max()  # a face plate
         ax3.add_collection3d(Poly3DCollection(t, facecolor=d.colour[n], edgecolor="none",
                                               alpha=0.04 if backdrop else 0.16, zorder=1))
-    _cuts_3d(ax3, d, view, bounds)
+    for view in views:
+        _cuts_3d(ax3, d, view, bounds)
     shown = np.where(np.all((d.bbs >= bounds[0]) & (d.bbs <= bounds[1]), axis=-1)[..., None], d.bbs, np.nan)
     for j in range(len(d.pick)):
         d.backbone(ax3, j, shown[d.pick[j]].T)
@@ -182,7 +194,7 @@ def _views(d: _Drawing, zoom: np.ndarray) -> list[_View]:
     """The two projections along the corridor and the anatomy's cuts along the path in each."""
     along = int(np.argmax(np.abs(corridor_direction(d.bbs, zoom))))
     across = [a for a in range(3) if a != along]
-    solids = _solids(d.scene, zoom)
+    solids = obstacles_in(d.scene, zoom)
     guide = np.concatenate([finite_points(d.bbs[-1:]), d.scene.target.center[None]])
     views = []
     for b, away in ((across[1], across[0]), (across[0], across[1])):
@@ -193,18 +205,10 @@ def _views(d: _Drawing, zoom: np.ndarray) -> list[_View]:
 
 
 def _projections(fig, grid, d: _Drawing, views: list[_View], zoom: np.ndarray) -> None:
-    """Two projections along the corridor, each with the anatomy cut along the path over the faint
-    obstacles near it, and the marks."""
-    from matplotlib.collections import PolyCollection
-
-    tris = triangles_in(d.scene, zoom, max_triangles=12000)
+    """Two projections along the corridor, each with the anatomy cut along the path, and the marks."""
     for row, v in enumerate(views):
         a, b = v.a, v.b
         ax = fig.add_subplot(grid[row, 1:3])
-        for n, t in tris:
-            t = t[section(t, d.bbs[-1:], a, v.hidden, SECTION_MM)]
-            ax.add_collection(PolyCollection(t[:, :, [a, b]], facecolor=d.colour[n], edgecolor="none",
-                                             alpha=0.12, zorder=1))
         _draw_sections(ax, v.cuts, d.colour)
         for j in range(len(d.pick)):
             d.backbone(ax, j, (d.bbs[d.pick[j], :, a], d.bbs[d.pick[j], :, b]))
@@ -218,8 +222,8 @@ def _projections(fig, grid, d: _Drawing, views: list[_View], zoom: np.ndarray) -
         ax.set_xlabel(d.axis_title(a))
         ax.set_ylabel(d.axis_title(b))
         h = "xyz"[v.hidden]
-        ax.set_title(f"{view_name(d.scene.anatomy, h)} ({'xyz'[a]}-{'xyz'[b]}): anatomy cut along the path "
-                     f"({h} follows it); faint: within {SECTION_MM:g} mm in {h}", fontsize=10)
+        ax.set_title(f"{view_name(d.scene.anatomy, h)} ({'xyz'[a]}-{'xyz'[b]}): the anatomy cut along the "
+                     f"path ({h} follows it)", fontsize=10)
 
 
 def _marks_2d(ax, marks: Sequence[Mark], cuts: dict[str, Section], a: int, b: int) -> None:
@@ -232,6 +236,10 @@ def _marks_2d(ax, marks: Sequence[Mark], cuts: dict[str, Section], a: int, b: in
         else:
             continue
         colour = "#c0001a" if m.warn else "k"
+        if m.structure_point is not None:
+            to = np.asarray(m.structure_point)[[a, b]]
+            ax.plot([at[0], to[0]], [at[1], to[1]], "-", color=colour, lw=1.2, zorder=9)
+            ax.plot(*to, "s", color=colour, ms=3.5, zorder=9)
         ax.plot(*at, "o", color=colour, ms=5, zorder=9, markeredgecolor="white")
         ax.annotate(m.text, at, xytext=(-60, -28 - 16 * i), textcoords="offset points", fontsize=8,
                     color=colour, zorder=9, arrowprops={"arrowstyle": "-", "color": colour, "lw": 0.8},
@@ -263,19 +271,6 @@ def _outline(colour: str) -> tuple[float, float, float]:
 
     h, s, v = rgb_to_hsv(to_rgb(colour))
     return tuple(hsv_to_rgb((h, min(1.0, 0.35 + 1.2 * s), 0.75 * v)))
-
-
-def _solids(scene: Scene, bounds: np.ndarray) -> list[tuple[str, np.ndarray, bool]]:
-    """(name, triangles (T, 3, 3) touching ``bounds``, whether the mesh is closed) of every obstacle
-    that reaches into ``bounds``."""
-    out = []
-    for o in scene.obstacles:
-        m = o.to_trimesh()
-        tri = np.asarray(m.vertices)[np.asarray(m.faces)]
-        keep = np.all((tri.max(axis=1) >= bounds[0]) & (tri.min(axis=1) <= bounds[1]), axis=1)
-        if keep.any():
-            out.append((o.name, tri[keep], bool(m.is_watertight)))
-    return out
 
 
 def _draw_sections(ax, cuts: Sequence[Section], colour: dict[str, str]) -> None:
