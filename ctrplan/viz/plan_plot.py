@@ -215,9 +215,9 @@ def _projections(fig, grid, d: _Drawing, views: list[_View], zoom: np.ndarray) -
         if d.tip_path is not None:
             ax.plot(d.tip_path[:, a], d.tip_path[:, b], "k-", lw=0.6, zorder=6)
         _target_2d(ax, d.scene, a, b)
-        _marks_2d(ax, d.marks, {c.name: c for c in v.cuts}, a, b)
         ax.set_xlim(zoom[:, a])
         ax.set_ylim(zoom[:, b])
+        _marks_2d(ax, d.marks, {c.name: c for c in v.cuts}, a, b)
         ax.set_aspect("equal")
         ax.set_xlabel(d.axis_title(a))
         ax.set_ylabel(d.axis_title(b))
@@ -227,8 +227,11 @@ def _projections(fig, grid, d: _Drawing, views: list[_View], zoom: np.ndarray) -
 
 
 def _marks_2d(ax, marks: Sequence[Mark], cuts: dict[str, Section], a: int, b: int) -> None:
-    """Each mark: a dot at the robot's point (or on the structure's cut) and its text beside it."""
-    for i, m in enumerate(marks):
+    """Each mark: a dot at the robot's point (or on the structure's cut), the line to the structure's,
+    and its text, stacked in the top corner on the mark's side (labels never overlap) with a line to
+    the dot. The axes' limits must be set."""
+    (x0, x1), stacked = ax.get_xlim(), {False: 0, True: 0}
+    for m in marks:
         if m.point is not None:
             at = np.asarray(m.point)[[a, b]]
         elif m.structure in cuts and not cuts[m.structure].empty:
@@ -241,10 +244,13 @@ def _marks_2d(ax, marks: Sequence[Mark], cuts: dict[str, Section], a: int, b: in
             ax.plot([at[0], to[0]], [at[1], to[1]], "-", color=colour, lw=1.2, zorder=9)
             ax.plot(*to, "s", color=colour, ms=3.5, zorder=9)
         ax.plot(*at, "o", color=colour, ms=5, zorder=9, markeredgecolor="white")
-        ax.annotate(m.text, at, xytext=(-60, -28 - 16 * i), textcoords="offset points", fontsize=8,
+        right = bool((at[0] - x0) / (x1 - x0) > 0.5)
+        ax.annotate(m.text, at, xytext=(0.99 if right else 0.01, 0.97 - 0.09 * stacked[right]),
+                    textcoords="axes fraction", va="top", ha="right" if right else "left", fontsize=8,
                     color=colour, zorder=9, arrowprops={"arrowstyle": "-", "color": colour, "lw": 0.8},
                     bbox={"boxstyle": "round,pad=0.2", "facecolor": "white", "edgecolor": colour, "lw": 0.6,
                           "alpha": 0.9})
+        stacked[right] += 1
 
 
 def _cuts_3d(ax3, d: _Drawing, view: _View, bounds: np.ndarray) -> None:
@@ -260,6 +266,8 @@ def _cuts_3d(ax3, d: _Drawing, view: _View, bounds: np.ndarray) -> None:
         seg[..., view.hidden] = guide_heights(guide, view.a, view.hidden, c.segments[..., 0].ravel()).reshape(
             c.segments.shape[:2])
         seg = seg[np.all((seg >= bounds[0]) & (seg <= bounds[1]), axis=(1, 2))]
+        if not len(seg):
+            continue
         ax3.add_collection3d(Line3DCollection(seg, colors=[_outline(d.colour[c.name])], linewidths=1.0,
                                               zorder=2))
 

@@ -118,3 +118,14 @@ def test_viewer_has_a_scale_bar(tmp_path):
     bbs[..., 2] = np.linspace(0, 100, 5)
     html = write_viewer(tmp_path / "v.html", viewer_data(scene, bbs, np.full((2, 5), 0.75))).read_text()
     assert "function scaleBar()" in html and "scaleBar();" in html and '" mm (at the view centre)"' in html
+
+
+def test_a_failed_plan_shows_the_anatomy_between_its_start_and_the_target(skullbase):
+    """A start that ends in the nasal cavity, 50 mm short of the target (a failed plan draws only it):
+    the sections follow it, then the line to the target, so the walls on the way are cut in both
+    projections; a cut that lies wholly outside the overview's box is left out, not an error."""
+    start = np.array([-4.0, 8.0, -99.0]) + np.linspace(0.0, 1.0, 40)[:, None] * np.array([0.0, 17.0, 129.0])
+    fig = plan_figure(skullbase, start[None])
+    views = [ax for ax in fig.axes if ax.name != "3d" and ax.get_title()]
+    for ax in views:
+        assert sum(len(c.get_paths()) for c in ax.collections) > 5  # the walls, not just the robot
