@@ -8,8 +8,9 @@ a roadmap and a trajectory at a fixed rate in actuator units.
 Each step is one `ctrplan` command (or `scripts/patient_walk.py`, which makes the inputs) run as a
 subprocess from OUT_DIR; its wall time, exit code and the line that tells its outcome are printed,
 and the table goes to OUT_DIR/walk_times.md (docs/benchmarks.md "The new-user walk" quotes it). Stops at
-the first step that fails. The exact model plans throughout: a robot of one's own has a PINN only when
-its tubes are those a shipped model was trained for (as here: the paper's tubes) or after `ctrplan train`.
+the first step that fails. `scene place` verifies with the exact model; `plan` and the roadmap use the
+default backend, the PINN: a robot of one's own has one when its tubes are those a shipped model was
+trained for (as here: the paper's tubes, other limits and actuators), else after `ctrplan train`.
 """
 
 from __future__ import annotations
@@ -44,14 +45,13 @@ def steps(roadmap_time: str) -> list[tuple[str, str, str]]:
         ("scene place at the right nostril",
          f"{ctr} scene place nii/scene.yaml --entry={NOSTRIL} --robot robot.yaml", "placed in"),
         ("scene check of the placed scene", f"{ctr} scene check nii/scene.yaml", "usable"),
-        ("plan (exact model) with trajectory.csv at 100 Hz",
-         f"{ctr} plan nii/scene.yaml --backend cosserat --out plan --rate 100", "min clearance"),
-        ("roadmap build (own robot, exact model)",
-         f"{ctr} roadmap build nii/scene.yaml --robot robot.yaml --backend cosserat "
-         f"--time-limit {roadmap_time} --out roadmap", "target:"),
+        ("plan (default backend: the PINN of the paper's tubes) with trajectory.csv at 100 Hz",
+         f"{ctr} plan nii/scene.yaml --out plan --rate 100", "min clearance"),
+        ("roadmap build (own robot, default backend)",
+         f"{ctr} roadmap build nii/scene.yaml --robot robot.yaml --time-limit {roadmap_time} --out roadmap",
+         "target:"),
         ("roadmap query",
-         f"{ctr} plan nii/scene.yaml --roadmap roadmap --backend cosserat --out plan_roadmap",
-         "min clearance"),
+         f"{ctr} plan nii/scene.yaml --roadmap roadmap --out plan_roadmap", "min clearance"),
     ]
 
 

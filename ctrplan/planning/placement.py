@@ -10,18 +10,19 @@ base poses first and asking afterwards whether the target can be reached wastes 
    exact model (unconverged and unstable dropped). On each backbone the point whose chord to the tip is
    as long as the distance entry -> target is found (none: the robot is too short there).
 2. **Placements**: each such backbone is put with its tip at the target's centre and that point at the
-   entry (the chord along the line entry -> target; `ROLLS` rolls about it where the base's roll is not
-   already one of the tube rotations); bases whose insertion axis turns more than `MAX_TILT_DEG` from
-   the line are dropped (the robot stays outside, in front of the opening). Every placed goal backbone is
-   screened at once by the collision world's distance grid (a lower bound of its clearance beyond every
-   margin; FCL judges the nearest to free when the grid clears none).
+   entry (the chord along the line entry -> target, a random roll about it), then moved across the line
+   by up to `ENTRY_SLACK_MM` (an opening is wider than a point); bases whose insertion axis turns more
+   than `MAX_TILT_DEG` from the line are dropped (the robot stays outside, in front of the opening).
+   Every placed goal backbone is screened at once by the collision world's distance grid (its clearance
+   beyond every margin estimated from the grid, interpolated); FCL judges the best 200 and measures the
+   free ones' clearance.
 3. **Starts**: for the `GOALS_KEPT` best free goals (clearance capped at `CLEARANCE_CAP_MM`, then
    tilt), the goal pulled back along its own insertion (translations moved towards fully retracted,
    rotations kept, `RETRACTIONS`), with its tip still `START_DEPTH_MM` past the entry (the robot
-   already through the opening): the most retracted that is free and stable (a *retracted* start:
-   the plan must find the way in), and the most retracted from which every pull-back state on to the
-   goal is free and stable (a *pulled-back* start: a straight way in is known; in a tight airway it
-   may lie near the goal).
+   already through the opening): the most retracted that is free and stable, with
+   `START_CLEARANCE_MM` to spare where some has (a *retracted* start: the plan must find the way in),
+   and the most retracted from which every pull-back state on to the goal is free and stable (a
+   *pulled-back* start: a straight way in is known; in a tight airway it may lie near the goal).
 4. **Verification**: the retracted starts of the `RETRACTED_TRIES` best placements, then the
    pulled-back starts of the best (`VERIFY` plans in all), are planned (`ctrplan.planning.plan`, a
    work budget, seeded, the goal as a hint) until a retracted start or `ACCEPT` starts are solved -- a
@@ -40,6 +41,7 @@ from collections import Counter
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from ctrplan.base.errors import InputError
@@ -63,16 +65,24 @@ CHILDREN = 10
 REFINE_STEP_MM = 2.0
 #: Each round's perturbation is this fraction of the previous one's.
 REFINE_SHRINK = 0.8
+#: How far (mm) a placement's backbone may pass beside the entry point and its tip beside the target's
+#: centre (an opening is wider than a point).
+ENTRY_SLACK_MM = 2.0
 #: Insertion axes turned further than this (degrees) from the line entry -> target are not used.
 MAX_TILT_DEG = 35.0
 #: Clearances beyond this (mm) rank equal.
 CLEARANCE_CAP_MM = 2.0
+#: Points per backbone segment where the distance grid estimates the clearance.
+SUBSTEPS = 8
 #: Free goals whose starts are sought.
 GOALS_KEPT = 40
 #: Fractions of the goal's insertion kept by the candidate starts (0: fully retracted), and how far (mm,
 #: along the line) a start's tip must lie past the entry.
 RETRACTIONS = tuple(np.arange(0.0, 1.0, 0.05))
 START_DEPTH_MM = 3.0
+#: A retracted start keeps at least this clearance (mm, beyond the margins) where some does: a
+#: surrogate plans with its error bound as extra margin.
+START_CLEARANCE_MM = 0.5
 #: Placements planned at most, and solved ones after which it stops.
 VERIFY = 4
 ACCEPT = 2
@@ -181,36 +191,48 @@ def aligning_rotations(chords: np.ndarray, line: np.ndarray, rolls: np.ndarray) 
 
 
 def _clearance(world: CollisionWorld, pts: np.ndarray, radius: np.ndarray, margin_mm: float) -> np.ndarray:
-    """Clearance lower bounds (B,) of backbones (B, P, 3) scene frame with radii (B, P) beyond every
-    margin (mm, capped at `CLEARANCE_CAP_MM`; -inf where not finite), from the distance grid."""
+    """Estimated clearances (B,) of backbones (B, P, 3) scene frame with radii (B, P) beyond every margin
+    (mm, capped at `CLEARANCE_CAP_MM`; -inf where not finite): the distance grid interpolated
+    (trilinear) at `SUBSTEPS` points per segment, less the radius. Not a bound (the grid's own bound is
+    up to a cell loose, too coarse to rank placements in a narrow airway): what it ranks, FCL judges."""
+    finite = np.isfinite(pts).all(axis=(1, 2))
     if world.grid is None:  # no obstacles
-        return np.where(np.isfinite(pts).all(axis=(1, 2)), CLEARANCE_CAP_MM, -np.inf)
-    r = np.maximum(radius[:, 1:], radius[:, :-1]) + margin_mm
-    lower = world.grid.segment_lower_bounds(pts, r + CLEARANCE_CAP_MM)
-    return np.minimum((lower - r).min(axis=1), CLEARANCE_CAP_MM)
+        return np.where(finite, CLEARANCE_CAP_MM, -np.inf)
+    g = world.grid
+    t = (np.arange(SUBSTEPS) + 0.5) / SUBSTEPS
+    seg = pts[:, :-1, None, :] + t[None, None, :, None] * (pts[:, 1:, None, :] - pts[:, :-1, None, :])
+    r = np.repeat(np.maximum(radius[:, 1:], radius[:, :-1]), SUBSTEPS, axis=1) + margin_mm
+    idx = (np.nan_to_num(seg.reshape(len(pts), -1, 3)) - g.lo) / g.cell_mm - 0.5
+    d = ndimage.map_coordinates(g.values.astype(np.float32) * g.step_mm, idx.reshape(-1, 3).T, order=1,
+                                mode="constant", cval=g.band_mm).reshape(r.shape)
+    return np.where(finite, np.minimum((d - r).min(axis=1), CLEARANCE_CAP_MM), -np.inf)
 
 
 def _judged(clear: np.ndarray, pts: np.ndarray, radius: np.ndarray, checker: RobotCollisionChecker,
             n: int = 200) -> np.ndarray:
-    """``clear`` with the ``n`` backbones nearest to free that the grid could not clear judged by FCL:
-    free ones get clearance 0 (free, by less than the grid resolves)."""
-    out = clear.copy()
-    near = [i for i in np.argsort(-clear)[:n] if np.isfinite(clear[i]) and clear[i] < 0]
-    if near:
-        free = checker.free_batch(pts[near], radius[near])
-        out[np.asarray(near)[free]] = 0.0
+    """Clearances (B,) judged by FCL for the ``n`` backbones that ``clear`` (estimates) ranks best: the
+    free ones get their exact clearance beyond the robot's margin (mm, capped at `CLEARANCE_CAP_MM`; at
+    least 0: free with every structure's own margin too); every other keeps its estimate, made negative
+    (not free)."""
+    out = np.minimum(clear, -1e-9)
+    near = np.array([i for i in np.argsort(-clear)[:n] if np.isfinite(clear[i])], dtype=int)
+    if len(near):
+        free = near[checker.free_batch(pts[near], radius[near])]
+        exact = [float(np.min(checker.clearances(pts[i], radius[i], CLEARANCE_CAP_MM + 1.0))) for i in free]
+        out[free] = np.clip(np.asarray(exact) - checker.margin_mm, 0.0, CLEARANCE_CAP_MM)
     return out
 
 
 @dataclass(frozen=True)
 class _Goals:
     """Placed goals: joints (K, 2N), their scaled box coordinates (K, D), base rolls about the line
-    (K,) rad, rotations (K, 3, 3), base positions (K, 3), tilts (K,) degrees, clearances (K,) mm, and
-    the placed backbones (K, P, 3) and radii (K, P)."""
+    (K,) rad, shifts across the line (K, 3) mm, rotations (K, 3, 3), base positions (K, 3), tilts (K,)
+    degrees, clearances (K,) mm, and the placed backbones (K, P, 3) and radii (K, P)."""
 
     q: np.ndarray
     y: np.ndarray
     rolls: np.ndarray
+    shifts: np.ndarray
     rotations: np.ndarray
     bases: np.ndarray
     tilts: np.ndarray
@@ -226,35 +248,52 @@ class _Goals:
                         for f in self.__dataclass_fields__))
 
 
-def _placed_goals(scene: Scene, exact: Backend, y: np.ndarray, rolls: np.ndarray, entry: np.ndarray,
-                  line: np.ndarray, world: CollisionWorld) -> _Goals:
+def _placed_goals(scene: Scene, exact: Backend, y: np.ndarray, rolls: np.ndarray, shifts: np.ndarray,
+                  entry: np.ndarray, line: np.ndarray, world: CollisionWorld) -> _Goals:
     """Configurations (scaled box coordinates (K, D) of the scene's `BoxSpace`) with base rolls (K,) rad
-    placed through the entry with their tips at the target's centre, screened: clearance -inf where the
-    backbone is unstable, too short or its base turned more than `MAX_TILT_DEG` from the line."""
+    placed through the entry with their tips at the target's centre, then moved by ``shifts`` (K, 3)
+    (taken across the line and to at most `entry_slack`), screened: clearance -inf where the backbone
+    is unstable, too short or its base turned more than `MAX_TILT_DEG` from the line."""
     q = BoxSpace.for_scene(scene).to_joints(y)
     bb = exact.forward(q, points=POINTS, check=False)
     pos = bb.positions_mm
     point, k = entry_points(pos, float(np.linalg.norm(scene.target.center - entry)))
     chord = np.where((k >= 0)[:, None], pos[:, -1] - point, line)
     R = aligning_rotations(chord, line, rolls)
-    bases = scene.target.center - np.einsum("kij,kj->ki", R, pos[:, -1])
+    shifts = _across(shifts, line, entry_slack(scene))
+    bases = scene.target.center - np.einsum("kij,kj->ki", R, pos[:, -1]) + shifts
     tilts = np.degrees(np.arccos(np.clip(R[:, :, 2] @ line, -1.0, 1.0)))
     pts = np.einsum("kij,kpj->kpi", R, pos) + bases[:, None, :]
     clear = _clearance(world, pts, bb.radius_mm, scene.settings.margin_mm)
     clear[~((k >= 0) & bb.stable & (tilts <= MAX_TILT_DEG))] = -np.inf
-    return _Goals(q, y, rolls, R, bases, tilts, clear, pts, bb.radius_mm)
+    return _Goals(q, y, rolls, shifts, R, bases, tilts, clear, pts, bb.radius_mm)
+
+
+def entry_slack(scene: Scene) -> float:
+    """How far (mm) a placement may pass beside the entry point (and its tip beside the target's
+    centre): `ENTRY_SLACK_MM`, or less where the target is smaller."""
+    return min(ENTRY_SLACK_MM, 0.7 * float(np.min(scene.target.semi_axes)))
+
+
+def _across(shifts: np.ndarray, line: np.ndarray, slack: float) -> np.ndarray:
+    """``shifts`` (K, 3) without their part along ``line``, at most ``slack`` long."""
+    s = shifts - np.outer(shifts @ line, line)
+    n = np.linalg.norm(s, axis=1, keepdims=True)
+    return s * np.minimum(1.0, slack / np.maximum(n, 1e-12))
 
 
 def _search_goals(scene: Scene, exact: Backend, entry: np.ndarray, line: np.ndarray, world: CollisionWorld,
                   rng: np.random.Generator, progress) -> _Goals:
     """Steps 1-2: `REACH_SAMPLES` uniform configurations and rolls placed through the entry, then
     up to `REFINE_ROUNDS` rounds (until `GOALS_KEPT` have the capped clearance) in which the `ELITE`
-    placements nearest to free each spawn `CHILDREN`
-    perturbed ones (`REFINE_STEP_MM` in the planning metric, the roll by as many mm at the tip's
-    distance); all placements, their clearances found."""
+    placements nearest to free each spawn `CHILDREN` perturbed ones (`REFINE_STEP_MM` in the planning
+    metric, shrinking by `REFINE_SHRINK` a round; the roll by as many mm at the tip's distance, the shift
+    by half); all placements, their clearances estimated."""
     space = BoxSpace.for_scene(scene)
+    slack = entry_slack(scene)
     goals = _placed_goals(scene, exact, space.to_coords(space.sample(REACH_SAMPLES, rng)),
-                          rng.uniform(0, 2 * math.pi, REACH_SAMPLES), entry, line, world)
+                          rng.uniform(0, 2 * math.pi, REACH_SAMPLES),
+                          rng.uniform(-slack, slack, (REACH_SAMPLES, 3)), entry, line, world)
     reach = float(np.linalg.norm(scene.target.center - entry))
     for r in range(REFINE_ROUNDS):
         if (goals.clearance >= CLEARANCE_CAP_MM).sum() >= GOALS_KEPT:
@@ -269,7 +308,8 @@ def _search_goals(scene: Scene, exact: Backend, entry: np.ndarray, line: np.ndar
         step = REFINE_STEP_MM * REFINE_SHRINK**r
         y = space.clip(goals.y[parent] + rng.normal(0, step, (len(parent), goals.y.shape[1])))
         rolls = goals.rolls[parent] + rng.normal(0, step / reach, len(parent))
-        goals = goals.join(_placed_goals(scene, exact, y, rolls, entry, line, world))
+        shifts = goals.shifts[parent] + rng.normal(0, 0.5 * step, (len(parent), 3))
+        goals = goals.join(_placed_goals(scene, exact, y, rolls, shifts, entry, line, world))
     return goals
 
 
@@ -299,7 +339,9 @@ def _starts(scene: Scene, exact: Backend, goals: _Goals, entry: np.ndarray, line
     out = []
     for g in range(len(goals.q)):
         kinds = {}  # start index -> retracted: the pulled-back start may be the retracted one
-        for usable, retracted in ((chain[g] & deep[g], False), (free[g] & deep[g], True)):
+        roomy = free[g] & deep[g] & (clear.reshape(free.shape)[g] >= START_CLEARANCE_MM)
+        retract = roomy if roomy.any() else free[g] & deep[g]
+        for usable, retracted in ((chain[g] & deep[g], False), (retract, True)):
             if usable.any():
                 kinds[g * len(f) + int(np.argmax(usable))] = retracted
         out += [(g, q[i], float(depth[i]), float(clear[i]), retracted) for i, retracted in kinds.items()]
