@@ -152,11 +152,11 @@ def place(
 ) -> None:
     """Find a base pose and a start that enter through --entry and reach the target.
 
-    Configurations of the robot are placed with the tip at the target's centre and the backbone through
-    the entry (base outside, within 35 degrees of the line entry -> target), screened for collisions with
-    the scene's margins, refined around the nearest to free; each free one's goal pulled back along its
-    insertion gives a start through the entry; the best are planned (exact model by default) until a
-    path is confirmed. The chosen base pose and start (and --robot) are written into SCENE.yaml (or
+    Configurations of the robot are placed with the tip at the target and the backbone through the
+    entry (within 2 mm; base outside, within 35 degrees of the line entry -> target), screened for
+    collisions with the scene's margins, refined around the best; each free goal pulled back along its
+    insertion gives starts through the entry (the most retracted free one, and the one from which the
+    pull-back stays free); the best are planned (exact model by default) until a path is confirmed. The chosen base pose and start (and --robot) are written into SCENE.yaml (or
     --out), the rest of the file (comments, other keys) kept; nothing is written when no placement is
     found, and the reason is one line (exit 2).
     """
