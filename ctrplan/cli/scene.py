@@ -156,9 +156,10 @@ def place(
     entry (within 2 mm; base outside, within 35 degrees of the line entry -> target), screened for
     collisions with the scene's margins, refined around the best; each free goal pulled back along its
     insertion gives starts through the entry (the most retracted free one, and the one from which the
-    pull-back stays free); the best are planned (exact model by default) until a path is confirmed. The chosen base pose and start (and --robot) are written into SCENE.yaml (or
-    --out), the rest of the file (comments, other keys) kept; nothing is written when no placement is
-    found, and the reason is one line (exit 2).
+    pull-back stays free); the best are planned (exact model by default) until a path is confirmed.
+    The chosen base pose and start (and --robot) are written into SCENE.yaml (or --out), the rest of
+    the file (comments, other keys) kept; nothing is written when no placement is found, and the reason
+    is one line (exit 2).
     """
     import json
 
