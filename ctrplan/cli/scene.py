@@ -185,6 +185,7 @@ def place(
     if c is None:
         raise InputError(f"{scene_file}: no placement through the entry {point.tolist()}: {report.reason}")
     text, kept = placed_scene_text(scene_file, target, c.base_pose, c.start, robot)
+    target.parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(target) as fh:
         fh.write(text)
     counts = report.counts
@@ -226,7 +227,7 @@ def placed_scene_text(scene_file: Path, out: Path, base_pose: np.ndarray, start,
                "start": [round(float(v), 6) for v in start]}
     if out.parent.resolve() != scene_file.parent.resolve():
         moved = relocated(doc, out)
-        changes |= {k: moved[k] for k in ("robot", "obstacles") if k in moved}
+        changes |= {k: moved[k] for k in ("robot", "obstacles") if k in moved and moved[k] != doc.data.get(k)}
     if robot is not None:
         changes["robot"] = _robot_ref(robot, out)
     return with_keys(scene_file.read_text(), changes)

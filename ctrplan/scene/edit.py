@@ -1,7 +1,8 @@
 """Change top-level keys of a scene file and keep the rest of its text -- the user's comments, key order
 and formatting (`ctrplan scene place` writes a base pose and a start into the user's own scene).
 
-A top-level key's block is its line and every following line that is indented or blank; the block is
+A top-level key's block is its line and every following line that is indented, blank or a list item
+(``- ``, which block style writes at the left margin); the block is
 replaced by the key dumped anew (block style), or appended where the key is missing. Comments at the
 left margin between blocks stay where they are. The edited text is read back and compared with what
 was meant; where it differs (a file in flow style, anchors), the whole mapping is dumped instead and
@@ -26,7 +27,7 @@ def _block(lines: list[str], key: str) -> tuple[int, int] | None:
         m = _TOP_KEY.match(line)
         if m and m.group(1) == key:
             end = i + 1
-            while end < len(lines) and (not lines[end].strip() or lines[end][0] in " \t"):
+            while end < len(lines) and (not lines[end].strip() or lines[end][0] in " \t-"):
                 end += 1
             while end > i + 1 and not lines[end - 1].strip():  # trailing blank lines stay outside
                 end -= 1

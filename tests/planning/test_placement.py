@@ -64,13 +64,19 @@ def through_plate(scene, q) -> float:
 
 
 def test_the_robot_is_placed_through_the_hole_and_the_comments_stay(tmp_path, capsys):
+    """Written to --out in a new folder: the comments kept, the mesh path made relative to it, the
+    user's scene untouched."""
     path = plate_scene(tmp_path, hole_mm=6.0)
+    before = path.read_text()
     capsys.readouterr()
-    code = main(["scene", "place", str(path), "--entry", f"0,0,{PLATE_Z}", "--json"])
+    placed = tmp_path / "placed" / "scene.yaml"
+    code = main(["scene", "place", str(path), "--entry", f"0,0,{PLATE_Z}", "--out", str(placed), "--json"])
     out = capsys.readouterr()
     assert code == 0, out.err
     doc = json.loads(out.out)
-    text = path.read_text()
+    assert path.read_text() == before
+    path, text = placed, placed.read_text()
+    assert "mesh: ../plate.stl" in text
     assert "# my patient: a plate with a hole" in text and "# the paper's robot" in text
     assert "# retracted, but the plate is in the way" in text
     scene = load_scene(path)
@@ -105,9 +111,12 @@ def test_a_bad_entry_is_refused(tmp_path, capsys, entry, expected):
 
 
 def test_keys_are_replaced_in_place_and_flow_style_is_dumped():
-    text = "# head\nname: a  # why\nstart: [1, 2]\n\n# tail comment\nplanner:\n  points: 3\n"
-    edited, kept = with_keys(text, {"start": [3, 4], "base_pose": {"position": [0, 0, 1]}})
-    assert kept and edited.startswith("# head\nname: a  # why\nstart: [3, 4]\n\n# tail comment\nplanner:\n")
+    text = ("# head\nname: a  # why\nobstacles:\n- {name: x, mesh: x.stl}  # mine\n- name: y\n  mesh: y.stl\n"
+            "start: [1, 2]\n\n# tail comment\nplanner:\n  points: 3\n")
+    edited, kept = with_keys(text, {"start": [3, 4], "base_pose": {"position": [0, 0, 1]},
+                                    "obstacles": [{"name": "x", "mesh": "../x.stl"}]})
+    assert kept and edited.startswith("# head\nname: a  # why\nobstacles:\n- name: x\n  mesh: ../x.stl\n"
+                                      "start: [3, 4]\n\n# tail comment\nplanner:\n")
     assert edited.endswith("base_pose:\n  position: [0, 0, 1]\n")
     dumped, kept = with_keys("{name: a, start: [1, 2]}\n", {"start": [3, 4]})
     assert not kept and "start: [3, 4]" in dumped and "name: a" in dumped
