@@ -39,8 +39,16 @@ def obstacles_in(scene: Scene, bounds: np.ndarray) -> list[tuple[str, np.ndarray
         tri = np.asarray(m.vertices)[np.asarray(m.faces)]
         keep = np.all((tri.max(axis=1) >= bounds[0]) & (tri.min(axis=1) <= bounds[1]), axis=1)
         if keep.any():
-            out.append((o.name, tri[keep], bool(m.is_watertight)))
+            out.append((o.name, tri[keep], _closed(m)))
     return out
+
+
+def _closed(mesh) -> bool:
+    """Whether ``mesh`` is closed once its coincident vertices are merged (an STL repeats every vertex
+    per triangle)."""
+    merged = mesh.copy()
+    merged.merge_vertices()
+    return bool(merged.is_watertight)
 
 
 def plot_plan(scene: Scene, backbones_scene: np.ndarray, path: str | Path, *, title: str = "",
@@ -194,7 +202,9 @@ def _views(d: _Drawing, zoom: np.ndarray) -> list[_View]:
     """The two projections along the corridor and the anatomy's cuts along the path in each."""
     along = int(np.argmax(np.abs(corridor_direction(d.bbs, zoom))))
     across = [a for a in range(3) if a != along]
-    solids = obstacles_in(d.scene, zoom)
+    depth = np.full((2, 3), np.inf) * [[-1.0], [1.0]]
+    depth[:, along] = zoom[:, along]
+    solids = obstacles_in(d.scene, depth)  # whole across the corridor: a closed mesh's cut stays closed
     guide = np.concatenate([finite_points(d.bbs[-1:]), d.scene.target.center[None]])
     views = []
     for b, away in ((across[1], across[0]), (across[0], across[1])):

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import trimesh
 
-from ctrplan.viz.sections import curved_section, guide_heights
+from ctrplan.viz.sections import SECTION_STEP_MM, curved_section, guide_heights
 
 
 def triangles(mesh: trimesh.Trimesh) -> np.ndarray:
@@ -67,3 +67,31 @@ def test_an_open_sheet_is_outlined_not_filled():
     assert np.allclose(ends[:, 1], 3.0) and math.isclose(ends[:, 0].min(), 40.0) and \
         math.isclose(ends[:, 0].max(), 60.0)
     assert math.isclose(float(np.sum(np.abs(cut.segments[:, 1, 0] - cut.segments[:, 0, 0]))), 20.0)
+
+
+def test_a_closed_structure_wider_than_the_picture_is_filled_across_it(tmp_path):
+    """A slab (closed, finely meshed) 200 mm tall across a straight path: plan.png's projections clip the
+    picture, not the mesh, so every filled column of the slab's cut spans its full height."""
+    from matplotlib.collections import PolyCollection
+
+    from ctrplan.scene.loader import load_scene
+    from ctrplan.viz.plan_plot import plan_figure
+    from tests.paths import SCENES
+
+    slab = trimesh.creation.box(extents=[200.0, 200.0, 5.0]).subdivide().subdivide().subdivide()
+    slab.apply_translation([0.0, 0.0, 97.5])
+    slab.export(tmp_path / "slab.stl")
+    text = (SCENES / "open.yaml").read_text()
+    text = text.replace(text[text.index("obstacles:"):text.index("target:")],
+                        "obstacles:\n- {name: slab, mesh: slab.stl}\n")
+    (tmp_path / "s.yaml").write_text(text)
+    scene = load_scene(tmp_path / "s.yaml")
+    z = np.linspace(0.0, 180.0, 40)
+    fig = plan_figure(scene, np.column_stack([np.zeros(40), np.zeros(40), z])[None])
+    fills = [p.vertices for ax in fig.axes if ax.name != "3d" for c in ax.collections
+             if isinstance(c, PolyCollection) for p in c.get_paths()]
+    assert fills
+    for v in fills:
+        half = 0.5 * SECTION_STEP_MM  # a depth bin is filled when its centre is inside
+        assert v[:, 0].min() >= 95.0 - half and v[:, 0].max() <= 100.0 + half
+        assert np.isclose(v[:, 1].min(), -100.0) and np.isclose(v[:, 1].max(), 100.0)
