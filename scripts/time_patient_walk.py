@@ -46,12 +46,12 @@ def steps(roadmap_time: str) -> list[tuple[str, str, str]]:
          f"{ctr} scene place nii/scene.yaml --entry={NOSTRIL} --robot robot.yaml", "placed in"),
         ("scene check of the placed scene", f"{ctr} scene check nii/scene.yaml", "usable"),
         ("plan (default backend: the PINN of the paper's tubes) with trajectory.csv at 100 Hz",
-         f"{ctr} plan nii/scene.yaml --out plan --rate 100", "min clearance"),
+         f"{ctr} plan nii/scene.yaml --out plan --rate 100", "exact model"),
         ("roadmap build (own robot, default backend)",
          f"{ctr} roadmap build nii/scene.yaml --robot robot.yaml --time-limit {roadmap_time} --out roadmap",
          "target:"),
         ("roadmap query",
-         f"{ctr} plan nii/scene.yaml --roadmap roadmap --out plan_roadmap", "min clearance"),
+         f"{ctr} plan nii/scene.yaml --roadmap roadmap --out plan_roadmap", "solved"),
     ]
 
 
