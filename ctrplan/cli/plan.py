@@ -191,6 +191,7 @@ class _Progress(StatusLine):
                 "simplify": "simplifying the path", "validate": "validating with the exact model",
                 "repair": "repairing with the exact model",
                 "clearance": "measuring clearances (exact model)",
+                "explain": "examining what blocked the search",
                 "trajectory": "timing the trajectory (exact model)"}.get(stage, stage)
         if stage == "compile" and "total" in info:
             text = f"compiling kernels {info['done']}/{info['total']} (first run only)"

@@ -13,7 +13,7 @@ import typer
 from ctrplan.base.errors import InputError
 from ctrplan.cli.app import HELP_SETTINGS, app
 from ctrplan.cli.bench import bench_app, publish
-from ctrplan.cli.options import ModelOpt, as_option, load_backend, parse_duration
+from ctrplan.cli.options import ModelOpt, RobotOpt, as_option, load_backend, parse_duration
 from ctrplan.cli.progress import PlainProgress, StatusLine
 from ctrplan.kinematics.registry import DEFAULT_PLANNING_BACKEND, PLANNING_ORDER
 
@@ -48,6 +48,7 @@ def build_command(
         "--backend", metavar="NAME",
         help=f"Planning backend: {' | '.join(PLANNING_ORDER)}.")] = DEFAULT_PLANNING_BACKEND,
     model: ModelOpt = None,
+    robot: RobotOpt = None,
     focus: Annotated[Path | None, typer.Option(
         "--focus", metavar="TARGETS.csv", show_default=False,
         help="Grow towards these regions too, in turn with the scene's target (header x,y,z,tolerance_mm; "
@@ -57,7 +58,9 @@ def build_command(
 
     States and edges are checked as `ctrplan plan` checks them (the PINN with its calibrated margin,
     stable states only); the build is saved every minute and at the end, with the fingerprints of
-    scene, robot and model.
+    scene, robot and model. --robot replaces the scene's robot (as `plan --robot`; queries then need
+    the same --robot). The build ends by saying how close the roadmap came to the target and to each
+    --focus region: a region it never reached is named with the distance of its nearest tip.
     """
     from ctrplan.base.dataio import check_output_dir, output_dir
     from ctrplan.base.machine import limit_threads
@@ -75,11 +78,14 @@ def build_command(
     except InputError as exc:
         raise as_option(exc, flags) from None
     check_output_dir(out)
-    sc = load_scene(scene)
+    from ctrplan.model.robot import BUILTIN_ROBOTS, Robot
+
+    sc = load_scene(scene, robot=None if robot is None else Robot.load(robot))
     be = load_backend(backend, sc.robot, model)
     if read_meta(out) is not None:  # refuse a foreign roadmap before any work
         load_roadmap(out, fingerprints(sc, be))
-    source = Source(str(scene.resolve()), backend, model)
+    robot_file = robot if robot is None or robot in BUILTIN_ROBOTS else str(Path(robot).resolve())
+    source = Source(str(scene.resolve()), backend, model, robot_file)
     executor = f"ray {ray}" if ray else f"{workers} local worker(s)"
     with _BuildProgress(limit_s) as status:
         status("compiling kernels (first run only)")
@@ -112,6 +118,11 @@ def build_command(
                f"{len(rm.edges):,} edges; this run added {added:,} nodes in {run['seconds']:.0f} s "
                f"({added / minutes:,.0f} per minute, {executor}); total build time "
                f"{rm.meta['build_s']:.0f} s; {_reach_text(rm.meta['reach'])}")
+    for name, r in rm.meta["reach"].items():
+        if not r["inside"]:
+            typer.echo(f"ctrplan: warning: the roadmap never reached {name} (nearest tip "
+                       f"{r['closest_mm']:.1f} mm away): queries there will fail; build longer, or grow "
+                       f"towards it with --focus", err=True)
 
 
 def _reach_text(reach: dict) -> str:

@@ -12,7 +12,7 @@ import typer
 from rich.console import Console
 
 from ctrplan.cli.app import HELP_SETTINGS, app
-from ctrplan.cli.options import RobotOpt
+from ctrplan.cli.options import ModelOpt, RobotOpt, json_option, max_states_option, seed_option
 
 SCENE_HELP = "Make and check planning scenes."
 scene_app = typer.Typer(help=SCENE_HELP, short_help=SCENE_HELP, no_args_is_help=True,
@@ -118,15 +118,123 @@ def write_fixed(scene_file: Path, out: Path, start, robot: str | None) -> None:
     """``scene_file`` with ``start`` (and ``robot``, if given) as OUT.yaml, paths relative to it."""
     from ctrplan.base.dataio import atomic_write, check_output_dir
     from ctrplan.base.yamlio import dump_yaml, load_yaml
-    from ctrplan.model.robot import BUILTIN_ROBOTS
     from ctrplan.scene.loader import relocated
 
     check_output_dir(out.parent, "--fix")
     data = relocated(load_yaml(scene_file), out)
     data["start"] = [round(float(v), 6) for v in start]
     if robot is not None:
-        data["robot"] = robot if robot in BUILTIN_ROBOTS else \
-            os.path.relpath(Path(robot).resolve(), out.parent.resolve())
+        data["robot"] = _robot_ref(robot, out)
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(out) as fh:
         fh.write(f"# {scene_file} with the start found by `ctrplan scene check --fix`.\n" + dump_yaml(data))
+
+
+@scene_app.command("place")
+def place(
+    scene_file: Annotated[Path, typer.Argument(metavar="SCENE.yaml",
+                                               help="The scene whose robot is placed.")],
+    entry: Annotated[str, typer.Option(
+        "--entry", metavar="X,Y,Z",
+        help="The point the robot enters through (e.g. the nostril), scene frame, mm.")],
+    robot: RobotOpt = None,
+    out: Annotated[Path | None, typer.Option(
+        "--out", metavar="NEW.yaml", show_default=False,
+        help="Write the placed scene here instead of changing SCENE.yaml.")] = None,
+    backend: Annotated[str, typer.Option(
+        "--backend", metavar="NAME", help="Backend of the verification plans.")] = "cosserat",
+    model: ModelOpt = None,
+    max_states: max_states_option("Work budget of each verification plan (default: 4 s of the backend's "
+                                  "reference rate).") = None,
+    seed: seed_option("Seed of the sampled configurations and the verification plans.") = 0,
+    as_json: json_option("Print the placement (the chosen pose and start, every verified candidate) "
+                         "as JSON.") = False,
+) -> None:
+    """Find a base pose and a start that enter through --entry and reach the target.
+
+    Configurations of the robot are placed with the tip at the target and the backbone through the
+    entry (within 2 mm; base outside, within 35 degrees of the line entry -> target), screened for
+    collisions with the scene's margins, refined around the best; each free goal pulled back along its
+    insertion gives starts through the entry (the most retracted free one, and the one from which the
+    pull-back stays free); the best are planned (exact model by default) until a path is confirmed.
+    The chosen base pose and start (and --robot) are written into SCENE.yaml (or --out), the rest of
+    the file (comments, other keys) kept; nothing is written when no placement is found, and the reason
+    is one line (exit 2).
+    """
+    import json
+
+    from ctrplan.base.dataio import atomic_write, check_output_dir
+    from ctrplan.base.errors import InputError
+    from ctrplan.cli.options import check_max_states, load_backend
+    from ctrplan.model.robot import Robot
+    from ctrplan.planning.placement import place_robot
+    from ctrplan.scene.loader import load_scene
+
+    point = _point(entry, "--entry")
+    target = out or scene_file
+    check_output_dir(target.parent, "--out")
+    scene = load_scene(scene_file, check_start=False, robot=Robot.load(robot) if robot is not None else None)
+    be = load_backend(backend, scene.robot, model)
+    console = Console(stderr=True, soft_wrap=True, highlight=False)
+    with console.status("placing the robot", spinner="dots") if console.is_terminal else nullcontext() as s:
+        report = place_robot(scene, point, be, seed=seed, max_states=check_max_states(max_states),
+                             progress=(lambda text: s.update(text)) if s is not None else lambda _t: None)
+    if as_json:
+        typer.echo(json.dumps(report.to_json(), indent=2))
+    c = report.chosen
+    if c is None:
+        raise InputError(f"{scene_file}: no placement through the entry {point.tolist()}: {report.reason}")
+    text, kept = placed_scene_text(scene_file, target, c.base_pose, c.start, robot)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(target) as fh:
+        fh.write(text)
+    counts = report.counts
+    console.print(f"placed in {report.time_s:.1f} s: {counts['free_goals']:,} collision-free goals "
+                  f"through the entry of {counts['placements']:,} placements, {len(report.verified)} planned")
+    console.print(f"base at {np.round(c.base_pose[:3, 3], 2).tolist()} mm, {c.base_distance_mm:.1f} mm "
+                  f"from the entry, insertion axis {c.tilt_deg:.1f} deg from the line entry -> target")
+    console.print(f"start {np.round(c.start, 4).tolist()}: tip {c.depth_mm:.1f} mm past the entry; "
+                  f"verified plan ({report.backend}, {c.plan.states:,} states): path clearance "
+                  f"{c.path_clearance_mm:.2f} mm")
+    console.print(f"wrote {target}" + ("" if kept else " (its comments were not kept: the file is not in "
+                                                        "block style)"))
+
+
+def _point(text: str, option: str) -> np.ndarray:
+    """``X,Y,Z`` (mm) as a point (3,); `InputError` naming ``option`` otherwise."""
+    from ctrplan.base.errors import InputError
+
+    try:
+        p = np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        p = np.array([])
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise InputError(f"{option}: three numbers X,Y,Z (mm, scene frame), got {text!r}")
+    return p
+
+
+def placed_scene_text(scene_file: Path, out: Path, base_pose: np.ndarray, start,
+                      robot: str | None) -> tuple[str, bool]:
+    """The text of ``scene_file`` with ``base_pose`` (4x4), ``start`` and ``robot`` (if given) as a file at
+    ``out`` says them (paths relative to it), comments kept where the file allows (`with_keys`)."""
+    from ctrplan.base.yamlio import load_yaml
+    from ctrplan.scene.edit import with_keys
+    from ctrplan.scene.loader import relocated
+
+    doc = load_yaml(scene_file)
+    changes = {"base_pose": {"position": [round(float(v), 4) for v in base_pose[:3, 3]],
+                             "rotation": {"matrix": np.round(base_pose[:3, :3], 9).tolist()}},
+               "start": [round(float(v), 6) for v in start]}
+    if out.parent.resolve() != scene_file.parent.resolve():
+        moved = relocated(doc, out)
+        changes |= {k: moved[k] for k in ("robot", "obstacles") if k in moved and moved[k] != doc.data.get(k)}
+    if robot is not None:
+        changes["robot"] = _robot_ref(robot, out)
+    return with_keys(scene_file.read_text(), changes)
+
+
+def _robot_ref(robot: str, out: Path) -> str:
+    """``--robot`` as a scene at ``out`` names it: a built-in name, or the file relative to ``out``."""
+    from ctrplan.model.robot import BUILTIN_ROBOTS
+
+    return robot if robot in BUILTIN_ROBOTS else os.path.relpath(Path(robot).resolve(), out.parent.resolve())

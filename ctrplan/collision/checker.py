@@ -190,6 +190,20 @@ class RobotCollisionChecker:
         self._place(positions, radius, self.margin_mm)
         return self.chain.contacts(self.world)
 
+    def blockers(self, positions: np.ndarray, radius: np.ndarray) -> dict[str, float]:
+        """The obstacles one backbone (positions (N, 3) robot frame, tube radii (N,) mm) touches with
+        the margins (the robot's and each obstacle's own), each with the distance (mm) from the robot's
+        surface to it without margins (0 on contact): how much margin it would take to free it."""
+        self._place(positions, radius, self.margin_mm)
+        names = sorted({name for _, name in self.chain.contacts(self.world)})
+        if not names:
+            return {}
+        self._place(positions, radius, 0.0)
+        owner = np.asarray(self.world.owner)
+        index = {o.name: i for i, o in enumerate(self.world.obstacles)}
+        return {n: float(self.chain.distance(self.world, np.flatnonzero(owner == index[n])).distance_mm)
+                for n in names}
+
     def clearances(self, positions: np.ndarray, radius: np.ndarray, cap_mm: float) -> np.ndarray:
         """Distance (mm) from the surface of each capsule (N-1,) (no margin) to the nearest
         obstacle, 0 on contact, capped at ``cap_mm``; NaN where the backbone is not finite."""

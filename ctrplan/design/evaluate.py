@@ -206,7 +206,8 @@ def _reach(task: DesignTask, scene: Scene, checker, seed: int, timings: dict[str
         t = time.perf_counter()
         result = plan(_target_scene(scene, target), exact, world=checker.world,
                       time_limit_s=task.plan_time_s, max_states=task.plan_states, seed=plan_seed,
-                      goal_hints=np.stack(sampler.goals), wall_limit=False)  # work decides a trial
+                      goal_hints=np.stack(sampler.goals), wall_limit=False,  # work decides a trial
+                      explain=False)  # a failed target is a trial's outcome, not a question
         plan_s += time.perf_counter() - t
         solved = bool(result.solved)
         out.append(TargetRecord(

@@ -165,13 +165,20 @@ class CorridorRRTConnect(ob.Planner):
         segment, t = split_segments(pieces)
         if not len(segment):
             return np.ones(len(y1), dtype=bool)
-        valid, _ = self.checker.validate(self.space.to_joints(y1[segment] + t[:, None] * step[segment]))
-        return np.bincount(segment[~valid], minlength=len(y1)) == 0
+        q = self.space.to_joints(y1[segment] + t[:, None] * step[segment])
+        valid, _ = self.checker.validate(q)
+        if not valid.all():  # the first invalid interior state of each failed edge
+            failed, first = np.unique(segment[~valid], return_index=True)
+            self.checker.note_blocked(q[~valid][first])
+            return np.bincount(failed, minlength=len(y1)) == 0
+        return np.ones(len(y1), dtype=bool)
 
     def _edges_valid(self, y1: np.ndarray, y2: np.ndarray) -> np.ndarray:
         """Validity of edges y1[k] -> y2[k] (y1 valid): end states first, then the interiors of the
         edges whose ends are valid."""
         ok = self._valid(y2)
+        if not ok.all():
+            self.checker.note_blocked(self.space.to_joints(y2[~ok]))
         if ok.any():
             ok[ok] = self._motions_valid(y1[ok], y2[ok])
         return ok

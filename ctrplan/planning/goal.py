@@ -11,6 +11,7 @@ a ``GoalSampleableRegion`` so bidirectional planners (RRTConnect) and goal-biase
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +34,8 @@ ANGLE_WEIGHT_MM_PER_RAD = 20.0
 #: goal sampling 44 -> 29 ms median a plan, 14 % fewer kinematics calls (docs/benchmarks.md).
 IK_ITERATIONS = 25
 IK_CHECK_AFTER = 8
+#: Rejected goal candidates a sampler keeps for the explanation of a failed search.
+REJECTED_KEPT = 400
 
 
 def tip_tangents(scene: Scene, bb: Backbone) -> np.ndarray:
@@ -46,6 +49,7 @@ class GoalStats:
     seeds: int = 0
     ik_reached: int = 0
     wrong_direction: int = 0
+    rejected: int = 0
     valid: int = 0
     closest_mm: float = float("inf")
 
@@ -81,6 +85,9 @@ class GoalSampler:
         self.goals: list[np.ndarray] = []
         self.stats = GoalStats()
         self._near: list[np.ndarray] = []  # IK solutions that reached the region but collide
+        #: the goal candidates rejected (IK solutions in the region, along its approach direction,
+        #: invalid), the latest `REJECTED_KEPT`: what a failed search's explanation examines
+        self.rejected: deque[np.ndarray] = deque(maxlen=REJECTED_KEPT)
         self.start = None if start is None else np.asarray(start, dtype=float)
         self.rotation_weight = float(rotation_weight)
         self.hints = np.zeros((0, checker.scene.robot.n_joints)) if hints is None else np.atleast_2d(hints)
@@ -206,6 +213,8 @@ class GoalSampler:
         new = [res.q[i] for i in inside[goal]]
         self._near.extend(res.q[i] for i in inside[~valid])  # reached the region, collide
         self._near = self._near[-200:]
+        self.rejected.extend(res.q[i] for i in inside[~valid])
+        self.stats.rejected += int((~valid).sum())
         self.stats.valid += len(new)
         self.goals.extend(new)
         return new

@@ -32,6 +32,7 @@ from ctrplan.planning.budget import (
     clock_record,
     states_for,
 )
+from ctrplan.planning.failure import explain_failure
 from ctrplan.planning.goal import ANGLE_WEIGHT_MM_PER_RAD, tip_tangents
 from ctrplan.planning.ik import backend_tip_jacobian, compile_ik, solve_ik
 from ctrplan.planning.model import PlanningModel
@@ -230,7 +231,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
          progress: Progress = no_progress,
          exact: Backend | None = None, repair: bool | None = None,
          goal_hints: np.ndarray | None = None, world: CollisionWorld | None = None,
-         clearances: bool = False, wall_limit: bool | None = None) -> PlanResult:
+         clearances: bool = False, wall_limit: bool | None = None, explain: bool = True) -> PlanResult:
     """Plan a collision-free motion from the scene's start to its target, then validate it exactly.
 
     With an approximate backend (the PINN) the capsules get extra radius while planning: its
@@ -249,6 +250,9 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     where goal sampling starts. ``world``: the scene's collision world if already built (a design
     study plans many targets in one anatomy); by default it is built here. ``clearances``: also
     measure the validated path's clearances for the outputs (`measure_clearance`; after the clock).
+    ``explain``: when the search finds no path, examine what it rejected (`explain_failure`: the
+    blocking structures with counts, collision against instability, suggestions) into the result's
+    ``failure`` and message -- within the time limit, if there is one.
 
     The clock (`ctrplan.planning.budget`): with ``wall_limit`` (default: when no work budget is given,
     neither ``max_states`` nor the scene's) ``time_limit_s`` is a time limit -- everything after
@@ -298,7 +302,14 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     searched = {"planning_time_s": outcome.time_s, "kinematics_calls": checker.counters.kinematics_calls,
                 "cut_short": outcome.budget.cut_short}
     if outcome.path_q is None:
-        return result(outcome.status, outcome.message, work, **searched)
+        if not explain or outcome.sampler is None:
+            return result(outcome.status, outcome.message, work, **searched)
+        progress("explain")
+        why = explain_failure(checker, outcome.sampler, seed=seed,
+                              deadline=None if clock is None else time.perf_counter() + clock.left())
+        told = why.summary()
+        return result(outcome.status, f"{outcome.message}. {told}" if told else outcome.message, work,
+                      failure=why, **searched)
     t_goal = time.perf_counter()
     path_q = model.space.unwrap(exact_goal(outcome.path_q, checker))
     goal = ExactGoal(len(path_q) > len(outcome.path_q), time.perf_counter() - t_goal)

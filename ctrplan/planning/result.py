@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ctrplan.kinematics.backbone import Backbone
+from ctrplan.planning.failure import FailureAnalysis
 from ctrplan.planning.goal import GoalStats
 from ctrplan.planning.validate import ValidatedPath, Validation
 from ctrplan.planning.validity import Counters
@@ -134,8 +135,10 @@ class PlanResult:
     ``path``: the waypoints (K, 2N), mm and rad (empty without one); ``dense``: the exactly validated
     path (its dense states, exact backbones, report and, when measured, clearances), None when no
     path was found; ``start``: the exact backbone of the start (what a figure shows without a path);
-    ``work``: how the plan got there (None for a result built from a stored path). Lengths in mm,
-    scene frame; times in s.
+    ``work``: how the plan got there (None for a result built from a stored path); ``failure``: why
+    the search found no path -- what blocked the goal candidates and path attempts, with
+    suggestions (`ctrplan.planning.failure`; None when it found one or was not asked). Lengths in
+    mm, scene frame; times in s.
     """
 
     solved: bool
@@ -157,6 +160,7 @@ class PlanResult:
     dense: ValidatedPath | None = None
     start: Backbone | None = None
     work: PlanWork | None = None
+    failure: FailureAnalysis | None = None
 
     @property
     def validated(self) -> Validation | None:
@@ -194,5 +198,6 @@ class PlanResult:
             "max_states": int(self.max_states),
             "cut_short": bool(self.cut_short),
             "scene": self.scene,
+            "failure": None if self.failure is None else self.failure.to_json(),
             "details": {} if self.work is None else self.work.to_json(),
         }

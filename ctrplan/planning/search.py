@@ -76,6 +76,8 @@ class SearchOutcome:
     record: SearchRecord
     message: str = ""
     goals: list[np.ndarray] = field(default_factory=list)
+    #: the goal sampler (what it rejected explains a failure: `ctrplan.planning.failure`)
+    sampler: GoalSampler | None = None
 
     @property
     def budget(self) -> BudgetUse:
@@ -311,7 +313,7 @@ def search(checker: ConfigurationChecker, *, start: np.ndarray | None = None, pl
             record = SearchRecord(copy(sampler.stats), SearchTimings(**timings),
                                   BudgetUse(**budget.to_json()))
             return SearchOutcome(path_q, status, exact, budget.elapsed(), record, message,
-                                 list(sampler.goals))
+                                 list(sampler.goals), sampler)
 
         if region_goal and not sampler.goals and sampler.stats.ik_reached == 0 and not budget.exhausted():
             return outcome(None, "INVALID_GOAL", False,

@@ -11,7 +11,7 @@ and `BatchMotionValidator` adapt it to OMPL; both are usable with any OMPL plann
 from __future__ import annotations
 
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -46,6 +46,11 @@ class Counters:
     collision_s: float = 0.0
 
 
+#: States of failed path attempts a checker keeps (the latest), for the explanation of a failed search
+#: (`ctrplan.planning.failure`).
+BLOCKED_KEPT = 400
+
+
 @dataclass
 class _Entry:
     valid: bool
@@ -68,6 +73,10 @@ class ConfigurationChecker:
     cache_size: int = 200_000
     counters: Counters = field(default_factory=Counters)
     hook: Callable[[], None] | None = None
+    #: the invalid state of each failed path attempt (an extension or edge of a planner: its end, or
+    #: its first invalid interior state), the latest `BLOCKED_KEPT`, and how many failed in all
+    blocked: deque = field(default_factory=lambda: deque(maxlen=BLOCKED_KEPT))
+    blocked_total: int = 0
 
     def __post_init__(self) -> None:
         m = self.model
@@ -79,6 +88,7 @@ class ConfigurationChecker:
         self.valid_tips: list[np.ndarray] = []
         #: arc fractions checked in turn (see `_stages`), and the backend's prepared query of each
         self.stages = self._stages()
+        self.last_invalid: np.ndarray | None = None  # the failing row of the last `validate` that stopped
         self._stage_queries = tuple(self.backend.body_query(stage) for stage in self.stages)
 
     @property
@@ -172,7 +182,8 @@ class ConfigurationChecker:
             first = body if first is None else first
             if ok.all():
                 continue
-            if stop_at_first:
+            if stop_at_first:  # the first row it left not free is the one that failed
+                self.last_invalid = qk[int(np.argmin(ok))]
                 return np.zeros(len(q), dtype=bool), first
             rows = np.flatnonzero(ok) if rows is None else rows[ok]
             if not rows.size:
@@ -182,6 +193,12 @@ class ConfigurationChecker:
             valid[:] = False
             valid[rows] = True
         return valid, first
+
+    def note_blocked(self, q: np.ndarray) -> None:
+        """Record the invalid states (K, 2N) of K failed path attempts (appending references: no
+        work on the planner's path beyond that)."""
+        self.blocked.extend(q)
+        self.blocked_total += len(q)
 
     def _validate_one(self, q1: np.ndarray) -> tuple[bool, Body]:
         """`validate` of a single configuration (1, 2N) without per-row arrays (the planner's hot
@@ -277,6 +294,7 @@ class ConfigurationChecker:
         the first batch with an invalid state), stopping at the first invalid one."""
         self.counters.motions += 1
         if not self.is_valid(q2):
+            self.note_blocked(q2[None])
             return False
         d = float(self.space.distance(q1, q2))
         n = max(1, int(np.ceil(d / resolution)))
@@ -287,6 +305,7 @@ class ConfigurationChecker:
             qs = self.space.interpolate(q1, q2, order[a:b] / n)
             g = None if guess is None else np.repeat(guess, len(qs), axis=0)
             if not self.validate(qs, guess=g, stop_at_first=True)[0].all():
+                self.note_blocked(self.last_invalid[None])
                 return False
         self.counters.valid_motions += 1
         return True

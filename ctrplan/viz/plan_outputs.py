@@ -17,12 +17,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ctrplan.base.dataio import atomic_write, format_csv, output_dir
-from ctrplan.viz.plan_plot import plot_plan
+from ctrplan.viz.plan_plot import Mark, plot_plan
 from ctrplan.viz.style import CLEARANCE_CAP_MM
 from ctrplan.viz.viewer import viewer_data, write_viewer
 
 if TYPE_CHECKING:
     from ctrplan.planning.execution import TrajectoryTable
+    from ctrplan.planning.failure import FailureAnalysis
     from ctrplan.planning.result import PlanResult
 
 
@@ -91,7 +92,8 @@ def write_plan_outputs(out: Path, sc, result: PlanResult, doc: dict,
     tmp_png = out / ".plan.png.tmp.png"
     plot_plan(sc, bbs, tmp_png, tip_path=bbs[:, -1, :],
               title=f"{sc.name}: {result.planner}/{result.backend}, "
-                    f"{'solved' if result.solved else 'not solved'}", notes=_figure_notes(result, doc))
+                    f"{'solved' if result.solved else 'not solved'}", notes=_figure_notes(result, doc),
+              marks=figure_marks(doc, result.failure))
     tmp_png.replace(out / "plan.png")
     tmp_html = out / ".plan.html.tmp.html"
     shown = None if clearance is None else np.minimum(clearance, CLEARANCE_CAP_MM)
@@ -107,6 +109,33 @@ def write_trajectory(path: Path, table: TrajectoryTable) -> None:
     header, rows = table.header, table.rows
     with atomic_write(path) as fh:
         fh.write(format_csv(header, rows, ["%.6f"] * rows.shape[1]))
+
+
+#: Structures named on plan.png: the nearest and those below their margin, at most this many.
+MARKS = 3
+
+
+def figure_marks(doc: dict, failure: FailureAnalysis | None) -> list[Mark]:
+    """The structures plan.png names where they are: along a measured path (``doc``'s
+    ``validated.structures``), the nearest one and every one below its margin, each by its clearance
+    drawn from the robot's point nearest it to the structure's; for a failed search (``failure``), the
+    structures that block the most goal candidates and path attempts, on their cuts."""
+    listed = [c for c in listed_structures(doc) if c["clearance_mm"] is not None and c.get("robot_point_mm")]
+    if listed:
+        chosen = [listed[0], *[c for c in listed[1:] if c["below_margin"]]][:MARKS]
+        return [Mark(c["name"], f"{c['name']}: {c['clearance_mm']:.2f} mm (need {c['required_mm']:g})",
+                     np.asarray(c["robot_point_mm"]), c["below_margin"], np.asarray(c["structure_point_mm"]))
+                for c in chosen]
+    if failure is None:
+        return []
+    return [Mark(b.name, f"{b.name}: blocks {_blocked_counts(b)}", None, True)
+            for b in failure.blockers[:MARKS - 1]]
+
+
+def _blocked_counts(blocker) -> str:
+    parts = [f"{n} {what}" for n, what in ((blocker.goal_candidates, "goal candidates"),
+                                           (blocker.path_attempts, "path attempts")) if n]
+    return " and ".join(parts) or "nothing examined"
 
 
 def _figure_notes(result: PlanResult, doc: dict) -> list[tuple[str, bool]]:

@@ -11,6 +11,7 @@ from ctrplan.base.errors import InputError
 from ctrplan.base.parallel import InlinePool
 from ctrplan.cli.app import main
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.model.robot import Robot
 from ctrplan.planning import BoxSpace
 from ctrplan.planning.roadmap.build import build
 from ctrplan.planning.roadmap.query import RoadmapPlanner
@@ -130,6 +131,10 @@ def test_cli_answers_every_target_row(built, tmp_path, capsys):
     first, second = doc["results"]
     assert first["solved"] and not second["solved"]
     assert first["target_mm"] == [37.2, -27.2, 181.6] and second["path"] == []
+    rm = load_roadmap(folder)  # the unreached row says how near the roadmap came: its nearest tip
+    tips = rm.tips[rm.connected]
+    gap = np.linalg.norm(tips - [0.0, 0.0, 900.0], axis=1).min() - 1.0
+    assert f"the roadmap never came within {gap:.1f} mm of the target region" in second["message"]
     assert first["validated"]["collision_free"] and first["query_time_s"] > 0
     assert 0 < first["validated"]["max_position_error_mm"] < 5  # the PINN against the exact model
     assert np.asarray(doc["base_pose"]).shape == (4, 4)
@@ -159,3 +164,31 @@ def test_roadmap_build_refuses_to_continue_a_foreign_roadmap(built, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "roadmap built for another scene" in err[0]
     assert {f.name: f.read_bytes() for f in folder.iterdir()} == before
+
+
+def test_roadmap_build_takes_a_robot_file_and_says_what_it_did_not_reach(tmp_path, capsys):
+    """`roadmap build --robot R.yaml` builds for that robot (its fingerprint in the record; a query
+    without the same --robot is refused, one with it answers) and ends by naming a focus region it
+    never reached, with its nearest tip's distance."""
+    from tests.cli.test_own_robot import own_robot
+
+    robot = own_robot(tmp_path)
+    focus = tmp_path / "focus.csv"
+    focus.write_text("x,y,z,tolerance_mm\n0,0,900,1\n")
+    out = tmp_path / "rm"
+    args = ["roadmap", "build", str(OPEN), "--out", str(out), "--robot", str(robot), "--backend", "cosserat",
+            "--time-limit", "4s", "--focus", str(focus)]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    meta = json.loads((out / "roadmap.json").read_text())
+    scene = load_scene(OPEN, robot=Robot.load(robot))
+    assert meta["fingerprints"]["robot"] == scene.robot.fingerprint != load_scene(OPEN).robot.fingerprint
+    rm = load_roadmap(out)
+    gap = np.linalg.norm(rm.tips[rm.connected] - [0.0, 0.0, 900.0], axis=1).min() - 1.0
+    assert f"never reached focus.csv row 2 (nearest tip {gap:.1f} mm away)" in err
+    assert main(["plan", str(OPEN), "--roadmap", str(out), "--backend", "cosserat"]) == 2
+    assert "roadmap built for another robot" in capsys.readouterr().err
+    code = main(["plan", str(OPEN), "--roadmap", str(out), "--backend", "cosserat", "--robot", str(robot),
+                 "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    assert code in (0, 1) and doc["nodes"] == rm.n_nodes

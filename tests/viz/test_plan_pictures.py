@@ -9,7 +9,7 @@ import re
 
 import numpy as np
 import pytest
-from matplotlib.collections import PolyCollection
+from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.colors import to_rgb
 
 from ctrplan.scene.loader import load_scene
@@ -32,11 +32,13 @@ def midline(scene) -> np.ndarray:
 
 
 def test_backbones_are_drawn_over_every_obstacle(skullbase):
+    """Over the obstacles' triangles (overview) and their cuts' fills and outlines (projections)."""
     fig = plan_figure(skullbase, midline(skullbase))
     panels = [ax for ax in fig.axes if ax.collections]
     assert len(panels) == 3  # the overview and two projections
     for ax in panels:
-        obstacles = [c.get_zorder() for c in ax.collections if isinstance(c, PolyCollection)]
+        obstacles = [c.get_zorder() for c in ax.collections
+                     if isinstance(c, PolyCollection | LineCollection)]
         backbones = [line.get_zorder() for line in ax.lines if len(line.get_xdata()) == 40]
         assert obstacles and len(backbones) == 2
         assert min(backbones) > max(obstacles)
@@ -92,3 +94,32 @@ def test_viewer_has_a_controls_hint_and_names_each_structure_with_its_clearance(
     embedded = json.loads(re.search(r'<script id="data" type="application/json">(.*?)</script>', html,
                                     re.S).group(1))
     assert {o["name"]: o["warn"] for o in embedded["obstacles"]}["nasal_septum"] is True
+
+
+def test_the_nearest_structure_and_those_below_their_margin_are_marked_with_their_clearance():
+    """plan.png names the nearest structure and every one below its margin where they are (from the
+    robot's point to the structure's); a failed search names its two worst blockers with counts."""
+    from ctrplan.planning.failure import Blocker, FailureAnalysis, Rejected
+    from ctrplan.viz.plan_outputs import figure_marks
+
+    def row(name, clearance, required, below):
+        return {"name": name, "clearance_mm": clearance, "required_mm": required, "below_margin": below,
+                "state": 3, "arc_length_mm": 10.0, "robot_point_mm": [0.0, 0.0, clearance],
+                "structure_point_mm": [0.0, 0.0, 0.0]}
+
+    doc = {"validated": {"structures": [row("septum", 0.43, 0.2, False), row("carotid", 1.5, 2.2, True),
+                                        row("chiasm", 0.9, 1.7, True), row("floor", 6.0, 0.2, False),
+                                        row("face", None, 0.2, False)]}}
+    marks = figure_marks(doc, None)
+    assert [m.structure for m in marks] == ["septum", "chiasm", "carotid"]
+    assert marks[0].text == "septum: 0.43 mm (need 0.2)" and not marks[0].warn
+    assert marks[1].warn and marks[2].warn
+    for m in marks:  # the line drawn is the clearance
+        shown = float(m.text.split(": ")[1].split()[0])
+        assert np.linalg.norm(m.point - m.structure_point) == pytest.approx(shown)
+    failure = FailureAnalysis(Rejected(20, 20, collision=20), Rejected(4, 4, collision=4),
+                              (Blocker("sella", 12, 3), Blocker("face", 5, 0), Blocker("septum", 1, 0)))
+    marks = figure_marks({"validated": None}, failure)
+    assert [(m.structure, m.text, m.point, m.warn) for m in marks] == [
+        ("sella", "sella: blocks 12 goal candidates and 3 path attempts", None, True),
+        ("face", "face: blocks 5 goal candidates", None, True)]

@@ -1,6 +1,6 @@
 """What plan.png and plan.html show a surgeon: the target in its own colour, anatomy told apart,
 orientation named, the result as labelled lines, the clearance along the backbone, projections that
-draw only what lies near the path in the hidden axis; every obstacle named in the figure's legend, and
+draw the anatomy cut along the path in the hidden axis; every obstacle named in the figure's legend, and
 a scale bar in the viewer."""
 
 from __future__ import annotations
@@ -14,8 +14,7 @@ from matplotlib.colors import to_hex
 from ctrplan.base.errors import InputError
 from ctrplan.scene.loader import load_scene
 from ctrplan.viz import viewer_data, write_viewer
-from ctrplan.viz.framing import section
-from ctrplan.viz.plan_plot import plan_figure
+from ctrplan.viz.plan_plot import _outline, plan_figure
 from ctrplan.viz.style import TARGET_COLOR, obstacle_colors, scene_colors
 from tests.paths import REPO, SCENES
 
@@ -59,25 +58,15 @@ def test_viewer_marks_target_tip_orientation_clearance_and_result(skullbase, tmp
         assert drawn in html
 
 
-def test_section_keeps_only_triangles_near_the_path_in_the_hidden_axis():
-    """A path along z at x = 0: a triangle 3 mm beside it (x) is kept with a 4 mm section, one
-    10 mm beside it is not, whatever its height (y, the other projected axis)."""
-    path = np.stack([np.column_stack([np.zeros(20), np.zeros(20), np.linspace(0, 50, 20)])])
-    tri = np.array([[[3.0, 20.0, 20.0], [3.5, 25.0, 22.0], [3.2, 20.0, 24.0]],
-                    [[10.0, 0.0, 20.0], [10.5, 1.0, 22.0], [10.2, 0.0, 24.0]],
-                    [[-2.0, 0.0, 80.0], [-2.0, 1.0, 82.0], [-2.0, 0.0, 84.0]]])  # beyond the path's end
-    assert section(tri, path, along=2, away=0, half_width=4.0).tolist() == [True, False, False]
-
-
 def test_projections_do_not_draw_the_carotids_over_a_midline_path(skullbase):
-    """The carotids lie 7-11 mm lateral of the sella: the sagittal projection (hiding x) leaves them
-    out, the axial one (hiding y) shows them beside the path."""
+    """The carotids lie 7-11 mm lateral of the sella: the sagittal section (cut at the path's x) leaves
+    them out, the axial one (cut at the path's height) shows them beside the path."""
     fig = plan_figure(skullbase, midline_path(skullbase))
     colours = scene_colors(skullbase.obstacles)
-    carotids = {c for n, c in colours.items() if "carotid" in n}
+    carotids = {to_hex(_outline(c)) for n, c in colours.items() if "carotid" in n}
     views = {ax.get_title().split(" ")[0]: ax for ax in fig.axes if ax.name != "3d" and ax.get_title()}
-    drawn = {v: {to_hex(c.get_facecolor()[0], keep_alpha=False) for c in ax.collections
-                 if len(c.get_paths())} for v, ax in views.items()}
+    drawn = {v: {to_hex(c.get_edgecolor()[0], keep_alpha=False) for c in ax.collections
+                 if len(c.get_paths()) and len(c.get_edgecolor())} for v, ax in views.items()}
     assert not carotids & drawn["sagittal"]
     assert carotids <= drawn["axial"]
     assert views["sagittal"].get_xlabel() == "z (mm): anterior to posterior"
@@ -129,3 +118,14 @@ def test_viewer_has_a_scale_bar(tmp_path):
     bbs[..., 2] = np.linspace(0, 100, 5)
     html = write_viewer(tmp_path / "v.html", viewer_data(scene, bbs, np.full((2, 5), 0.75))).read_text()
     assert "function scaleBar()" in html and "scaleBar();" in html and '" mm (at the view centre)"' in html
+
+
+def test_a_failed_plan_shows_the_anatomy_between_its_start_and_the_target(skullbase):
+    """A start that ends in the nasal cavity, 50 mm short of the target (a failed plan draws only it):
+    the sections follow it, then the line to the target, so the walls on the way are cut in both
+    projections; a cut that lies wholly outside the overview's box is left out, not an error."""
+    start = np.array([-4.0, 8.0, -99.0]) + np.linspace(0.0, 1.0, 40)[:, None] * np.array([0.0, 17.0, 129.0])
+    fig = plan_figure(skullbase, start[None])
+    views = [ax for ax in fig.axes if ax.name != "3d" and ax.get_title()]
+    for ax in views:
+        assert sum(len(c.get_paths()) for c in ax.collections) > 5  # the walls, not just the robot

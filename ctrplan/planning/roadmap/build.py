@@ -71,18 +71,21 @@ class Pool(Protocol):
 
 @dataclass(frozen=True)
 class Source:
-    """How a worker builds its planning context: scene file, backend name, PINN model (or None).
+    """How a worker builds its planning context: scene file, backend name, PINN model (or None), and
+    the robot file or built-in name that replaces the scene's (``--robot``; None: the scene's).
     Called, it builds the context (`ctrplan.base.parallel.open_pool`'s ``context``: once per worker)."""
 
     scene_file: str
     backend: str
     model: str | None = None
+    robot: str | None = None
 
     def __call__(self) -> PlanningContext:
         from ctrplan.kinematics import make_backend
+        from ctrplan.model.robot import Robot
         from ctrplan.scene.loader import load_scene
 
-        scene = load_scene(self.scene_file)
+        scene = load_scene(self.scene_file, robot=None if self.robot is None else Robot.load(self.robot))
         return planning_context(scene, make_backend(self.backend, scene.robot, self.model))
 
 

@@ -185,6 +185,19 @@ class RoadmapPlanner:
             steps.count("lazy_blocked")  # the tree changed: its new path to the node is tried
         return False
 
+    def unconnected(self, target: TargetRegion) -> str:
+        """Why no roadmap state connects to ``target``: the roadmap never came near it (how near its
+        nearest tip came to the region), or none of the connections from its tips there is valid."""
+        nodes = self.nodes[np.atleast_1d(self.tree.query(target.center, k=min(NEAREST, len(self.nodes)))[1])]
+        gap = np.nan_to_num(target.distance(self.roadmap.tips[nodes]), nan=np.inf)
+        closest = float(gap.min(initial=np.inf))
+        if closest > 0:
+            return (f"no roadmap state connects to the target: the roadmap never came within "
+                    f"{closest:.1f} mm of the target region (its nearest tip); grow it there with "
+                    f"`ctrplan roadmap build --focus` or plan without --roadmap")
+        return (f"no roadmap state connects to the target: {int((gap <= 0).sum())} roadmap tips lie in the "
+                f"region but no connection into it is valid")
+
     def answer(self, target: TargetRegion) -> QueryResult:
         """Query, validate exactly, repair locally (see the module docstring)."""
         res = QueryResult(target)
@@ -198,9 +211,7 @@ class RoadmapPlanner:
             with _one_thread(), steps.cpu():
                 path, used = self.connect(target, scene, found, skip, steps)
             if path is None:
-                nearest = float(self.tree.query(target.center)[0])
-                res.message = (f"no roadmap state connects to the target (the nearest roadmap tip is "
-                               f"{nearest:.1f} mm from its centre)" if res.attempts == 0 else
+                res.message = (self.unconnected(target) if res.attempts == 0 else
                                f"not solved: {res.attempts} roadmap paths failed exact validation")
                 if steps.get("lazy_blocked", 0) >= LAZY_TREES:
                     res.message = (f"not solved: {steps['lazy_blocked']} roadmap paths to the target "
