@@ -4,7 +4,10 @@ along the path, the tissue controls and the buttons that write ``plan --out``'s 
 
 Planning runs in one thread of its own (`Page.request`): while the target is dragged, the newest
 target is planned as soon as the previous plan is drawn (the latest request wins, none queue up);
-a plan from the JSON API is drawn too. Answers are drawn in the order they were planned.
+a plan from the JSON API is drawn too. Answers are drawn in the order they were planned. A roadmap
+path is drawn the moment the query finds it (a `Sketch`: the planning model's backbones), then again
+from the exact model's states with the verdict -- unless a newer target is already waiting, when it
+is not validated at all. The anatomy is drawn from display meshes (`ctrplan.viz.display_mesh`).
 """
 
 from __future__ import annotations
