@@ -4,8 +4,10 @@ Serves SCENE (with its roadmap) in this process, opens the page in headless Chro
 ``chromium``, driven by Playwright), and drags the target's gizmo N times, alternately up and down
 along one axis. The page records when the pointer was released (a ``pointerup`` listener) and when
 the result panel first showed the plan of the target's final place, then the next animation frame
-(the path and the panel are sent together, so that frame draws the new path). Prints and writes the
-latencies (ms) and a screenshot of the page after the last drag.
+(the path and the panel are sent together, so that frame draws the new path): the roadmap's path is
+drawn before its exact validation, so the time to the frame after the panel showed the validation's
+verdict is recorded too. Prints and writes the latencies (ms), the process's CPU time and the load
+average, and a screenshot of the page after the last drag.
 
     python scripts/bench_page_latency.py --roadmap DIR [--scene scenes/skullbase.yaml] [--drags 12]
         [--out DIR]
@@ -25,17 +27,21 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 FLAGS = ["--no-sandbox", "--enable-unsafe-swiftshader", "--use-angle=swiftshader"]
-#: Records in the page: pointer releases, and every change of the panel's plan line with the frame after.
+#: Records in the page: pointer releases, and every change of the panel's plan line (and of whether it
+#: shows the exact validation's verdict yet) with the frame after.
 RECORDER = """() => {
   window.ups = []; window.shown = [];
   document.addEventListener('pointerup', () => window.ups.push(performance.now()), true);
   let last = '';
   new MutationObserver(() => {
-    const m = document.body.innerText.match(/plan #(\\d+) \\([^)]*\\) · target \\(([^)]*)\\)/);
-    if (!m || m[0] === last) return;
-    last = m[0];
+    const text = document.body.innerText;
+    const m = text.match(/plan #(\\d+) \\([^)]*\\) · target \\(([^)]*)\\)/);
+    const verdict = text.includes('exact validation');
+    if (!m || m[0] + verdict === last) return;
+    last = m[0] + verdict;
     const seen = performance.now();
-    requestAnimationFrame(t => window.shown.push({plan: +m[1], target: m[2], seen: seen, frame: t}));
+    requestAnimationFrame(t => window.shown.push({plan: +m[1], target: m[2], verdict: verdict, seen: seen,
+                                                  frame: t}));
   }).observe(document.body, {subtree: true, childList: true, characterData: true});
 }"""
 
@@ -58,10 +64,12 @@ def main() -> None:
     from ctrplan.serve.render import drag_arrow
     from ctrplan.serve.session import PlanSession
 
+    load_start = list(os.getloadavg())
+    cpu0, wall0 = time.process_time(), time.perf_counter()
     sc = load_scene(args.scene)
     session = PlanSession(sc, make_backend("pinn", sc.robot), None, args.roadmap)
     args.out.mkdir(parents=True, exist_ok=True)
-    latencies, records = [], []
+    latencies, verdicts, records = [], [], []
     with serving(session, args.scene, "127.0.0.1", 0, args.out / "written") as app, sync_playwright() as p:
         browser = p.chromium.launch(executable_path=shutil.which("chromium"), args=FLAGS)
         size = tuple(int(v) for v in args.size.split("x"))
@@ -75,30 +83,46 @@ def main() -> None:
             axis = np.array([0.0, 1.0, 0.0])
             before = np.asarray(app.page.gizmo.position)
             drag_arrow(page, cam, size, before, GIZMO_MM * axis, 0.85, 1.0 if k % 2 == 0 else 0.7)
-            time.sleep(0.3)  # the drag's last update reaches the server
+            # the drag's last update reaches the server (a wait of Playwright's: time.sleep starves its
+            # dispatcher, and the browser's drag events arrived up to 1.5 s late)
+            page.wait_for_timeout(300)
             final = np.asarray(app.page.gizmo.position)
             if np.allclose(final, before):
                 raise SystemExit(f"drag {k + 1} did not move the target (the gizmo hidden in this viewport?)")
             want = ", ".join(f"{v:.1f}" for v in final)
-            page.wait_for_function(f"() => window.shown.some(s => s.target === '{want}' "
-                                   f"&& s.frame >= window.ups[window.ups.length - 1])", timeout=120_000)
+            page.wait_for_function(f"() => {{ const v = window.shown.filter(s => s.verdict); "
+                                   f"return v.length && v[v.length - 1].target === '{want}'; }}",
+                                   timeout=120_000)
             page.wait_for_timeout(300)
             ups, shown = page.evaluate("() => [window.ups, window.shown]")
-            first = next(s for s in shown if s["target"] == want and s["frame"] >= ups[-1])
+            first, judged = _settled(shown, want), _settled([s for s in shown if s["verdict"]], want)
             latencies.append(max(0.0, first["frame"] - ups[-1]))
+            verdicts.append(max(0.0, judged["frame"] - ups[-1]))
             records.append({"target_mm": final.round(3).tolist(), "latency_ms": round(latencies[-1], 1),
-                            "panel_ms": round(max(0.0, first["seen"] - ups[-1]), 1), "plan": first["plan"]})
+                            "panel_ms": round(max(0.0, first["seen"] - ups[-1]), 1), "plan": first["plan"],
+                            "verdict_ms": round(verdicts[-1], 1)})
             print(f"drag {k + 1}: target {want} drawn {latencies[-1]:.0f} ms after the release (panel "
-                  f"{records[-1]['panel_ms']:.0f} ms)", flush=True)
+                  f"{records[-1]['panel_ms']:.0f} ms), its exact verdict {verdicts[-1]:.0f} ms", flush=True)
         page.screenshot(path=str(args.out / "page.png"))
         browser.close()
-    v = np.array(latencies)
+    v, j = np.array(latencies), np.array(verdicts)
     summary = {"drags": len(v), "median_ms": round(float(np.median(v)), 1),
                "p95_ms": round(float(np.percentile(v, 95)), 1), "max_ms": round(float(v.max()), 1),
-               "load_average": list(os.getloadavg()), "viewport": args.size, "roadmap": str(args.roadmap),
+               "verdict_median_ms": round(float(np.median(j)), 1),
+               "verdict_p95_ms": round(float(np.percentile(j, 95)), 1),
+               "cpu_s": round(time.process_time() - cpu0, 2), "wall_s": round(time.perf_counter() - wall0, 1),
+               "load_average_start": load_start, "load_average_end": list(os.getloadavg()),
+               "viewport": args.size, "roadmap": str(args.roadmap),
                "scene": str(args.scene)}
     (args.out / "latency.json").write_text(json.dumps({"summary": summary, "drags": records}, indent=1))
     print(json.dumps(summary))
+
+
+def _settled(shown: list[dict], want: str) -> dict:
+    """The first of the panel's records that showed the target's final place ``want`` after the
+    last record of another place (drawn before the release: the latency is 0)."""
+    other = max((i for i, s in enumerate(shown) if s["target"] != want), default=-1)
+    return next(s for s in shown[other + 1:] if s["target"] == want)
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ final paths.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -221,13 +222,14 @@ class RobotCollisionChecker:
         self._place(positions, radius, 0.0)
         return self.chain.distance(self.world)
 
-    def structure_clearances(self, positions: np.ndarray, radius: np.ndarray,
-                             s_mm: np.ndarray) -> list[StructureClearance]:
+    def structure_clearances(self, positions: np.ndarray, radius: np.ndarray, s_mm: np.ndarray,
+                             stop: Callable[[], bool] | None = None) -> list[StructureClearance] | None:
         """For every obstacle of the world, its `StructureClearance` over the backbones (K, N, 3)
         (robot frame, mm) with tube radii (K, N) and arc lengths (K, N) (mm): the exact smallest
         distance (no margins; states whose backbone is not finite are skipped). States are searched
         by increasing bounding-box gap to the structure and the search stops when the gap reaches the
-        best distance found, so the few states near a structure are the ones measured."""
+        best distance found, so the few states near a structure are the ones measured. ``stop``,
+        asked before each obstacle: when it says so, None (the measurement abandoned)."""
         pts = transform_points(self.base_pose, positions)
         radii = segment_radii(radius)
         r = radii[..., None]
@@ -236,6 +238,8 @@ class RobotCollisionChecker:
         owner = np.asarray(self.world.owner)
         out = []
         for index, obstacle in enumerate(self.world.obstacles):
+            if stop is not None and stop():
+                return None
             ids = np.flatnonzero(owner == index)
             gap = np.maximum(0.0, np.maximum(self.world.box_lo[ids] - seg_hi[:, :, None],
                                              seg_lo[:, :, None] - self.world.box_hi[ids]))

@@ -201,18 +201,27 @@ def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolutio
     return measure_clearance(model, validated) if measure else validated
 
 
-def measure_clearance(model: PlanningModel, validated: ValidatedPath) -> ValidatedPath:
+def measure_clearance(model: PlanningModel, validated: ValidatedPath,
+                      stop: Callable[[], bool] | None = None) -> ValidatedPath | None:
     """``validated`` with its clearances measured (`PathClearance` of the outputs): every capsule of
     every exact backbone against the nearest obstacle (``clearance_mm``, capped at `CLEARANCE_CAP_MM`),
     and every named structure's nearest approach along the path with where it happens
     (``report.structures``, against the scene's margin plus the structure's own). FCL distances, 1-2
-    ms each: what a plan's outputs show, measured once, by the model's collision checker."""
+    ms each: what a plan's outputs show, measured once, by the model's collision checker. ``stop``
+    (asked before each state and each structure; `ctrplan serve` when a newer target came): when it
+    says so, the measurement is abandoned and None returned."""
     checker = model.collision_checker()
     ebb = validated.exact
-    along = np.array([checker.clearances(p, r, CLEARANCE_CAP_MM)
-                      for p, r in zip(ebb.positions_mm, ebb.radius_mm, strict=True)])
-    structures = tuple(checker.structure_clearances(ebb.positions_mm, ebb.radius_mm, ebb.s_mm))
-    return replace(validated, report=replace(validated.report, structures=structures), clearance_mm=along)
+    along = []
+    for p, r in zip(ebb.positions_mm, ebb.radius_mm, strict=True):
+        if stop is not None and stop():
+            return None
+        along.append(checker.clearances(p, r, CLEARANCE_CAP_MM))
+    structures = checker.structure_clearances(ebb.positions_mm, ebb.radius_mm, ebb.s_mm, stop)
+    if structures is None:
+        return None
+    return replace(validated, report=replace(validated.report, structures=tuple(structures)),
+                   clearance_mm=np.array(along))
 
 
 def _initial_states(bb: Backbone) -> np.ndarray:

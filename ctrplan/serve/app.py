@@ -11,6 +11,7 @@ from pathlib import Path
 
 import viser
 
+from ctrplan.kinematics.blas import single_threaded_blas
 from ctrplan.serve import api
 from ctrplan.serve.front import FrontServer
 from ctrplan.serve.page import Page
@@ -32,30 +33,36 @@ class App:
 def serving(session: PlanSession, scene_file: Path, host: str = "127.0.0.1", port: int = 8080,
             out: Path = Path("runs/serve")) -> Iterator[App]:
     """The app of ``session`` on ``host:port`` (0: a free port) until the block ends; the scene's
-    target is planned first. `OSError` when the port cannot be had."""
-    with contextlib.redirect_stdout(io.StringIO()):  # viser prints its private address: not ours
-        server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    page = front = None
-    try:
-        page = Page(server, session, out, scene_file)
+    target is planned first. `OSError` when the port cannot be had.
 
-        def on_change(kind: str, value) -> None:
-            if kind == "plan":
-                page.show(value, move_target=True)
-            else:
-                page.show_move(value)
-                page.request(session.target.center, session.target.tolerance_mm)
+    BLAS stays on one thread while the app runs (set here, in the thread that serves): planning
+    happens in the page's and the API's threads, and OpenBLAS switched to one thread and back around
+    each small product from a thread other than the one that set it up took 400-550 ms a call where
+    it takes 10-20 ms (a roadmap answer's model-error report, docs/benchmarks.md)."""
+    with single_threaded_blas():
+        with contextlib.redirect_stdout(io.StringIO()):  # viser prints its private address: not ours
+            server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+        page = front = None
+        try:
+            page = Page(server, session, out, scene_file)
 
-        front = FrontServer(host, port, server.get_port(),
-                            lambda method, path, body: api.handle(session, method, path, body, on_change))
-        front.start()
-        page.request(session.target.center, session.target.tolerance_mm)
-        shown = "127.0.0.1" if host in ("0.0.0.0", "") else host
-        yield App(f"http://{shown}:{front.port}/", server, page, session, front)
-    finally:
-        if front is not None:
-            front.stop()
-        if page is not None:
-            page.close()
-        with contextlib.redirect_stdout(io.StringIO()):
-            server.stop()
+            def on_change(kind: str, value) -> None:
+                if kind == "plan":
+                    page.show(value, move_target=True)
+                else:
+                    page.show_move(value)
+                    page.request(session.target.center, session.target.tolerance_mm)
+
+            front = FrontServer(host, port, server.get_port(),
+                                lambda method, path, body: api.handle(session, method, path, body, on_change))
+            front.start()
+            page.request(session.target.center, session.target.tolerance_mm)
+            shown = "127.0.0.1" if host in ("0.0.0.0", "") else host
+            yield App(f"http://{shown}:{front.port}/", server, page, session, front)
+        finally:
+            if front is not None:
+                front.stop()
+            if page is not None:
+                page.close()
+            with contextlib.redirect_stdout(io.StringIO()):
+                server.stop()

@@ -4,7 +4,10 @@ along the path, the tissue controls and the buttons that write ``plan --out``'s 
 
 Planning runs in one thread of its own (`Page.request`): while the target is dragged, the newest
 target is planned as soon as the previous plan is drawn (the latest request wins, none queue up);
-a plan from the JSON API is drawn too. Answers are drawn in the order they were planned.
+a plan from the JSON API is drawn too. Answers are drawn in the order they were planned. A roadmap
+path is drawn the moment the query finds it (a `Sketch`: the planning model's backbones), then again
+from the exact model's states with the verdict -- unless a newer target is already waiting, when it
+is not validated at all. The anatomy is drawn from display meshes (`ctrplan.viz.display_mesh`).
 """
 
 from __future__ import annotations
@@ -24,8 +27,10 @@ from ctrplan.serve.render import (
     result_markdown,
     segment_colours,
     segments,
+    sketch_markdown,
 )
-from ctrplan.serve.session import Answer, PlanSession
+from ctrplan.serve.session import Answer, PlanSession, Sketch
+from ctrplan.viz.display_mesh import display_mesh
 from ctrplan.viz.style import TARGET_COLOR, scene_colors
 
 #: Width of the drawn backbone (mm) and of the tip path (mm); the gizmo's size (mm).
@@ -45,6 +50,7 @@ class Page:
     def __init__(self, server: viser.ViserServer, session: PlanSession, out: Path, scene_file: Path):
         self.server, self.session, self.out, self.scene_file = server, session, out, scene_file
         self._pending: tuple[np.ndarray, float] | None = None
+        self._asked: tuple[np.ndarray, float] | None = None  # the last request
         self._wake = threading.Condition()
         self._draw_lock = threading.Lock()
         self._drawn = 0
@@ -61,15 +67,21 @@ class Page:
         sc, srv = self.session.scene, self.server
         srv.scene.set_up_direction("+y")
         srv.gui.configure_theme(control_width="large", show_share_button=False)
+        # Light that costs little per pixel: a browser without a GPU draws every frame in software,
+        # where viser's defaults (an environment map, shadow-casting lights) took 200 ms a frame of
+        # the skull base against 70 ms without them (docs/benchmarks.md)
+        srv.scene.configure_environment_map(None)
+        srv.scene.configure_default_lights(True, cast_shadow=False)
+        srv.scene.add_light_ambient("/light", intensity=1.0)
         colours = scene_colors(sc.obstacles)
         self.meshes = {}
         for o in sc.obstacles:
-            m = o.to_trimesh()
-            big = float(np.ptp(np.asarray(m.vertices), axis=0).max()) > BACKDROP_MM
+            vertices, faces = display_mesh(o)
+            big = float(np.ptp(vertices, axis=0).max()) > BACKDROP_MM
             h = srv.scene.add_mesh_simple(
-                f"/anatomy/{o.name}", np.asarray(m.vertices, dtype=np.float32),
-                np.asarray(m.faces, dtype=np.uint32), color=hex_rgb(colours[o.name]),
-                opacity=0.08 if big else 0.45, side="double", flat_shading=True, cast_shadow=False,
+                f"/anatomy/{o.name}", vertices.astype(np.float32), faces.astype(np.uint32),
+                color=hex_rgb(colours[o.name]),
+                opacity=0.08 if big else 0.45, side="front", flat_shading=True, cast_shadow=False,
                 receive_shadow=False, visible=not big)
             h.on_click(self._clicked)
             self.meshes[o.name] = h
@@ -121,7 +133,7 @@ class Page:
         """Plan ``centre`` with ``tolerance_mm`` as soon as the planner is free (a newer request
         replaces one not started)."""
         with self._wake:
-            self._pending = (np.asarray(centre, dtype=float), float(tolerance_mm))
+            self._pending = self._asked = (np.asarray(centre, dtype=float), float(tolerance_mm))
             self._wake.notify()
 
     def close(self) -> None:
@@ -148,14 +160,23 @@ class Page:
         """Plan and draw; where the roadmap has no path, say so at once, then -- unless the target
         has moved on meanwhile -- plan from scratch (seconds) and draw that; once the target rests,
         measure the exact clearances and show them."""
-        answer = self.session.plan(centre, tol, use="roadmap", clearances=False)
+        answer = self.session.plan(centre, tol, use="roadmap", clearances=False, preview=self._sketched)
+        if answer is None:  # a newer target came before the validation: it is planned next
+            return
         self.show(answer)
         if not answer.result.solved and self.session.live is not None and self._idle():
             self.result.content += "\n\n*planning from scratch (the single-query planner) ...*"
             answer = self.session.plan(centre, tol, use="single", clearances=False)
             self.show(answer)
         if answer.result.dense is not None and self._idle(SETTLE_S):
-            self.show(self.session.measure(answer), again=True)
+            measured = self.session.measure(answer, stop=lambda: not self._idle())
+            if measured is not None:  # else a newer target came: it is planned at once
+                self.show(measured, again=True)
+
+    def _sketched(self, sketch: Sketch) -> bool:
+        """Draw a roadmap path before its validation; whether to validate it (no newer target)."""
+        self.show_sketch(sketch)
+        return self._idle()
 
     def _idle(self, wait_s: float = 0.0) -> bool:
         """No newer target waiting (after ``wait_s`` seconds, if none came meanwhile)."""
@@ -166,8 +187,11 @@ class Page:
 
     def _dragged(self) -> None:
         centre = np.asarray(self.gizmo.position, dtype=float)
+        tol = float(self.tolerance.value)
+        if self._asked is not None and np.array_equal(centre, self._asked[0]) and tol == self._asked[1]:
+            return  # the release repeats the drag's last step: planned (or being planned) already
         self.vector.value = tuple(np.round(centre, 2))  # a server-side change: no callback of ours runs
-        self.request(centre, self.tolerance.value)
+        self.request(centre, tol)
 
     def _typed(self) -> None:
         centre = np.asarray(self.vector.value, dtype=float)
@@ -233,6 +257,21 @@ class Page:
                 self.result.content = result_markdown(doc, answer.plan_result.planner, moved)
             self.server.flush()
 
+    def show_sketch(self, sketch: Sketch) -> None:
+        """Draw a path before its exact validation (unless a newer answer is drawn already): its
+        tip path and last backbone coloured by the grid's clearance bound, the panel says the verdict
+        is coming; the slider waits for it."""
+        with self._draw_lock:
+            if sketch.number <= self._drawn:
+                return
+            with self.server.atomic():
+                self.ball.radius = float(sketch.target.tolerance_mm)
+                self._draw_states(sketch.backbones_mm, sketch.capsule_clearance_mm)
+                self.slider.disabled = True
+                self.result.content = sketch_markdown(sketch.number, "roadmap", sketch.target.center,
+                                                      sketch.target.tolerance_mm)
+            self.server.flush()
+
     def _draw_path(self, answer: Answer) -> None:
         dense = answer.result.dense
         if dense is None:
@@ -240,19 +279,22 @@ class Page:
             self.slider.disabled = True
             self._draw_backbone(self.start_backbone, None)
             return
-        sc = answer.scene
-        bbs = sc.to_scene(dense.exact.positions_mm)
+        self._backbones = answer.scene.to_scene(dense.exact.positions_mm)
         self._per_capsule = answer.capsule_clearance_mm
-        per_state = self._per_capsule.min(axis=1)
-        self._backbones = bbs
-        tips = bbs[:, -1]
-        seg_clear = np.minimum(per_state[1:], per_state[:-1])
-        self.server.scene.add_line_segments("/path/tip", segments(tips),
-                                            segment_colours(clearance_rgb(seg_clear)), thickness=TIP_PATH_MM)
-        k = len(bbs) - 1
+        self._draw_states(self._backbones, self._per_capsule)
+        k = len(self._backbones) - 1
         self.slider.max, self.slider.disabled = k, False
         self.slider.value = k
-        self._draw_backbone(bbs[k], self._per_capsule[k])
+
+    def _draw_states(self, backbones: np.ndarray, per_capsule: np.ndarray) -> None:
+        """The tip path of backbones (K, P, 3) (scene frame, mm) coloured by the clearance of each
+        step (the smaller of its states', from the per-capsule clearances (K, P-1) mm) and the last
+        backbone by its capsules'."""
+        per_state = per_capsule.min(axis=1)
+        seg_clear = np.minimum(per_state[1:], per_state[:-1])
+        self.server.scene.add_line_segments("/path/tip", segments(backbones[:, -1]),
+                                            segment_colours(clearance_rgb(seg_clear)), thickness=TIP_PATH_MM)
+        self._draw_backbone(backbones[-1], per_capsule[-1])
 
     def _show_state(self) -> None:
         if self._shown is None or self._shown.result.dense is None:

@@ -75,9 +75,7 @@ def first_camera(start_tip: np.ndarray, target: np.ndarray, up: np.ndarray) -> t
 def result_markdown(doc: dict, planner: str, moved: dict[str, np.ndarray] | None = None) -> str:
     """The result panel: plan number, verdict, times, the exact check, the path, the structures that
     moved (name -> shift from the scene file, mm) and the nearest structures."""
-    t = doc["target_mm"]
-    lines = [f"**plan #{doc['number']}** ({planner}) &middot; target ({t[0]:.1f}, {t[1]:.1f}, {t[2]:.1f}) "
-             f"mm, tolerance {doc['tolerance_mm']:g} mm", ""]
+    lines = [_head(doc["number"], planner, doc["target_mm"], doc["tolerance_mm"]), ""]
     verdict = "solved" if doc["solved"] else "no path"
     lines.append(f"**{verdict}** &middot; query {1e3 * doc['query_time_s']:.1f} ms, exact validation "
                  f"{1e3 * doc['validation_time_s']:.0f} ms")
@@ -104,6 +102,18 @@ def result_markdown(doc: dict, planner: str, moved: dict[str, np.ndarray] | None
             flag = " **below**" if c["below_margin"] else ""
             lines.append(f"| {c['name']} | {clear}{flag} | {c['required_mm']:g} mm |")
     return "\n".join(lines)
+
+
+def sketch_markdown(number: int, planner: str, target_mm, tolerance_mm: float) -> str:
+    """The result panel while a path is validated: its head line and what is drawn."""
+    return (_head(number, planner, target_mm, tolerance_mm) + "\n\n*the roadmap's path, drawn as the "
+            "planning model puts it; validating it with the exact model ...*")
+
+
+def _head(number: int, planner: str, target_mm, tolerance_mm: float) -> str:
+    t = target_mm
+    return (f"**plan #{number}** ({planner}) &middot; target ({t[0]:.1f}, {t[1]:.1f}, {t[2]:.1f}) mm, "
+            f"tolerance {tolerance_mm:g} mm")
 
 
 def legend_html(names_colours: list[tuple[str, str]], target_colour: str) -> str:

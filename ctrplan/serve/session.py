@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -25,7 +26,7 @@ from ctrplan.kinematics.blas import single_threaded_blas
 from ctrplan.planning import plan
 from ctrplan.planning.execution import DEFAULT_RATE_HZ, trajectory_table
 from ctrplan.planning.result import PlanResult
-from ctrplan.planning.roadmap._adapter import PlanningContext, planning_context, with_world
+from ctrplan.planning.roadmap._adapter import PlanningContext, densify, planning_context, with_world
 from ctrplan.planning.roadmap.query import QueryResult, RoadmapPlanner
 from ctrplan.planning.roadmap.repair import BLOCKED, SUSPECT, LiveRoadmap, Repair
 from ctrplan.planning.roadmap.store import fingerprints, load_roadmap
@@ -59,6 +60,19 @@ class Answer:
         """One entry of ``plan --roadmap --targets --json`` plus ``structures`` and ``number``."""
         return {**self.result.to_json(), "planner": self.plan_result.planner, "structures": self.structures,
                 "number": self.number}
+
+
+@dataclass(frozen=True)
+class Sketch:
+    """A roadmap path before its exact validation, as the page draws it at once: the planning
+    backend's backbones (K, P, 3) (scene frame, mm) along it, the distance grid's lower bound of each
+    capsule's clearance (K, P-1) (mm, as `Answer.capsule_clearance_mm`), the target and the number the
+    answer will have."""
+
+    target: TargetRegion
+    backbones_mm: np.ndarray
+    capsule_clearance_mm: np.ndarray
+    number: int
 
 
 class PlanSession:
@@ -108,19 +122,26 @@ class PlanSession:
         return self.live.shift_of(name) if self.live is not None else self._shifts.get(name, np.zeros(3))
 
     # ---- requests ---------------------------------------------------------------------------------
-    def plan(self, center_mm, tolerance_mm: float, use: str = "any", clearances: bool = True) -> Answer:
+    def plan(self, center_mm, tolerance_mm: float, use: str = "any", clearances: bool = True,
+             preview: Callable[[Sketch], bool] | None = None) -> Answer | None:
         """Answer the sphere of ``tolerance_mm`` around ``center_mm`` (scene frame, mm): from the
         roadmap, and where it has no path (or there is none) by the single-query planner; ``use``
         ``roadmap``: the roadmap's answer only (when there is one), ``single``: the single-query
         planner only. With ``clearances`` the exact clearance to every structure along the path
-        (`measure`) too."""
+        (`measure`) too. ``preview`` is given each roadmap path as a `Sketch` before its exact
+        validation; when it returns False the answer is abandoned there and None returned (the
+        session's target and last answer stay as they were)."""
         region = TargetRegion.sphere(np.asarray(center_mm, dtype=float), float(tolerance_mm))
         with self.lock, numba_threads_at_most(1), single_threaded_blas():
             # one core: the browser showing the page draws on the other (and on a busy machine a
             # two-thread region waits for its second thread: a validation took 54-77 ms on two,
             # 34-55 ms on one, beside other jobs)
+            self.count += 1
             scene = replace(self.scene, target=region)
-            result = None if self.planner is None or use == "single" else self.planner.answer(region)
+            shown = None if preview is None else lambda path_q: preview(self._sketch(scene, path_q))
+            result = None if self.planner is None or use == "single" else self.planner.answer(region, shown)
+            if result is not None and result.superseded:
+                return None
             if result is not None and (result.solved or use == "roadmap"):
                 planned = _as_plan_result(result, scene, self.ctx.backend.name, self.start)
             else:  # no roadmap, or it has no path (tissue moved across its routes): plan from scratch
@@ -129,7 +150,6 @@ class PlanSession:
                     planned = replace(planned, message=f"{planned.message} (single-query planner: the "
                                                        f"roadmap had no path, {result.message})")
                 result = _as_query_result(planned, region)
-            self.count += 1
             self.target = region
             dense = result.dense
             bound = None if dense is None else state_clearances(
@@ -139,13 +159,26 @@ class PlanSession:
                 self.measure(self.last)
             return self.last
 
-    def measure(self, answer: Answer) -> Answer:
+    def _sketch(self, scene: Scene, path_q: np.ndarray) -> Sketch:
+        """``path_q`` (K, 2N) at the scene's resolution as the planning backend puts it (a few ms):
+        what the page draws while the exact model validates it."""
+        dense = densify(self.ctx, path_q, scene.settings.resolution_mm)
+        bb = self.ctx.backend.forward(dense, points=scene.settings.points, check=False)
+        backbones = scene.to_scene(bb.positions_mm)
+        bound = state_clearances(self.ctx.checker.world, backbones, bb.radius_mm)[1]
+        return Sketch(scene.target, backbones, bound, self.count)
+
+    def measure(self, answer: Answer, stop: Callable[[], bool] | None = None) -> Answer | None:
         """Measure the clearances of ``answer``'s path once (`measure_clearance`: every capsule, and
         every structure's nearest approach, nearest first in ``answer.structures``; FCL distances, a
-        few hundred ms on the skull base; nothing without a path)."""
+        few hundred ms on the skull base; nothing without a path). ``stop`` (asked between states):
+        when it says so, the measurement is abandoned and None returned (``answer`` unchanged)."""
         dense = answer.plan_result.dense
         if dense is not None and dense.clearance_mm is None:
-            dense = measure_clearance(replace(self.ctx.checker.model, scene=answer.scene), dense)
+            with self.lock:
+                dense = measure_clearance(replace(self.ctx.checker.model, scene=answer.scene), dense, stop)
+            if dense is None:
+                return None
             answer.plan_result = replace(answer.plan_result, dense=dense)
             answer.structures = sorted((c.to_json() for c in dense.report.structures), key=_nearest_first)
         return answer

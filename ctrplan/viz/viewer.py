@@ -25,6 +25,7 @@ import numpy as np
 
 from ctrplan.base.dataio import atomic_write
 from ctrplan.scene.objects import Scene
+from ctrplan.viz.display_mesh import DISPLAY_FACES, display_mesh
 from ctrplan.viz.framing import corridor_bounds, corridor_direction, finite_points
 from ctrplan.viz.style import (
     CLEARANCE_CAP_MM,
@@ -43,27 +44,22 @@ def viewer_data(scene: Scene, backbones_scene: np.ndarray, radii: np.ndarray,
     clearance of each segment (K, N-1) (mm, surface to nearest obstacle, capped at
     `CLEARANCE_CAP_MM`; None: not shown), the target, the first view, the axis names, ``info``
     (label -> text, shown as labelled lines) and ``structures`` (obstacle name -> (its clearance
-    as text, whether it is below its margin): shown on hover, warnings in red)."""
+    as text, whether it is below its margin): shown on hover, warnings in red). The structures are
+    drawn from `display_mesh`: ``max_triangles`` in all, shared evenly, and at most `DISPLAY_FACES`
+    each."""
     bounds = corridor_bounds(backbones_scene, scene)
     size = float(np.ptp(bounds, axis=0).max())
     colours = scene_colors(scene.obstacles)
     obstacles = []
-    total = 0
+    budget = min(DISPLAY_FACES, max_triangles // max(len(scene.obstacles), 1))
     for o in scene.obstacles:
-        m = o.to_trimesh()
-        v = np.round(np.asarray(m.vertices, dtype=float), 2)
-        f = np.asarray(m.faces, dtype=int)
-        total += len(f)
+        vertices, faces = display_mesh(o, budget)
+        v = np.round(vertices, 2)
         backdrop = float(np.ptp(v, axis=0).max()) > 1.5 * size
         note, warn = (structures or {}).get(o.name, ("", False))
         obstacles.append({"name": o.name, "color": colours[o.name], "vertices": v.ravel().tolist(),
-                          "faces": f.ravel().tolist(), "alpha": 0.05 if backdrop else 0.35,
+                          "faces": faces.ravel().tolist(), "alpha": 0.05 if backdrop else 0.35,
                           "note": note, "warn": bool(warn)})
-    if total > max_triangles:
-        step = int(np.ceil(total / max_triangles))
-        for o in obstacles:
-            f = np.asarray(o["faces"]).reshape(-1, 3)[::step]
-            o["faces"] = f.ravel().tolist()
     bbs = np.where(np.isfinite(backbones_scene), backbones_scene, 0.0)
     t = scene.target
     clearance = None if clearance_mm is None else np.round(np.nan_to_num(clearance_mm, nan=0.0), 3).tolist()

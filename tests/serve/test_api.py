@@ -4,6 +4,8 @@ ctrplan's collision code)."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -85,3 +87,24 @@ def test_a_structure_moved_onto_the_path_is_avoided_by_the_next_plan(app):
     _, scene = call(app.url + "api/scene")
     assert np.allclose(scene["structures"][0]["shift_mm"], shift, atol=1e-3)
     assert scene["roadmap"]["blocked_nodes"] + scene["roadmap"]["blocked_edges"] > 0  # found on the way
+
+
+def test_a_sketch_comes_before_the_validation_and_a_superseded_answer_changes_nothing(app):
+    """The page's path before its validation: the planning model's backbones from the start into
+    the target; when the asker says stop, no answer, and the session's target and last answer stay;
+    a clearance measurement told to stop leaves the answer as it was."""
+    s = app.session
+    while s.count < 1:  # until the page's first plan is under way (it holds the session)
+        time.sleep(0.01)
+    first = s.plan(TARGET, 3.0, clearances=False)
+    sketches = []
+    other = [36.0, -26.0, 182.0]
+    assert s.plan(other, 3.0, clearances=False, preview=lambda sk: sketches.append(sk) or False) is None
+    assert s.last is first and np.allclose(s.target.center, TARGET) and len(sketches) == 1
+    sk = sketches[0]
+    k, points = sk.backbones_mm.shape[:2]
+    assert k >= 2 and sk.capsule_clearance_mm.shape == (k, points - 1)
+    assert np.all(sk.capsule_clearance_mm >= 0) and sk.number == first.number + 1
+    assert np.linalg.norm(sk.backbones_mm[-1, -1] - other) <= 3.0  # the planning model's tip, in the target
+    assert s.measure(first, stop=lambda: True) is None and first.structures == []
+    assert s.measure(first).structures  # measured when not stopped

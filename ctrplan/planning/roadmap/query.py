@@ -15,7 +15,7 @@ When it rejects a path, the next candidate is tried (local repair: that time cou
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
@@ -76,6 +76,8 @@ class QueryResult:
     dense: Any = None
     attempts: int = 0
     message: str = ""
+    #: the asker stopped the answer before validation (`RoadmapPlanner.answer`'s ``preview``)
+    superseded: bool = False
     #: seconds of the query's steps and counts of its work (`Steps`)
     steps: dict = field(default_factory=dict)
 
@@ -198,8 +200,12 @@ class RoadmapPlanner:
         return (f"no roadmap state connects to the target: {int((gap <= 0).sum())} roadmap tips lie in the "
                 f"region but no connection into it is valid")
 
-    def answer(self, target: TargetRegion) -> QueryResult:
-        """Query, validate exactly, repair locally (see the module docstring)."""
+    def answer(self, target: TargetRegion, preview: Callable[[np.ndarray], bool] | None = None
+               ) -> QueryResult:
+        """Query, validate exactly, repair locally (see the module docstring). ``preview`` is given
+        each path (K, 2N) before its exact validation (`ctrplan serve` draws it at once, the
+        validation's verdict follows); when it returns False the answer ends there, unvalidated and
+        unsolved (``superseded``: its asker has a newer target)."""
         res = QueryResult(target)
         steps = Steps()
         scene = replace(self.ctx.scene, target=target)
@@ -218,6 +224,9 @@ class RoadmapPlanner:
                                    "touch moved tissue")
                 break
             res.attempts += 1
+            if preview is not None and not preview(path):
+                res.superseded, res.message = True, "superseded by a newer target before validation"
+                break
             tv = time.perf_counter()
             vp = validate(self.ctx, scene, path)
             if vp.report.ok:
