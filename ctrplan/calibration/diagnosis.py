@@ -43,7 +43,7 @@ from ctrplan.calibration.options import DiagnoseOptions
 from ctrplan.calibration.selection import Candidate, Selection, Selector, configuration_groups
 from ctrplan.calibration.split import Split, contiguous_subsample
 from ctrplan.model.causes.base import make_effect
-from ctrplan.model.measurement import motion_direction
+from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot
 
 
@@ -55,7 +55,7 @@ class Diagnosis:
     rows_in_file: int
     robot: Robot                      # the base model (its calibration included)
     options: DiagnoseOptions
-    direction: np.ndarray             # direction of motion of every row (R, 2N)
+    motion: Motion                    # the rows' motion history (of the whole file)
     selection: Selection
     unsolved: np.ndarray              # rows the nominal model could not solve (excluded)
     nominal: Prediction               # all rows
@@ -68,6 +68,11 @@ class Diagnosis:
     solves: int = 0
     noise: dict = field(default_factory=dict)          # `noise.estimate_noise`
     experiment: Experiment | None = None               # configurations that separate the ties
+
+    @property
+    def direction(self) -> np.ndarray:
+        """Direction of the latest motion of every row (R, 2N)."""
+        return self.motion.direction
 
     # ---- the choice -------------------------------------------------------------------------------
     @property
@@ -424,12 +429,12 @@ def error_stats(err: np.ndarray, length: np.ndarray) -> dict:
 
 
 def diagnose(data: MeasuredData, robot: Robot | None = None, options: DiagnoseOptions | None = None, *,
-             direction: np.ndarray | None = None, progress: Callable[[str], None] | None = None) -> Diagnosis:
+             motion: Motion | None = None, progress: Callable[[str], None] | None = None) -> Diagnosis:
     """Diagnose measured tips against ``robot`` (nominal if None; its calibration is part of the base
     model); see the module docstring.
 
-    ``direction`` (R, 2N): direction of motion of every row, when ``data`` is a subset of a longer
-    acquisition (default: from the rows of ``data``, `motion_direction`). ``progress`` is called with
+    ``motion``: the rows' motion history, when ``data`` is a subset of a longer acquisition (default:
+    the rows of ``data`` are the acquisition, `MeasuredData.motion`). ``progress`` is called with
     a line saying what runs now (each fit, the experiment)."""
     t0 = time.perf_counter()
     robot = robot or Robot.nominal()
@@ -440,18 +445,19 @@ def diagnose(data: MeasuredData, robot: Robot | None = None, options: DiagnoseOp
         raise InputError(f"{data.source}: the data have {data.q.shape[1] // 2} tubes, robot {robot.name!r} "
                          f"has {robot.n_tubes}")
     rows_in_file = len(data)
-    direction_file = motion_direction(data.q) if direction is None else np.asarray(direction, dtype=float)
-    q_file, direction = data.q, direction_file
+    motion = data.motion() if motion is None else motion
+    q_file, direction_file = data.q, motion.direction
     if len(data) > opt.max_rows:
         keep = contiguous_subsample(len(data), opt.max_rows)
-        data, direction = data.subset(keep), direction[keep]
-    ev_all = Evaluator(data.q, direction)
+        data, motion = data.subset(keep), motion.subset(keep)
+    direction = motion.direction
+    ev_all = Evaluator(data.q, motion)
     nominal = ev_all.predict([robot])[0]
     unsolved = np.flatnonzero(~nominal.converged)
     solved = np.setdiff1d(np.arange(len(data)), unsolved)
     noise = estimate_noise(data.q[solved], direction[solved], (data.tips_mm - nominal.tips_mm)[solved],
                            data.tubes)
-    selector = Selector(data, robot, opt, direction, nominal, q_file, direction_file, progress)
+    selector = Selector(data, robot, opt, motion, nominal, q_file, direction_file, progress)
 
     def without(split: Split, drop: np.ndarray) -> Split:
         return replace(split, train=np.setdiff1d(split.train, np.union1d(unsolved, drop)),
@@ -467,7 +473,7 @@ def diagnose(data: MeasuredData, robot: Robot | None = None, options: DiagnoseOp
         sel = selector.select(without(main, outliers), [without(s, outliers) for s in resamples])
         extended = _extended(ev_all, sel, nominal)
         outliers = _outliers(data, extended, unsolved, opt.outlier_mads)
-    diag = Diagnosis(data=data, rows_in_file=rows_in_file, robot=robot, options=opt, direction=direction,
+    diag = Diagnosis(data=data, rows_in_file=rows_in_file, robot=robot, options=opt, motion=motion,
                      selection=sel, unsolved=unsolved, nominal=nominal, extended=extended,
                      outliers=outliers, outliers_refit=refit, noise=noise)
     from ctrplan.calibration.where import where_analysis

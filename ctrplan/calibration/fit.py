@@ -5,9 +5,13 @@ A model is one `Robot`: its mechanics solved by the Cosserat backend, its calibr
 reported joints to the mechanics and the solved tips to the tracker (`ctrplan.model.measurement`).
 
 Cost model: a Jacobian costs one batched forward call per parameter that changes the mechanics
-(curvature, stiffness, loads: the kernel takes robot parameters per call); all perturbations that
-only change the joints (joint offsets, backlash) are stacked into ONE call with the rows; tip and
-frame perturbations (sensor offset, registration) need no solve at all. Every solve is warm-started
+(curvature, stiffness, loads: the kernel takes robot parameters per call); parameters that only
+change the joints the mechanics sees (joint offsets, latency, backlash, friction, windup) act through
+d tips / d q, one batched call per joint they move (the chain rule: a friction of nine slip elements
+on three moving joints costs three calls, not nine); tip and frame perturbations (sensor offset,
+registration) need no solve at all. A trial the solver cannot solve (a joint offset that pulls a
+tube behind the plate, a NaN) is a row without a solution: it keeps its last prediction, and the
+trust region shrinks back from it. Every solve is warm-started
 from the solution of the same row at the current parameters (`Backbone.initial_state`), so Newton
 needs 1-3 steps.
 """
@@ -22,9 +26,12 @@ from scipy.optimize import least_squares
 
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.model.causes.base import CONFIDENCE_Z, Effect, Param
+from ctrplan.model.measurement import Calibration
+from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot
 
 FD_STEP = 1e-3  # finite-difference step in units of each parameter's typical scale
+JOINT_STEP = 1e-4  # finite-difference step of a joint (mm or rad) for parameters that act through the joints
 FIT_TOL = 1e-5  # relative tolerance of least squares on the cost and on the parameter step
 #: The Jacobian is reused while the parameters stay this close (typical deviations) to where it was
 #: computed: the last steps of a fit are short, the model is smooth on that scale.
@@ -51,50 +58,111 @@ class Prediction:
                           tip_rotation=self.tip_rotation[idx])
 
 
-class Evaluator:
-    """Predicts measured tips of fixed rows (reported joints in acquisition order plus their
-    direction of motion) for any number of robot models, batching the solves of each mechanics."""
+@dataclass(frozen=True)
+class View:
+    """What a prediction of one model on the rows of an `Evaluator` consists of, in parts of rows that
+    one robot predicts (one part; one per measurement session for a robot whose values differ between
+    sessions): per part its rows, the mechanics solved (joint offsets zeroed), the joints that mechanics
+    sees on those rows (offsets added) and the rest of the calibration (tip and frame sides)."""
 
-    def __init__(self, q: np.ndarray, direction: np.ndarray):
+    parts: tuple[tuple[np.ndarray, Robot, np.ndarray, Calibration], ...]
+
+    def joints(self, n_rows: int) -> np.ndarray:
+        """The joints (R, 2N) the mechanics sees on every row."""
+        out = np.empty((n_rows, self.parts[0][2].shape[1]))
+        for rows, _, qj, _ in self.parts:
+            out[rows] = qj
+        return out
+
+    def same_but_joints(self, other: View) -> bool:
+        """Whether ``other`` differs from this view in the joints only (same mechanics and calibration)."""
+        return len(self.parts) == len(other.parts) and all(
+            np.array_equal(a[0], b[0]) and a[1] == b[1] and a[3] == b[3]
+            for a, b in zip(self.parts, other.parts, strict=True))
+
+    def shifted(self, joint: int, step: float) -> View:
+        """This view with joint ``joint`` moved by ``step`` (mm or rad) on every row."""
+        parts = []
+        for rows, mech, qj, calib in self.parts:
+            moved = qj.copy()
+            moved[:, joint] += step
+            parts.append((rows, mech, moved, calib))
+        return View(tuple(parts))
+
+
+class Evaluator:
+    """Predicts measured tips of fixed rows (reported joints in acquisition order plus their motion
+    history, which names each row's measurement session) for any number of robot models, batching the
+    solves of each mechanics."""
+
+    def __init__(self, q: np.ndarray, motion: Motion):
         self.q = np.asarray(q, dtype=float)
-        self.direction = np.asarray(direction, dtype=float)
+        self.motion = motion
         self.solves = 0
         self.calls = 0
 
     def __len__(self) -> int:
         return self.q.shape[0]
 
+    def view(self, robot: Robot) -> View:
+        """The `View` of ``robot`` on these rows (a part per session for a robot with `Robot.sessions`
+        and rows that name theirs)."""
+        sessions = self.motion.sessions
+        if not robot.sessions or sessions is None:
+            groups = [(np.arange(len(self.q)), robot)]
+        else:
+            groups = [(np.flatnonzero(sessions == s), robot.for_session(str(s))) for s in np.unique(sessions)]
+        parts = []
+        for rows, r in groups:
+            mech = r.mechanics.with_changes(joint_offset=(0.0,) * r.n_joints, name="")
+            qj = r.calibration.mechanics_joints(self.q[rows], self.motion.subset(rows))
+            qj = qj + np.asarray(r.joint_offset)
+            parts.append((rows, mech, qj, r.calibration.without("joints")))
+        return View(tuple(parts))
+
     def predict(self, models: Sequence[Robot], guess: np.ndarray | None = None) -> list[Prediction]:
-        n = len(self.q)
+        return self.predict_views([self.view(robot) for robot in models], guess)
+
+    def predict_views(self, views: Sequence[View], guess: np.ndarray | None = None) -> list[Prediction]:
+        """`predict` of models given as `View`s."""
         groups: dict[Robot, list] = {}
         plan = []
-        for robot in models:
-            # models that differ only in the joints they see share one batched solve
-            mech = robot.mechanics.with_changes(joint_offset=(0.0,) * robot.n_joints, name="")
-            qj = robot.calibration.mechanics_joints(self.q, self.direction) + np.asarray(robot.joint_offset)
-            g = groups.setdefault(mech, [])
-            key = qj.tobytes()
-            j = next((i for i, (k, _) in enumerate(g) if k == key), None)
-            if j is None:  # a new set of joints for this mechanics: solve it
-                g.append((key, qj))
-                j = len(g) - 1
-            plan.append((mech, j, robot.calibration))
-        solved: dict[Robot, tuple] = {}
+        for view in views:
+            for rows, mech, qj, calib in view.parts:
+                # parts that differ only in the joints they see share one batched solve
+                g = groups.setdefault(mech, [])
+                key = rows.tobytes() + qj.tobytes()
+                j = next((i for i, (k, *_) in enumerate(g) if k == key), None)
+                if j is None:  # a new set of rows and joints for this mechanics: solve it
+                    g.append((key, rows, qj))
+                    j = len(g) - 1
+                plan.append((mech, j, calib))
+        solved: dict[Robot, list] = {}
         for mech, g in groups.items():
-            stack = np.concatenate([qj for _, qj in g], axis=0)
-            tiled = None if guess is None else np.tile(guess, (len(g), 1))
+            stack = np.concatenate([qj for *_, qj in g], axis=0)
+            tiled = None if guess is None else np.concatenate([guess[rows] for _, rows, _ in g])
             bb = CosseratBackend(mech).forward(stack, points=2, check=False, guess=tiled)
             self.solves += len(stack)
             self.calls += 1
-            rot = bb.rotations[:, -1]
-            solved[mech] = (bb.tips_mm.reshape(len(g), n, *bb.tips_mm.shape[1:]),
-                            bb.converged.reshape(len(g), n), bb.initial_state.reshape(len(g), n, -1),
-                            rot.reshape(len(g), n, 3, 3))
-        out = []
-        for mech, j, calib in plan:
-            tips, conv, init, rot = solved[mech]
-            out.append(Prediction(tips_mm=calib.tracked_tips(tips[j], rot[j]), robot_tips_mm=tips[j],
-                                  converged=conv[j], initial_state=init[j], tip_rotation=rot[j]))
+            cuts = np.cumsum([0] + [len(rows) for _, rows, _ in g])
+            solved[mech] = [(rows, bb.tips_mm[a:b], bb.converged[a:b], bb.initial_state[a:b],
+                             bb.rotations[a:b, -1]) for (_, rows, _), a, b in zip(g, cuts[:-1], cuts[1:],
+                                                                                  strict=True)]
+        out, k = [], 0
+        for view in views:
+            n, ns = len(self.q), view.parts[0][1].n_states
+            nt = view.parts[0][1].n_tubes
+            pred = Prediction(tips_mm=np.full((n, nt, 3), np.nan), robot_tips_mm=np.full((n, nt, 3), np.nan),
+                              converged=np.zeros(n, dtype=bool), initial_state=np.full((n, ns), np.nan),
+                              tip_rotation=np.full((n, 3, 3), np.nan))
+            for _ in view.parts:
+                mech, j, calib = plan[k]
+                k += 1
+                rows, tips, conv, init, rot = solved[mech][j]
+                pred.tips_mm[rows] = calib.tracked_tips(tips, rot)
+                pred.robot_tips_mm[rows], pred.converged[rows] = tips, conv
+                pred.initial_state[rows], pred.tip_rotation[rows] = init, rot
+            out.append(pred)
         return out
 
 
@@ -273,9 +341,13 @@ class _Problem:
         if hit is None:
             model = self.effect.with_values(self.base_robot, self.phys(z))
             pred = self.ev.predict([model], guess=self.guess)[0]
-            ok = pred.converged
+            t = list(self.tubes)
+            ok = pred.converged & np.isfinite(pred.tips_mm[:, t]).all(axis=(1, 2))
             self.guess[ok] = pred.initial_state[ok]
             r = residual_vector(self.measured, pred, self.tubes, self.fallback)
+            bad = ~np.isfinite(r)
+            if bad.any():   # a trial whose prediction has no number there: those rows keep the last one
+                r[bad] = (self.measured[:, t] - self.fallback[:, t]).reshape(-1)[bad]
             self.fallback[ok] = pred.tips_mm[ok]
             if len(self.cache) > 8:
                 self.cache.pop(next(iter(self.cache)))
@@ -292,17 +364,40 @@ class _Problem:
         r, pred = self.evaluate(z)
         guess = np.where(pred.converged[:, None], pred.initial_state, self.guess)
         fallback = np.where(pred.converged[:, None, None], pred.tips_mm, self.fallback)
-        models = []
+        ev = self.ev
+        base = ev.view(self.effect.with_values(self.base_robot, self.phys(z)))
+        views = []
         for j in range(len(self.idx)):
             zj = np.array(z, dtype=float)
             zj[j] += FD_STEP
-            models.append(self.effect.with_values(self.base_robot, self.phys(zj)))
-        preds = self.ev.predict(models, guess=guess)
+            views.append(ev.view(self.effect.with_values(self.base_robot, self.phys(zj))))
+        # a parameter that changes only the joints the mechanics sees (offsets, latency, backlash,
+        # friction) acts through d tips / d q: one solve per joint that moves, not one per parameter
+        by_joints = [j for j, v in enumerate(views) if base.same_but_joints(v)]
+        solved = [j for j in range(len(views)) if j not in by_joints]
         J = np.empty((r.size, len(self.idx)))
-        for j, pj in enumerate(preds):
+        for j, pj in zip(solved, ev.predict_views([views[j] for j in solved], guess=guess), strict=True):
             J[:, j] = (residual_vector(self.measured, pj, self.tubes, fallback) - r) / FD_STEP
+        if by_joints:
+            q0 = base.joints(len(ev))
+            dq = {j: views[j].joints(len(ev)) - q0 for j in by_joints}
+            moved = sorted({c for j in by_joints for c in np.flatnonzero(np.abs(dq[j]).max(axis=0) > 0)})
+            d_res = self._joint_derivatives(base, moved, r, guess, fallback)
+            for j in by_joints:
+                J[:, j] = sum((d_res[c] * dq[j][:, c, None]).reshape(-1) for c in moved) / FD_STEP \
+                    if moved else 0.0
+        J[~np.isfinite(J)] = 0.0
         self.near_jac = (np.array(z, dtype=float), J)
         return J
+
+    def _joint_derivatives(self, base: View, joints: list[int], r: np.ndarray, guess: np.ndarray,
+                           fallback: np.ndarray) -> dict[int, np.ndarray]:
+        """d residual / d q_c (R, T * 3) per row, for each joint c of ``joints``, of the model whose
+        `View` is ``base``: one batched solve per joint, a forward step of `JOINT_STEP` (mm or rad)."""
+        probes = self.ev.predict_views([base.shifted(c, JOINT_STEP) for c in joints], guess=guess)
+        rows = len(self.ev)
+        return {c: ((residual_vector(self.measured, pc, self.tubes, fallback) - r)
+                    / JOINT_STEP).reshape(rows, -1) for c, pc in zip(joints, probes, strict=True)}
 
 
 def _result(effect: Effect, base_robot: Robot, params: list[Param], x: np.ndarray, r: np.ndarray, res,

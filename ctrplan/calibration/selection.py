@@ -53,10 +53,11 @@ from ctrplan.calibration.fit import (
 )
 from ctrplan.calibration.options import DiagnoseOptions
 from ctrplan.calibration.split import Split
-from ctrplan.model.causes.base import Combined, Effect, make_effect, offset_limits
+from ctrplan.model.causes.base import EFFECTS, PER_SESSION, Combined, Effect, make_effect, offset_limits
 
 if TYPE_CHECKING:
     from ctrplan.calibration.data import MeasuredData
+    from ctrplan.model.motion import Motion
     from ctrplan.model.robot import Robot
 
 
@@ -173,15 +174,17 @@ class Selection:
 class Selector:
     """Fits, judges and chooses candidates on the rows of ``data`` for a base ``robot``.
 
-    ``q_file``/``direction_file``: all rows of the file (identifiability, joint-offset limits and
-    physical validity look at every row, also those ``max_rows`` left out)."""
+    ``motion``: the motion history of the rows of ``data``; ``q_file``/``direction_file``: all rows of
+    the file (identifiability, joint-offset limits and physical validity look at every row, also those
+    ``max_rows`` left out)."""
 
-    def __init__(self, data: MeasuredData, robot: Robot, opt: DiagnoseOptions, direction: np.ndarray,
+    def __init__(self, data: MeasuredData, robot: Robot, opt: DiagnoseOptions, motion: Motion,
                  nominal: Prediction, q_file: np.ndarray, direction_file: np.ndarray,
                  progress: Callable[[str], None] | None = None):
-        self.data, self.robot, self.opt, self.direction, self.nominal = data, robot, opt, direction, nominal
+        self.data, self.robot, self.opt, self.motion, self.nominal = data, robot, opt, motion, nominal
+        self.direction = motion.direction
         self.q_file, self.direction_file = q_file, direction_file
-        self.groups = configuration_groups(data.q, direction)
+        self.groups = configuration_groups(data.q, self.direction)
         self.solves = 0
         self.fits = 0
         self.progress = progress or (lambda text: None)
@@ -192,7 +195,7 @@ class Selector:
     def _heldout_err(self, fit: FitResult, heldout: np.ndarray) -> np.ndarray:
         """Held-out errors (h, T) of a fitted model, mm; rows it does not solve keep the nominal error."""
         nom = self.nominal.subset(heldout)
-        ev = Evaluator(self.data.q[heldout], self.direction[heldout])
+        ev = Evaluator(self.data.q[heldout], self.motion.subset(heldout))
         pred = ev.predict([fit.robot], guess=nom.initial_state)[0]
         self.solves += ev.solves
         tips = np.where(pred.converged[:, None, None], pred.tips_mm, nom.tips_mm)
@@ -207,7 +210,7 @@ class Selector:
         d = self.data
         self.progress(f"fitting {'+'.join(effect.causes)} ({self.fits} fits done)")
         self.fits += 1
-        ev = Evaluator(d.q[split.train], self.direction[split.train])
+        ev = Evaluator(d.q[split.train], self.motion.subset(split.train))
         fixed = effect.unseen(self.q_file, self.direction_file, self.robot)
         limits = effect.limits(self.q_file, self.robot)
         fit = None
@@ -246,15 +249,17 @@ class Selector:
         nom_err, nom_bic = self._nominal(split)
         cands: dict[frozenset[str], Candidate] = {}
         not_fitted: dict[str, list[str]] = {}
-        for name in opt.candidates:
-            effect = make_effect(name)
+        for name in self._names():
+            effect = make_effect(name, self.data.sessions)
             unseen = effect.unseen(self.q_file, self.direction_file, self.robot)
             if all(p.name in unseen for p in effect.params(self.robot)):
                 not_fitted[name] = sorted(set(unseen.values()))
                 continue
             key = frozenset(effect.causes)
-            fit = self._fit(effect, split, self.previous.get(key),
-                            opt.resample_nfev if key in self.previous else opt.max_nfev)
+            shared = cands.get(frozenset([name.removesuffix(PER_SESSION)]))
+            start = self.previous.get(key, None if shared is None or name == shared.name
+                                      else np.tile(shared.fit.x, len(self.data.sessions)))
+            fit = self._fit(effect, split, start, opt.resample_nfev if key in self.previous else opt.max_nfev)
             score = judge(fit, self._heldout_err(fit, split.heldout), nom_err, nom_bic, self.opt,
                           self.groups[split.heldout])
             cands[frozenset(effect.causes)] = Candidate(fit=fit, main=score, nominal=score)
@@ -275,6 +280,14 @@ class Selector:
             sel.undetermined = self._undetermined(sel)
         self.previous = {c.key: c.fit.x for c in sel.candidates}
         return sel
+
+    def _names(self) -> list[str]:
+        """The candidate causes: the options', and with data of several measurement sessions each that
+        may differ between them as ``<cause>@sessions`` (after it)."""
+        names = list(self.opt.candidates)
+        if len(self.data.sessions) < 2:
+            return names
+        return names + [n + PER_SESSION for n in names if EFFECTS[n].between_sessions]
 
     def _undetermined(self, sel: Selection) -> str | None:
         """Why the rows cannot identify a cause, or None: too few distinct held-out configurations for
@@ -299,10 +312,12 @@ class Selector:
               nom_err: np.ndarray, nom_bic: float) -> None:
         """Add causes to ``chosen`` one at a time while the best addition is significant against it."""
         opt, d = self.opt, self.data
-        ev = Evaluator(d.q[split.train], self.direction[split.train])
+        ev = Evaluator(d.q[split.train], self.motion.subset(split.train))
         while opt.pairs > 0 and len(chosen.causes) < opt.max_causes:
             mine = {p.name for p in chosen.fit.params}
-            partners = [c for c in cands.values() if len(c.causes) == 1 and c.causes[0] not in chosen.causes
+            own = {c.removesuffix(PER_SESSION) for c in chosen.causes}
+            partners = [c for c in cands.values() if len(c.causes) == 1
+                        and c.causes[0].removesuffix(PER_SESSION) not in own
                         and not mine & {p.name for p in c.fit.params}]
             if not partners:
                 break
@@ -346,7 +361,7 @@ class Selector:
             key = frozenset(rest)
             if key in cands:
                 continue
-            effect = make_effect("+".join(rest))
+            effect = make_effect("+".join(rest), self.data.sessions)
             start = self.previous.get(key, np.array([value[p.name] for p in effect.params(self.robot)]))
             fit = self._fit(effect, split, start, opt.resample_nfev if key in self.previous else opt.max_nfev)
             err = self._heldout_err(fit, split.heldout)

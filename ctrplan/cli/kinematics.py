@@ -84,8 +84,9 @@ def _run(configs: Path, backend: str, robot: str | None, model: str | None, allo
             table = read_joints(configs, robot_model, allow_outside_domain=allow_outside_domain)
         for w in caught:
             typer.echo(f"ctrplan: warning: {w.message}", err=True)
-        # the robot file's calibration (an extended robot of `ctrplan diagnose`): backlash and windup
-        # on the rows in their order, then sensor offset and registration on each solved backbone
+        # the robot file's calibration (an extended robot of `ctrplan diagnose`): latency, backlash,
+        # friction and windup on the rows in their order, then sensor offset and registration on each
+        # solved backbone
         calib = robot_model.calibration
         reached = calib.mechanics_joints(table.joints)
         chunk = max(1, CHUNK_ROWS // points)

@@ -588,6 +588,29 @@ def _physical(Y, nodes):
 
 
 @njit(cache=True)
+def solvable(q, lengths, straight, kappa, EI, GJ, force, weight, ends):
+    """Whether the kernels can integrate configuration q (2N,) at all: every number finite (joints,
+    tube parameters, loads), stiffnesses and lengths positive, tube 1 reaching in front of the plate
+    (l1 > 0). Anything else -- a fitter's trial that pulls a tube behind the plate, a NaN -- is a
+    configuration without a solution, not an error."""
+    for v in q:
+        if not math.isfinite(v):
+            return False
+    for i in range(len(kappa)):
+        if not (math.isfinite(kappa[i]) and math.isfinite(straight[i]) and math.isfinite(ends[i])):
+            return False
+        if not (EI[i] > 0.0 and GJ[i] > 0.0 and lengths[i] > 0.0 and math.isfinite(EI[i] + GJ[i])):
+            return False
+        for a in range(3):
+            if not math.isfinite(weight[i, a]):
+                return False
+    for a in range(3):
+        if not math.isfinite(force[a]):
+            return False
+    return ends[0] > 0.0
+
+
+@njit(cache=True)
 def solve_one(q, x0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weight, loaded,
               h_multi, h_single, tol, max_iter, with_stability, states, tips, state0):
     """Solve one configuration q (2N,). ``x0`` is the warm-start guess, used when ``warm``; otherwise
@@ -602,6 +625,14 @@ def solve_one(q, x0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weig
     beta = q[:nt].copy()
     alpha = q[nt:].copy()
     ends = beta + lengths
+    if not solvable(q, lengths, straight, kappa, EI, GJ, force, weight, ends):
+        states[:, :] = np.nan
+        tips[:, :] = np.nan
+        state0[:] = np.nan
+        return np.zeros(x0.shape[0]), False, 0, np.nan, np.nan
+    for v in x0:
+        if not math.isfinite(v):
+            warm = False     # a guess without a number in it: start cold
     nodes, seg_of, present, kc, bend, end_node = build_grid(beta, lengths, straight, EI, h_multi, h_single)
     conv = False
     it = 0

@@ -24,10 +24,10 @@ from ctrplan.calibration.synthetic import generate
 from ctrplan.cli.app import main
 from ctrplan.model.causes.base import offset_limits
 from ctrplan.model.robot import Robot
-from tests.independent.lab import make, test_seed
+from tests.independent.lab import lab_seed, make
 from tests.paths import REPO
 
-SEED = test_seed()
+SEED = lab_seed()
 TWO_TUBE = REPO / "examples" / "robots" / "two_tube.yaml"
 HEAD = "beta1,beta2,beta3,alpha1,alpha2,alpha3,tip1_x,tip1_y,tip1_z\n"
 ROW = "-20,-10,-5,0.1,0.2,0.3,1,2,150\n"

@@ -19,9 +19,9 @@ from ctrplan.model.causes.base import make_effect
 from ctrplan.model.causes.mechanics import StiffnessRatio
 from ctrplan.model.robot import Robot
 from tests.independent.cosserat import Tubes, solve
-from tests.independent.lab import LabData, make, random_rows, sweep, test_seed
+from tests.independent.lab import LabData, lab_seed, make, random_rows, sweep
 
-SEED = test_seed()
+SEED = lab_seed()
 
 
 # ---- uncertainty and identifiability ------------------------------------------------------------
