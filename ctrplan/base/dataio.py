@@ -116,7 +116,7 @@ def parse_number(cell: str, path: str | Path, line: int, name: str, *,
 
 
 def read_table(path: str | Path, columns: Sequence[str], *, optional: Sequence[str] = (),
-               allow_missing: bool = False, n_tubes: int | None = None) -> Table:
+               allow_missing: bool = False, n_tubes: int | None = None, labels: Sequence[str] = ()) -> Table:
     """Read the named numeric ``columns`` of a CSV file with a header line; other columns are ignored.
 
     ``optional`` columns are read too when the header has them: ``Table.columns`` is ``columns``
@@ -129,7 +129,7 @@ def read_table(path: str | Path, columns: Sequence[str], *, optional: Sequence[s
     """
     path = Path(path)
     return parse_table(read_text(path), path, columns, optional=optional, allow_missing=allow_missing,
-                       n_tubes=n_tubes)
+                       n_tubes=n_tubes, labels=labels)
 
 
 def parse_table(text: str, path: str | Path, columns: Sequence[str], *, optional: Sequence[str] = (),

@@ -31,6 +31,7 @@ from ctrplan.base.dataio import (
 from ctrplan.base.errors import InputError
 from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot, check_joint_rows
+from ctrplan.model.sessions import SESSION_COLUMN
 
 CRL_COLUMNS = 40
 #: Order of the joints in a CRL row: alpha1 beta1 alpha2 beta2 alpha3 beta3 -> index into q.
@@ -38,8 +39,6 @@ CRL_JOINT_ORDER = (3, 0, 4, 1, 5, 2)
 #: CRL sensors after the base: outer (tube 3), middle (tube 2), inner (tube 1).
 CRL_SENSOR_TUBE = (2, 1, 0)
 MIN_ROWS = 30
-#: The optional column naming each row's measurement session.
-SESSION_COLUMN = "session"
 
 
 @dataclass(frozen=True)

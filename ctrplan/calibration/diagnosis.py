@@ -42,7 +42,8 @@ from ctrplan.calibration.noise import estimate_noise
 from ctrplan.calibration.options import DiagnoseOptions
 from ctrplan.calibration.selection import Candidate, Selection, Selector, configuration_groups
 from ctrplan.calibration.split import Split, contiguous_subsample
-from ctrplan.model.causes.base import make_effect
+from ctrplan.kinematics.cosserat import SolverSettings
+from ctrplan.model.causes.base import PER_SESSION, make_effect
 from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot
 
@@ -266,6 +267,7 @@ class Diagnosis:
             "remaining": self.remaining(),
             "parameters": {} if chosen is None else chosen.fit.parameters(),
             "derived": {} if chosen is None else chosen.fit.derived,
+            "sessions": self.sessions(),
             "extended": extended,
             "gain_pct": self.gain_pct(),
             "candidates": [c.to_json() for c in sel.candidates],
@@ -290,6 +292,20 @@ class Diagnosis:
             "seconds": round(self.seconds, 2),
             "solves": self.solves,
         }
+
+    def sessions(self) -> dict | None:
+        """The measurement sessions (None for data of one session) and, per named cause that differs
+        between them, its values in each session: {names, differ {cause: {session: {param: value}}}}."""
+        names = self.data.sessions
+        if not names:
+            return None
+        robot = self.extended_robot
+        per = robot.sessions.to_dict(self.robot) if robot.sessions else {}
+        differ: dict[str, dict] = {}
+        for session, causes in per.items():
+            for cause, values in causes.items():
+                differ.setdefault(cause, {})[session] = values
+        return {"names": list(names), "differ": differ}
 
     def sources(self) -> dict[str, str]:
         """The source of every plausible range a report line refers to, by check name (once each)."""
@@ -359,7 +375,7 @@ class Diagnosis:
                                      f"{j['undetermined']}; nothing named, no extended robot",
                      "unexplained": f"cause: unexplained -- {off} (noise {_noise_text(j)}) and no plausible "
                                     f"cause of the library beats it on the splits"}[j["cause"]]]
-        lines = [f"cause: {' + '.join(self.causes)}"]
+        lines = [f"cause: {' + '.join(_cause_text(c, self.data.sessions) for c in self.causes)}"]
         if j["ties"]:
             lines.append(f"  tie: {', '.join(j['ties'])} fit as well (neither is better on the held-out "
                          "rows, and the training BIC is within its margin or its preference does not "
@@ -375,6 +391,12 @@ class Diagnosis:
         lines.append(f"held-out tip error: {nom['mean_mm']:.3f} -> {ext['mean_mm']:.3f} mm mean, "
                      f"{nom['p95_mm']:.3f} -> {ext['p95_mm']:.3f} mm p95 (gain {j['gain_pct']:.1f} %)")
         return lines
+
+
+def _cause_text(cause: str, sessions: tuple[str, ...]) -> str:
+    """A named cause for the report: ``a@sessions`` reads "a (differs between sessions: s1, s2)"."""
+    base = cause.removesuffix(PER_SESSION)
+    return cause if base == cause else f"{base} (differs between sessions: {', '.join(sessions)})"
 
 
 def _noise_text(j: dict) -> str:
@@ -451,7 +473,7 @@ def diagnose(data: MeasuredData, robot: Robot | None = None, options: DiagnoseOp
         keep = contiguous_subsample(len(data), opt.max_rows)
         data, motion = data.subset(keep), motion.subset(keep)
     direction = motion.direction
-    ev_all = Evaluator(data.q, motion)
+    ev_all = Evaluator(data.q, motion, SolverSettings())     # the reported errors: what `fk` computes
     nominal = ev_all.predict([robot])[0]
     unsolved = np.flatnonzero(~nominal.converged)
     solved = np.setdiff1d(np.arange(len(data)), unsolved)

@@ -10,9 +10,12 @@ named.
   plausible within its confidence interval (`Effect.plausibility`); a fit that needs an
   implausible value is reported, never named;
 * **grown**: from the best significant single (and up to ``grow_from`` - 1 next ones it does not
-  beat), and from the best single that beats the nominal model only with an implausible value: of
-  the ``pairs`` partners a score test ranks first, those whose linearised fit could lower the BIC
-  are fitted in that order; the first significant against the set it grew from is kept, up to
+  beat, unless a set grown before holds it), and from the best single that beats the nominal model
+  only with an implausible value not pushed past a bound: of the ``pairs`` partners a score test ranks
+  first -- leaving out those whose own fit and linearised fit with the set both need a value past a
+  bound or an implausible one --
+  those whose linearised fit could lower the BIC are fitted in that order; the first significant
+  against the set it grew from is kept, up to
   ``max_causes`` causes; each set of a grown set of three or more less one cause is fitted too
   (against the best of its own subsets): a cause added early can stand in for a later one and fade
   to nothing once that is in;
@@ -268,9 +271,12 @@ class Selector:
         # a single that beats the nominal model only with an implausible value may stand in for a cause
         # it lacks (a sensor offset pushed sideways by backlash): grow from the best one too; only a
         # plausible set can be named
-        stand_ins = sorted((c for c in cands.values() if c.main.beats and c.fit.implausible),
-                           key=lambda c: c.heldout_mean(None))
+        # (not one the data push past a bound: no partner brings gravity at 6 x the plausible back)
+        stand_ins = sorted((c for c in cands.values() if c.main.beats and c.fit.implausible
+                            and not off_limits(c.fit)), key=lambda c: c.heldout_mean(None))
         for seed in seeds[:opt.grow_from] + stand_ins[:1]:
+            if any(seed.key < c.key and c.significant for c in cands.values()):
+                continue    # a set grown from a better seed holds it already
             self._grow(seed, split, cands, nom_err, nom_bic)
         sel = Selection(split=split, resample_splits=resample_splits, nominal_bic=nom_bic,
                         nominal_err=nom_err, candidates=list(cands.values()), not_fitted=not_fitted)
@@ -321,12 +327,27 @@ class Selector:
                         and not mine & {p.name for p in c.fit.params}]
             if not partners:
                 break
-            scores = partner_scores(chosen.fit, [c.fit.effect for c in partners], ev, d.tips_mm[split.train],
-                                    d.tubes, self.nominal.subset(split.train))
+            tests = partner_scores(chosen.fit, [c.fit.effect for c in partners], ev, d.tips_mm[split.train],
+                                   d.tubes, self.nominal.subset(split.train))
             self.solves += ev.solves
             ev.solves = 0
-            ranked = [partners[i] for i in np.argsort(scores, kind="stable")[:opt.pairs]
-                      if _promising(chosen.fit, partners[i].fit.k, scores[i])]
+            # a partner whose own fit needed an implausible value or one past a bound, and whose
+            # linearised fit here still does, is not fitted: it would not be named (a Poisson ratio of
+            # -0.2, a transmission shorter than the tube behind the plate). (A partner plausible on its
+            # own is fitted even when the linearised fit wants it past a bound: it may replace a cause
+            # of the set that stands in for it -- windup for backlash -- and the set less one shows it.)
+            limits = {k: v for c in partners for k, v in c.fit.effect.limits(self.q_file, self.robot).items()}
+            usable = [i for i, t in enumerate(tests)
+                      if not ((partners[i].fit.implausible or off_limits(partners[i].fit))
+                              and t.beyond(partners[i].fit.effect, self.robot, limits))]
+            # in the order of the linearised BIC: of two partners that fit as well, the one with fewer
+            # parameters first (backlash before friction, which can stand in for it)
+            n = chosen.fit.n_residuals
+            linear_bic = {i: n * np.log(max(tests[i].rss, 1e-300)) + partners[i].fit.k * np.log(n)
+                          for i in usable}
+            order = sorted(usable, key=linear_bic.__getitem__)
+            ranked = [partners[i] for i in order[:opt.pairs]
+                      if _promising(chosen.fit, partners[i].fit.k, tests[i].rss)]
             better = None
             for partner in ranked:      # in the score test's order; the first that is significant
                 key = chosen.key | partner.key

@@ -26,7 +26,7 @@ from ctrplan.base.dataio import Table, atomic_write, joint_names, plain, read_ta
 from ctrplan.base.errors import DomainError, InputError
 from ctrplan.base.yamlio import YamlDoc, load_yaml
 from ctrplan.model.measurement import CALIBRATION_KEY, Calibration
-from ctrplan.model.sessions import SESSIONS_KEY, SessionValues
+from ctrplan.model.sessions import SESSION_COLUMN, SESSIONS_KEY, SessionValues
 
 BUILTIN_ROBOTS = ("nominal",)
 
@@ -649,13 +649,13 @@ def _limits_from_yaml(doc: YamlDoc) -> JointLimits:
 
 
 def read_joints(path: str | Path, robot: Robot, *, allow_outside_domain: bool = False) -> Table:
-    """Read a configurations CSV (header ``beta1,...,betaN,alpha1,...,alphaN`` for the robot's N tubes)
-    and validate every row against ``robot``.
+    """Read a configurations CSV (header ``beta1,...,betaN,alpha1,...,alphaN`` for the robot's N tubes,
+    optionally a ``session`` column: `Table.labels`) and validate every row against ``robot``.
 
     Out-of-domain rows raise `DomainError` (or warn, with ``allow_outside_domain``) naming the row's
     line and the violated inequality; physically impossible rows always raise `InputError`.
     """
-    table = read_table(path, robot.joint_names, n_tubes=robot.n_tubes)
+    table = read_table(path, robot.joint_names, n_tubes=robot.n_tubes, labels=(SESSION_COLUMN,))
     check_joint_rows(robot, table.joints, table.lines, str(table.path),
                      allow_outside_domain=allow_outside_domain)
     return table

@@ -29,6 +29,8 @@ if TYPE_CHECKING:
     from ctrplan.model.robot import Robot
 
 SESSIONS_KEY = "sessions"
+#: The optional column of a measured-data or configurations CSV naming each row's measurement session.
+SESSION_COLUMN = "session"
 
 
 @dataclass(frozen=True)

@@ -57,7 +57,7 @@ ADAPT_MINUTES = 4.0
 
 #: Rows of the comparison table: key -> label.
 MODELS = {"nominal": "nominal Cosserat", "extended": "extended Cosserat",
-          "extended_lag": "extended + learned lag", "pinn_start": "PINN before",
+          "extended_lag": "extended + learned friction", "pinn_start": "PINN before",
           "pinn_adapted": "PINN adapted", "pinn_finetuned": "PINN fine-tuned"}
 #: The PINN stages one of which is written as the model (the best on the validation shots).
 STAGES = ("pinn_start", "pinn_adapted", "pinn_finetuned")

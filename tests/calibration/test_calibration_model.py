@@ -17,6 +17,7 @@ from ctrplan.calibration import CAUSES, EFFECTS, make_effect
 from ctrplan.calibration.fit import Evaluator
 from ctrplan.cli.diagnose import CandidatesOpt
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.kinematics.cosserat import SolverSettings
 from ctrplan.model.causes.base import SIDES
 from ctrplan.model.causes.measurement_side import MeasurementEffect
 from ctrplan.model.causes.mechanics import StiffnessRatio
@@ -206,7 +207,7 @@ def test_prediction_is_mechanics_joints_then_pure_mechanics_then_tracker(robot):
                      0.01, 0.02, -0.01, 1.0, 0.5, -0.3, 30.0, 12.0, 4.0])
     q = robot.sample_joints(25, rng=4)
     motion = Motion.of(q)
-    pred = Evaluator(q, motion).predict([ext])[0]
+    pred = Evaluator(q, motion, SolverSettings()).predict([ext])[0]
     bb = CosseratBackend(ext.mechanics).forward(ext.calibration.mechanics_joints(q, motion), points=2,
                                                 check=False)
     np.testing.assert_allclose(pred.tips_mm, ext.calibration.tracked_tips(bb.tips_mm, bb.rotations[:, -1]),

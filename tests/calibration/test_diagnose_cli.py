@@ -269,8 +269,8 @@ def test_cli_bad_options_one_line_exit_2(tmp_path, capsys):
     assert rc == 2 and captured.out == ""
     assert captured.err.count("\n") == 1 and "missing column 'tip1_z'" in captured.err
     assert not out.exists()
-    rc = main(["diagnose", str(bad), "--candidates", "curvature,friction"])
-    assert rc == 2 and "--candidates: unknown cause 'friction'" in capsys.readouterr().err
+    rc = main(["diagnose", str(bad), "--candidates", "curvature,stiction"])
+    assert rc == 2 and "--candidates: unknown cause 'stiction'" in capsys.readouterr().err
 
 
 def test_among_fits_the_data_cannot_tell_apart_the_fewest_parameters_wins():

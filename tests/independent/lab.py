@@ -23,12 +23,23 @@ torsional_windup    friction torque 0.02-0.06 N mm twists tube 1..3 behind the p
                     alpha_i lags tau / GJ_i * (-beta_i) in its direction of motion
 transmission        each tube twists over 10-40 mm more than -beta_i (a compliant      yes
                     drive): psi_i = alpha_i - (beta_i - d_i) u_iz(0)
+latency             the tracker 0.4-1 sample behind the joints: q_true = q - t (q - q_prev)  yes
+                    (rotation steps the short way round)
+friction            Jenkin elements (a spring, then a Coulomb slider breaking away after  yes
+                    2 and 6 deg of travel) on every rotation, 1.5-3 deg of lag in all
+curved_length       tube 1 bent to its drawn angle over a curve 4-8 mm off its drawn     yes
+                    length (kappa * curved length kept, total length kept)
+relaxed_curvature   tube 2's curvature 52-58 % lower (a polymer tube that relaxed;      yes (only
+                    implausible for nitinol)                                             polymer)
 alpha_scale         rotation transmission ratio off by 4-6 % (alpha_true = s alpha)     no
 encoder_wobble      eccentric rotation encoder: alpha_true = alpha + a sin(alpha)       no
 stroke_offset       the tracked tip of tube 1 moves with the insertion of tube 1: a      no
                     fixed direction in the base frame, 0.8-1.2 mm over the stroke of
                     beta1 (a guide or cable that flexes as the tube advances)
 ==================  ==================================================================  ==========
+
+`sessions` makes rows of several measurement sessions (a ``session`` column) whose registration or
+tube-2 curvature differs between them.
 
 Every true configuration is physical: joint offsets on a sweep are flipped or shrunk until it is;
 random rows that an offset would make unphysical are drawn again.
@@ -45,7 +56,9 @@ import numpy as np
 from tests.independent.cosserat import Tubes, solve
 
 IN_LIBRARY = ("registration", "sensor_offset", "bending_stiffness", "curvature", "stiffness_ratio",
-              "backlash", "joint_offset", "torsional_windup", "transmission")
+              "backlash", "joint_offset", "torsional_windup", "transmission", "curved_length")
+#: Effects of the library that only a sequence shows (rows acquired in order, not random rows).
+IN_LIBRARY_SEQUENCE = ("latency", "friction")
 #: Single-joint zero offsets: effect name -> the joint (index into q) it offsets; library cause joint_offset.
 SINGLE_OFFSETS = {"beta1_offset": 0, "beta2_offset": 1, "beta3_offset": 2}
 OUTSIDE = ("alpha_scale", "encoder_wobble", "stroke_offset")
@@ -190,10 +203,11 @@ def make(n: int, effects: dict[str, float], seed: int, sigma_mm: float = 0.1, mo
             d = mag * rng.uniform(10.0, 40.0, 3)
             tubes = replace(tubes, transmission_mm=d)
             truth[name] = {"transmission_mm": d.tolist()}
-        elif name == "curved_length":      # tube 1's curve begins 4-8 mm off (its total length kept)
+        elif name == "curved_length":      # tube 1 bent to its angle over a curve 4-8 mm off its drawing
             shift = mag * rng.uniform(4.0, 8.0) * rng.choice([-1, 1])
-            tubes = replace(tubes, curved_mm=tubes.curved_mm - [shift, 0, 0],
-                            straight_mm=tubes.straight_mm + [shift, 0, 0])
+            curved = tubes.curved_mm - [shift, 0, 0]
+            tubes = replace(tubes, curved_mm=curved, straight_mm=tubes.straight_mm + [shift, 0, 0],
+                            kappa_per_mm=tubes.kappa_per_mm * tubes.curved_mm / curved)
             truth[name] = {"curved_mm": tubes.curved_mm.tolist()}
         elif name == "relaxed_curvature":  # tube 2's curve relaxed by 52-58 % (a polymer tube)
             f = 1.0 - mag * rng.uniform(0.52, 0.58)

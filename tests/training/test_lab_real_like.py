@@ -92,9 +92,10 @@ def test_friction_joints_and_robot_file(tmp_path):
     fingerprint of the mechanics."""
     friction = make_effect("friction")
     r = friction.RADII_RAD
-    w = np.zeros((6, 3))
-    w[3] = [0.01, 0.02, 0.0]
+    w = np.zeros((6, 4))
+    w[3] = [0.0, 0.01, 0.02, 0.0]
     q = np.zeros((5, 6))
+    r = r[1:]                                                    # the 2- and 6-deg elements
     q[:, 3] = [0.0, 0.1, 0.2, 0.2 - r[0], 0.2 - 2 * r[0]]
     robot = friction.with_values(Robot.nominal(), w.ravel())
     qm = robot.calibration.mechanics_joints(q)
@@ -106,7 +107,7 @@ def test_friction_joints_and_robot_file(tmp_path):
     path = tmp_path / "r.yaml"
     robot.save(path)
     stored = yaml.safe_load(path.read_text())["calibration"]["friction"]
-    assert np.allclose(stored["rotation_lag_rad"][0], [0.01, 0.02, 0.0])
+    assert np.allclose(stored["rotation_lag_rad"][0], [0.0, 0.01, 0.02, 0.0])
     back = Robot.load(path)
     assert back.calibration == robot.calibration and back.fingerprint == Robot.nominal().fingerprint
 

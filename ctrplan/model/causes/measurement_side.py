@@ -12,6 +12,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ctrplan.model.causes.base import Check, Effect, Param, Plausible, _never_reverses, kabsch, numbers
+from ctrplan.model.motion import joint_steps
 
 if TYPE_CHECKING:
     from ctrplan.base.yamlio import KeyPath, YamlDoc
@@ -138,9 +139,11 @@ class Friction(MeasurementEffect):
     key = "friction"
     description = ("Coulomb friction in the drives and between the tubes (Maxwell-slip elements): after a "
                    "reversal joint j lags by up to sum_k w_jk (rad or mm), each element building up over "
-                   "2 r_k of travel")
-    RADII_RAD = tuple(math.radians(r) for r in (2.0, 6.0, 18.0))
-    RADII_MM = (0.2, 0.6, 1.8)
+                   "2 r_k of travel (r = 0: an instant flip, backlash)")
+    #: Half-widths of the elements: 0 is an instant flip (backlash; a lead screw's for a translation),
+    #: the others build up over 2 r of travel.
+    RADII_RAD = tuple(math.radians(r) for r in (0.0, 2.0, 6.0, 18.0))
+    RADII_MM = (0.0, 0.2, 0.6, 1.8)
     #: the longest lag a rotary drive's own play and compliance add (as `Backlash`), rad
     MAX_DRIVE_LAG_RAD = 0.1
     MAX_TRANSLATION_LAG_MM = 0.5
@@ -187,11 +190,23 @@ class Friction(MeasurementEffect):
         return out
 
     def unseen(self, q, direction, robot):
-        k = len(self.RADII_RAD)
+        """Every element of a joint that never reverses; and the elements after the first that turn
+        over within one step of the joint (2 r below its median step): they flip at once, as one."""
+        k, n = len(self.RADII_RAD), robot.n_tubes
         names = [p.name for p in self.params(robot)]
-        return {names[j * k + i]: f"{joint} never reverses its direction of motion"
-                for j, joint in enumerate(robot.joint_names)
-                if not ((direction[:, j] > 0).any() and (direction[:, j] < 0).any()) for i in range(k)}
+        steps = np.abs(joint_steps(q)) if len(q) > 1 else np.zeros((0, 2 * n))
+        out = {}
+        for j, joint in enumerate(robot.joint_names):
+            if not ((direction[:, j] > 0).any() and (direction[:, j] < 0).any()):
+                out |= {names[j * k + i]: f"{joint} never reverses its direction of motion" for i in range(k)}
+                continue
+            moved = steps[:, j][steps[:, j] > 1e-9]
+            typical = float(np.median(moved)) if moved.size else 0.0
+            unit = "mm" if j < n else "rad"
+            out |= {names[j * k + i]: f"{joint} moves {typical:.3g} {unit} a row: its element of radius "
+                                      f"{r:.3g} {unit} turns over within a row, as the first one does"
+                    for i, r in enumerate(self._radii(j, n)) if i > 0 and 2.0 * r <= typical}
+        return out
 
     def joints(self, values, q, motion):
         n = q.shape[-1] // 2

@@ -59,14 +59,14 @@ class CurvedLength(Effect):
     key = "tubes[i].curved_length_mm, straight_length_mm"
     description = ("length of the pre-curved part of tube i (mm), the straight part taking the rest: a "
                    "tube's length is measured, where its heat-set curve begins is not")
-    SOURCE = ("a curve is heat-set on a fixture and ends in a transition zone of a few mm (where the tube "
-              "left the fixture, and where the heat reached): file value +- 15 % or +- 5 mm, whichever is "
-              "larger, within the tube")
+    SOURCE = ("a curve is heat-set on a fixture and ends in a transition zone up to 10 mm long (where the "
+              "tube left the fixture, and where the heat reached): file value +- 15 % or +- 10 mm, "
+              "whichever is larger, within the tube")
 
     def params(self, robot):
         out = []
         for i, t in enumerate(robot.tubes):
-            spread = max(0.15 * t.curved_length_mm, 5.0)
+            spread = max(0.15 * t.curved_length_mm, 10.0)
             low, high = max(t.curved_length_mm - spread, 0.0), min(t.curved_length_mm + spread, t.length_mm)
             out.append(Param(f"curved{i + 1}_mm", "mm", 1.0, 0.0, t.length_mm,
                              Plausible(low, high, self.SOURCE)))
