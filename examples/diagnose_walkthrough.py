@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ctrplan.calibration import CAUSES, diagnose, read_measured, write_measured_csv, write_outputs
-from ctrplan.calibration.fit import Evaluator
+from ctrplan.calibration.predict import Evaluator
 from ctrplan.calibration.synthetic import generate
 from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot

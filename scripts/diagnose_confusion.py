@@ -34,7 +34,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # tests.independent
 
 from ctrplan.calibration import CAUSES, DiagnoseOptions, diagnose, read_measured  # noqa: E402
-from tests.independent.lab import IN_LIBRARY, IN_LIBRARY_SEQUENCE, SINGLE_OFFSETS, make  # noqa: E402
+from tests.independent.lab import (  # noqa: E402
+    IN_LIBRARY,
+    IN_LIBRARY_SEQUENCE,
+    LIBRARY_CAUSE,
+    SINGLE_OFFSETS,
+    make,
+)
 
 SWEEP = {"rows": 200, "sigma_mm": 0.1, "rows_kind": "sweep", "cases": {
     "none": {},
@@ -78,8 +84,8 @@ NAMED = ("none", "undetermined", "unexplained", *CAUSES)
 
 def hidden_causes(effects: dict) -> set[str]:
     """The library causes of a case's effects (a single-joint offset is a joint_offset)."""
-    library = set(IN_LIBRARY + IN_LIBRARY_SEQUENCE)
-    return {"joint_offset" if e in SINGLE_OFFSETS else e for e in effects} & library
+    library = set(IN_LIBRARY + IN_LIBRARY_SEQUENCE + tuple(LIBRARY_CAUSE.values()))
+    return {"joint_offset" if e in SINGLE_OFFSETS else LIBRARY_CAUSE.get(e, e) for e in effects} & library
 
 
 def run(sets: list[str], draws: int, seed: int, only: set[str] | None = None) -> dict:

@@ -31,7 +31,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # tests.independe
 
 from ctrplan.calibration import CAUSES, DiagnoseOptions, diagnose, read_measured  # noqa: E402
 from ctrplan.model.causes.base import PER_SESSION  # noqa: E402
-from tests.independent.lab import IN_LIBRARY, IN_LIBRARY_SEQUENCE, OUTSIDE, make, sessions  # noqa: E402
+from tests.independent.lab import (  # noqa: E402
+    IN_LIBRARY,
+    IN_LIBRARY_SEQUENCE,
+    LIBRARY_CAUSE,
+    OUTSIDE,
+    make,
+    sessions,
+)
 
 VERDICTS = {"none", "undetermined", "unexplained"}
 
@@ -41,7 +48,7 @@ def draw(seed: int) -> dict:
     rows, acquisition, noise, measured tubes and the candidates to try."""
     rng = np.random.default_rng(seed)
     kind = "sweep" if rng.random() < 0.7 else "random"
-    pool = list(IN_LIBRARY) + (list(IN_LIBRARY_SEQUENCE) if kind == "sweep" else [])
+    pool = list(IN_LIBRARY) + ["curved_length"] + (list(IN_LIBRARY_SEQUENCE) if kind == "sweep" else [])
     hidden = [str(e) for e in rng.choice(pool, size=int(rng.integers(0, 3)), replace=False)]
     if rng.random() < 0.15:
         hidden.append(str(rng.choice(OUTSIDE)))
@@ -51,8 +58,9 @@ def draw(seed: int) -> dict:
             "tubes": [0] if rng.random() < 0.4 else [0, 1, 2],
             "sessions": kind == "sweep" and rng.random() < 0.15,
             "moving": sorted(int(j) for j in rng.choice(6, size=int(rng.integers(1, 5)), replace=False))}
-    others = [c for c in CAUSES if c not in hidden]
-    case["candidates"] = sorted({*[e for e in hidden if e in CAUSES],
+    others = [c for c in CAUSES if c not in {LIBRARY_CAUSE.get(e, e) for e in hidden}]
+    causes = [LIBRARY_CAUSE.get(e, e) for e in hidden]
+    case["candidates"] = sorted({*[c for c in causes if c in CAUSES],
                                  *[str(c) for c in rng.choice(others, size=3, replace=False)]})
     return case
 
@@ -86,7 +94,7 @@ def check(case: dict, all_candidates: bool, tmp: Path) -> dict:
         failures.append(f"named {j['causes']} outside the candidates {candidates}")
     if j["causes"] and j["extended"]["mean_mm"] > 1.05 * j["nominal"]["mean_mm"]:
         failures.append(f"named {j['causes']} is worse than nominal on the held-out rows")
-    hidden = {e for e in case["effects"] if e in CAUSES}
+    hidden = {LIBRARY_CAUSE.get(e, e) for e in case["effects"]} & set(CAUSES)
     return {**case, "failures": failures, "named": j["causes"], "verdict": j["cause"],
             "exact": set(j["causes"]) == hidden if hidden <= set(candidates) else None,
             "explained": j["explained"], "seconds": time.perf_counter() - t0}

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ctrplan.calibration.fit import Evaluator
+from ctrplan.calibration.predict import Evaluator
 from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot
 

@@ -45,16 +45,9 @@ import numpy as np
 from scipy import stats
 
 from ctrplan.base.errors import InputError
-from ctrplan.calibration.fit import (
-    Evaluator,
-    FitResult,
-    Prediction,
-    bic,
-    fit_effect,
-    partner_scores,
-    residual_vector,
-)
+from ctrplan.calibration.fit import FitResult, bic, fit_effect, partner_scores, residual_vector
 from ctrplan.calibration.options import DiagnoseOptions
+from ctrplan.calibration.predict import Evaluator, Prediction
 from ctrplan.calibration.split import Split
 from ctrplan.model.causes.base import EFFECTS, PER_SESSION, Combined, Effect, make_effect, offset_limits
 

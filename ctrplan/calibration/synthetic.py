@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ctrplan.calibration.data import MeasuredData
-from ctrplan.calibration.fit import Evaluator
+from ctrplan.calibration.predict import Evaluator
 from ctrplan.kinematics.cosserat import SolverSettings
 from ctrplan.model.causes.base import make_effect
 from ctrplan.model.motion import Motion

@@ -7,7 +7,7 @@ import numpy as np
 from scipy import stats
 
 from ctrplan.base.dataio import joint_names
-from ctrplan.calibration.fit import Evaluator
+from ctrplan.calibration.predict import Evaluator
 
 #: Finite-difference steps for the joint sensitivities: mm for beta, rad for alpha.
 BETA_STEP_MM, ALPHA_STEP_RAD = 1e-3, 1e-4

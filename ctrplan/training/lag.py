@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ctrplan.calibration.fit import Evaluator, fit_effect
+from ctrplan.calibration.fit import fit_effect
+from ctrplan.calibration.predict import Evaluator
 from ctrplan.model.causes.base import make_effect
 from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot

@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from ctrplan.base.errors import InputError
 from ctrplan.calibration import CAUSES, EFFECTS, make_effect
-from ctrplan.calibration.fit import Evaluator
+from ctrplan.calibration.predict import Evaluator
 from ctrplan.cli.diagnose import CandidatesOpt
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.kinematics.cosserat import SolverSettings
@@ -115,7 +115,7 @@ def test_plausible_ranges_follow_the_material_of_the_robot_file():
     assert g.implausible(nylon, down) == {} and g.implausible(nitinol, down) == {}
     assert "gravity_magnitude_m_s2" in g.implausible(nitinol, 25 * down)      # nitinol read as nylon
     kappa = make_effect("curvature")
-    relaxed = kappa.values(nylon) * [1.0, 0.45, 1.0]
+    relaxed = kappa.values(nylon) * [1.0, 0.45, 1.0, 1.0, 1.0, 1.0]     # curvatures, then curved lengths
     assert kappa.implausible(nylon, relaxed) == {} and "kappa2_1_per_m" in kappa.implausible(nitinol, relaxed)
     wide = nylon.with_changes(tubes=tuple(replace(t, outer_diameter_mm=6.0, inner_diameter_mm=5.0)
                                           for t in nylon.tubes))
@@ -204,7 +204,7 @@ def test_measurement_side_maps_against_a_computation_written_here():
 def test_prediction_is_mechanics_joints_then_pure_mechanics_then_tracker(robot):
     ext = make_effect("joint_offset+backlash+sensor_offset+registration+curvature").with_values(
         robot, np.r_[0.5, -1.0, 0.3, 0.02, -0.01, 0.0, 0.03, 0.02, 0.01, 0.2, -0.1, 3.0,
-                     0.01, 0.02, -0.01, 1.0, 0.5, -0.3, 30.0, 12.0, 4.0])
+                     0.01, 0.02, -0.01, 1.0, 0.5, -0.3, 30.0, 12.0, 4.0, 38.0, 100.0, 100.0])
     q = robot.sample_joints(25, rng=4)
     motion = Motion.of(q)
     pred = Evaluator(q, motion, SolverSettings()).predict([ext])[0]

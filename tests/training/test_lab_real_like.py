@@ -119,7 +119,7 @@ def test_friction_fitted_from_the_shots_recovers_the_lab_lag():
     with the true total lag does not."""
     from dataclasses import replace
 
-    from ctrplan.calibration.fit import Evaluator
+    from ctrplan.calibration.predict import Evaluator
     from ctrplan.training.lag import fit_friction
 
     data = lab.real_like(n=360, seed=4)
