@@ -371,6 +371,7 @@ class PartnerScore:
     rss: float
     x: np.ndarray
     cov: np.ndarray
+    step: np.ndarray       # the linearised step in the fit's scaled units (x = x0 + scale * step)
 
     def beyond(self, effect: Effect, robot: Robot, limits: dict[str, tuple[float, float]],
                z: float = CONFIDENCE_Z) -> list[str]:
@@ -402,5 +403,22 @@ def partner_scores(fit: FitResult, partners: Sequence[Effect], ev: Evaluator, me
         delta, *_ = np.linalg.lstsq(J, -r, rcond=None)
         rl = r + J @ delta
         cov, _ = _uncertainty(J, float(rl @ rl), r.size, len(params))
-        out.append(PartnerScore(float(rl @ rl), x0 + delta * scale, cov * np.outer(scale, scale)))
+        out.append(PartnerScore(float(rl @ rl), x0 + delta * scale, cov * np.outer(scale, scale), delta))
+    return out
+
+
+def linearised_errors(fit: FitResult, partner: Effect, score: PartnerScore, ev: Evaluator,
+                      measured: np.ndarray, tubes: Sequence[int], guess: Prediction) -> np.ndarray:
+    """Tip errors (R, T) mm on the rows of ``ev`` (NaN for unmeasured tubes) of ``fit`` with ``partner``
+    added at its linearised step ``score.step`` (`partner_scores`): what the fit of the pair would
+    give there, to first order -- one Jacobian of the partner on these rows."""
+    params = partner.params(fit.robot)
+    scale = np.array([p.scale for p in params])
+    problem = _Problem(partner, fit.robot, ev, measured, tubes, guess, partner.values(fit.robot),
+                       np.arange(len(params)), scale)
+    zero = np.zeros(len(params))
+    r, _ = problem.evaluate(zero)
+    res = (r + problem.jac(zero) @ score.step).reshape(len(ev), len(tubes), 3)
+    out = np.full(measured.shape[:2], np.nan)
+    out[:, list(tubes)] = np.linalg.norm(res, axis=-1)
     return out

@@ -16,9 +16,10 @@ named.
   bound or an implausible one --
   those whose linearised fit could lower the BIC are fitted in that order; the first significant
   against the set it grew from is kept, up to
-  ``max_causes`` causes; each set of a grown set of three or more less one cause is fitted too
-  (against the best of its own subsets): a cause added early can stand in for a later one and fade
-  to nothing once that is in;
+  ``max_causes`` causes; each set of a grown set of three or more that no significant candidate beats
+  on the main split, less one cause, is fitted too (against the best of its own subsets): a cause
+  added early can stand in for a later one and fade to nothing once that is in; a stand-in is grown
+  only while no plausible seed grew into a significant set;
 * **contenders**: significant, against the nominal model and against the set they grew from, and not
   beaten on the main split by another contender; each is refitted on ``resamples`` other splits
   (warm-started from its main fit) and scored against the nominal model there;
@@ -45,7 +46,15 @@ import numpy as np
 from scipy import stats
 
 from ctrplan.base.errors import InputError
-from ctrplan.calibration.fit import FitResult, bic, fit_effect, partner_scores, residual_vector
+from ctrplan.calibration.fit import (
+    FitResult,
+    PartnerScore,
+    bic,
+    fit_effect,
+    linearised_errors,
+    partner_scores,
+    residual_vector,
+)
 from ctrplan.calibration.options import DiagnoseOptions
 from ctrplan.calibration.predict import Evaluator, Prediction
 from ctrplan.calibration.split import Split
@@ -263,14 +272,22 @@ class Selector:
         seeds = singles[:1] + [c for c in singles[1:] if not beats(singles[0], c, opt, pooled=False)]
         # a single that beats the nominal model only with an implausible value may stand in for a cause
         # it lacks (a sensor offset pushed sideways by backlash): grow from the best one too; only a
-        # plausible set can be named
-        # (not one the data push past a bound: no partner brings gravity at 6 x the plausible back)
+        # plausible set can be named (not one the data push past a bound: no partner brings gravity at
+        # 6 x the plausible back), and only while no plausible seed grew into a significant set
         stand_ins = sorted((c for c in cands.values() if c.main.beats and c.fit.implausible
                             and not off_limits(c.fit)), key=lambda c: c.heldout_mean(None))
-        for seed in seeds[:opt.grow_from] + stand_ins[:1]:
-            if any(seed.key < c.key and c.significant for c in cands.values()):
-                continue    # a set grown from a better seed holds it already
-            self._grow(seed, split, cands, nom_err, nom_bic)
+        grown = []
+        for seed in seeds[:opt.grow_from]:
+            if not any(seed.key < c.key and c.significant for c in cands.values()):   # else a set grown
+                grown.append(self._grow(seed, split, cands, nom_err, nom_bic))   # before holds it
+        if stand_ins and not any(len(c.causes) > 1 and c.significant for c in cands.values()):
+            grown.append(self._grow(stand_ins[0], split, cands, nom_err, nom_bic))
+        # a grown set of three or more is pruned when it could be named: no other significant candidate
+        # beats it on the main split
+        good = [c for c in cands.values() if c.significant]
+        for g in grown:
+            if len(g.causes) > 2 and not any(beats(o, g, opt, pooled=False) for o in good if o is not g):
+                self._prune(g, split, cands, nom_err, nom_bic)
         sel = Selection(split=split, resample_splits=resample_splits, nominal_bic=nom_bic,
                         nominal_err=nom_err, candidates=list(cands.values()), not_fitted=not_fitted)
         self._resample(sel)
@@ -308,8 +325,9 @@ class Selector:
         return None
 
     def _grow(self, chosen: Candidate, split: Split, cands: dict[frozenset[str], Candidate],
-              nom_err: np.ndarray, nom_bic: float) -> None:
-        """Add causes to ``chosen`` one at a time while the best addition is significant against it."""
+              nom_err: np.ndarray, nom_bic: float) -> Candidate:
+        """Add causes to ``chosen`` one at a time while the best addition is significant against it; the
+        set it grew to."""
         opt, d = self.opt, self.data
         ev = Evaluator(d.q[split.train], self.motion.subset(split.train))
         while opt.pairs > 0 and len(chosen.causes) < opt.max_causes:
@@ -340,7 +358,8 @@ class Selector:
                           for i in usable}
             order = sorted(usable, key=linear_bic.__getitem__)
             ranked = [partners[i] for i in order[:opt.pairs]
-                      if _promising(chosen.fit, partners[i].fit.k, tests[i].rss)]
+                      if _promising(chosen.fit, partners[i].fit.k, tests[i].rss)
+                      and self._may_gain(chosen, partners[i], tests[i], split)]
             better = None
             for partner in ranked:      # in the score test's order; the first that is significant
                 key = chosen.key | partner.key
@@ -360,8 +379,21 @@ class Selector:
             if better is None:
                 break
             chosen = better
-        if len(chosen.causes) > 2:
-            self._prune(chosen, split, cands, nom_err, nom_bic)
+        return chosen
+
+    def _may_gain(self, chosen: Candidate, partner: Candidate, test: PartnerScore, split: Split) -> bool:
+        """Whether adding ``partner`` to ``chosen`` could gain on the held-out rows what a significant
+        addition must: its linearised fit (`linearised_errors`) lowers the held-out mean error by at least
+        half of ``min_gain`` (half: the linear step underrates a curved cost surface). A partner that
+        fits the training rows better but no held-out row is not fitted (a fourth cause of a real robot
+        that fitted its sweep's noise)."""
+        d, held = self.data, split.heldout
+        ev = Evaluator(d.q[held], self.motion.subset(held))
+        err = linearised_errors(chosen.fit, partner.fit.effect, test, ev, d.tips_mm[held], d.tubes,
+                                self.nominal.subset(held))
+        self.solves += ev.solves
+        gain, _, _ = compare(err, chosen.heldout_err, 1.0, 0.0, self.groups[held])
+        return gain >= 0.5 * self.opt.min_gain
 
     def _prune(self, grown: Candidate, split: Split, cands: dict[frozenset[str], Candidate],
                nom_err: np.ndarray, nom_bic: float) -> None:
