@@ -26,6 +26,7 @@ from ctrplan.calibration.predict import Evaluator
 from ctrplan.calibration.synthetic import generate
 from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot
+from ctrplan.viz.diagnosis_plots import write_plots
 
 HERE = Path(__file__).resolve().parent
 
@@ -52,6 +53,7 @@ def main() -> None:
     measured = read_measured(data_csv)
     diag = diagnose(measured)
     write_outputs(diag, a.out)
+    write_plots(diag, a.out)
     print(diag.summary())
     print()
 

@@ -5,9 +5,10 @@ Modules: `data` (readers and writers of measured data), `split` (which rows trai
 held out), `predict` (the tips of many models on the rows, batched), `fit` (least squares), `noise`
 (measurement noise from the data alone), `selection` (significance, stability and the named causes),
 `diagnosis` (the procedure and its result) with its knobs in `options` and its text in `report`,
-`where` and `plots` (where the error grows), `synthetic` (generated data with a hidden cause). The
-library of causes, each registered by its class, is `ctrplan.model.causes`: part of the robot model (a
-robot's calibration holds its measurement-side causes), below this package.
+`where` (where the error grows; its plots are `ctrplan.viz.diagnosis_plots`), `synthetic` (generated
+data with a hidden cause). The library of causes, each registered by its class, is
+`ctrplan.model.causes`: part of the robot model (a robot's calibration holds its measurement-side
+causes), below this package.
 
 The result is one extended `ctrplan.model.robot.Robot`: its mechanics in its fields, its measurement side
 in `Robot.calibration` (`ctrplan.model.measurement.Calibration` -- what "calibration" means on a robot).
