@@ -45,7 +45,7 @@ def test_one_list_of_causes_derived_from_the_classes():
         assert isinstance(e, MeasurementEffect) == (e.side != "mechanics")
     # the command line offers the same list
     assert all(c in CandidatesOpt.__metadata__[0].help for c in CAUSES)
-    with pytest.raises(InputError, match=r"unknown cause 'stiction' \(known: latency, "):
+    with pytest.raises(InputError, match=r"unknown cause 'stiction' \(known: curvature, stiffness_ratio, "):
         make_effect("curvature+stiction")
 
 
