@@ -22,8 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from ctrplan.calibration import CAUSES, diagnose, read_measured, write_measured_csv, write_outputs
-from ctrplan.calibration.fit import Evaluator
+from ctrplan.calibration.predict import Evaluator
 from ctrplan.calibration.synthetic import generate
+from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot
 from ctrplan.viz.diagnosis_plots import write_plots
 
@@ -59,7 +60,7 @@ def main() -> None:
     # 3. the extended robot file on configurations it has never seen, against the hidden truth
     extended = Robot.load(a.out / "extended_robot.yaml")
     fresh = Robot.nominal().sample_joints(200, rng=12345)
-    ev = Evaluator(fresh, np.zeros_like(fresh))   # one configuration after another, no motion history
+    ev = Evaluator(fresh, Motion.of(fresh, independent=True))   # each configuration on its own, no history
     t_true, t_nom, t_ext = (p.tips_mm[:, 0] for p in ev.predict([syn.robot, Robot.nominal(), extended]))
     e_nom = np.linalg.norm(t_true - t_nom, axis=-1)     # against the hidden truth, noise-free
     e_ext = np.linalg.norm(t_true - t_ext, axis=-1)

@@ -33,8 +33,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # tests.independent
 
-from ctrplan.calibration import DiagnoseOptions, diagnose, read_measured  # noqa: E402
-from tests.independent.lab import IN_LIBRARY, SINGLE_OFFSETS, make  # noqa: E402
+from ctrplan.calibration import CAUSES, DiagnoseOptions, diagnose, read_measured  # noqa: E402
+from tests.independent.lab import (  # noqa: E402
+    IN_LIBRARY,
+    IN_LIBRARY_SEQUENCE,
+    LIBRARY_CAUSE,
+    SINGLE_OFFSETS,
+    make,
+)
 
 SWEEP = {"rows": 200, "sigma_mm": 0.1, "rows_kind": "sweep", "cases": {
     "none": {},
@@ -45,6 +51,9 @@ SWEEP = {"rows": 200, "sigma_mm": 0.1, "rows_kind": "sweep", "cases": {
     "backlash": {"backlash": 1.0},
     "joint_offset": {"joint_offset": 1.0},
     "torsional_windup": {"torsional_windup": 1.0},
+    "latency": {"latency": 1.0},
+    "friction": {"friction": 1.0},
+    "curved_length": {"curved_length": 1.0},
     "alpha_scale (outside)": {"alpha_scale": 1.0},
     "encoder_wobble (outside)": {"encoder_wobble": 1.0},
     "registration (near noise)": {"registration": 0.12},
@@ -70,14 +79,13 @@ PAIRS = {"rows": 400, "sigma_mm": 0.15, "rows_kind": "random", "cases": {
     "curvature+backlash": {"curvature": 1.0, "backlash": 1.0},
 }}
 SETS = {"sweep": SWEEP, "random": RANDOM, "offsets": OFFSETS, "pairs": PAIRS}
-NAMED = ("none", "undetermined", "unexplained", "curvature", "stiffness_ratio", "bending_stiffness",
-         "joint_offset", "gravity", "tip_force", "registration", "sensor_offset", "backlash",
-         "torsional_windup", "transmission")
+NAMED = ("none", "undetermined", "unexplained", *CAUSES)
 
 
 def hidden_causes(effects: dict) -> set[str]:
     """The library causes of a case's effects (a single-joint offset is a joint_offset)."""
-    return {"joint_offset" if e in SINGLE_OFFSETS else e for e in effects} & set(IN_LIBRARY)
+    library = set(IN_LIBRARY + IN_LIBRARY_SEQUENCE + tuple(LIBRARY_CAUSE.values()))
+    return {"joint_offset" if e in SINGLE_OFFSETS else LIBRARY_CAUSE.get(e, e) for e in effects} & library
 
 
 def run(sets: list[str], draws: int, seed: int, only: set[str] | None = None) -> dict:

@@ -18,7 +18,7 @@ import secrets
 import stat
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
@@ -53,12 +53,14 @@ class Table:
         columns: names of the columns in ``values``, in the order asked for.
         values: (R, C) float array, all finite.
         lines: (R,) line number of each row in the file (header = line 1).
+        labels: text columns asked for and present, name -> (R,) strings (e.g. a measurement session).
     """
 
     path: Path
     columns: tuple[str, ...]
     values: np.ndarray
     lines: np.ndarray
+    labels: dict[str, np.ndarray] = field(default_factory=dict)
 
     def column(self, name: str) -> np.ndarray:
         """One column (R,)."""
@@ -114,7 +116,7 @@ def parse_number(cell: str, path: str | Path, line: int, name: str, *,
 
 
 def read_table(path: str | Path, columns: Sequence[str], *, optional: Sequence[str] = (),
-               allow_missing: bool = False, n_tubes: int | None = None) -> Table:
+               allow_missing: bool = False, n_tubes: int | None = None, labels: Sequence[str] = ()) -> Table:
     """Read the named numeric ``columns`` of a CSV file with a header line; other columns are ignored.
 
     ``optional`` columns are read too when the header has them: ``Table.columns`` is ``columns``
@@ -127,12 +129,13 @@ def read_table(path: str | Path, columns: Sequence[str], *, optional: Sequence[s
     """
     path = Path(path)
     return parse_table(read_text(path), path, columns, optional=optional, allow_missing=allow_missing,
-                       n_tubes=n_tubes)
+                       n_tubes=n_tubes, labels=labels)
 
 
 def parse_table(text: str, path: str | Path, columns: Sequence[str], *, optional: Sequence[str] = (),
-                allow_missing: bool = False, n_tubes: int | None = None) -> Table:
-    """`read_table` on the already read ``text`` of ``path``."""
+                allow_missing: bool = False, n_tubes: int | None = None, labels: Sequence[str] = ()) -> Table:
+    """`read_table` on the already read ``text`` of ``path``; ``labels``: optional text columns, read as
+    they are (a cell must not be empty)."""
     path = Path(path)
     reader = csv.reader(text.splitlines())
     header = next((cells for cells in reader if any(c.strip() for c in cells)), None)
@@ -157,7 +160,8 @@ def parse_table(text: str, path: str | Path, columns: Sequence[str], *, optional
         if len(hits) > 1:
             raise InputError(f"{path}: row {head}: column {name!r} appears {len(hits)} times")
         index.append(hits[0])
-    values, lines = [], []
+    text_at = {name: names.index(name) for name in labels if name in names}
+    values, lines, texts = [], [], {name: [] for name in text_at}
     for cells in reader:
         if not any(c.strip() for c in cells):
             continue
@@ -167,11 +171,15 @@ def parse_table(text: str, path: str | Path, columns: Sequence[str], *, optional
                              f"got {len(cells)}")
         values.append([parse_number(cells[i], path, line, name, allow_missing=allow_missing)
                        for name, i in zip(wanted, index, strict=True)])
+        for name, i in text_at.items():
+            if not cells[i].strip():
+                raise InputError(f"{path}: row {line}: {name} is empty")
+            texts[name].append(cells[i].strip())
         lines.append(line)
     if not values:
         raise InputError(f"{path}: no data rows after the header")
     return Table(path=path, columns=tuple(wanted), values=np.array(values, dtype=float),
-                 lines=np.array(lines, dtype=np.int64))
+                 lines=np.array(lines, dtype=np.int64), labels={k: np.array(v) for k, v in texts.items()})
 
 
 def output_dir(path: str | Path, option: str = "--out") -> Path:

@@ -2,11 +2,11 @@
 wrong, name the physical cause, extend the model, measure the gain.
 
 Modules: `data` (readers and writers of measured data), `split` (which rows train and which are
-held out), `fit` (batched least squares), `noise` (measurement noise from the data alone),
-`selection` (significance, stability and the named causes), `diagnosis` (the procedure and its
-report) with its knobs in `options`, `where` (where the error grows; its plots are
-`ctrplan.viz.diagnosis_plots`), `synthetic`
-(generated data with a hidden cause). The library of causes, each registered by its class, is
+held out), `predict` (the tips of many models on the rows, batched), `fit` (least squares), `noise`
+(measurement noise from the data alone), `selection` (significance, stability and the named causes),
+`diagnosis` (the procedure and its result) with its knobs in `options` and its text in `report`,
+`where` (where the error grows; its plots are `ctrplan.viz.diagnosis_plots`), `synthetic` (generated
+data with a hidden cause). The library of causes, each registered by its class, is
 `ctrplan.model.causes`: part of the robot model (a robot's calibration holds its measurement-side
 causes), below this package.
 
@@ -29,7 +29,8 @@ _EXPORTS = {
     "Split": "split",
     "diagnose": "diagnosis",
     "make_effect": "ctrplan.model.causes.base",
-    "motion_direction": "ctrplan.model.measurement",
+    "Motion": "ctrplan.model.motion",
+    "motion_direction": "ctrplan.model.motion",
     "read_measured": "data",
     "split_rows": "split",
     "write_crl_csv": "data",

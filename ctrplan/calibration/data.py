@@ -29,7 +29,9 @@ from ctrplan.base.dataio import (
     tip_names,
 )
 from ctrplan.base.errors import InputError
+from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot, check_joint_rows
+from ctrplan.model.sessions import SESSION_COLUMN
 
 CRL_COLUMNS = 40
 #: Order of the joints in a CRL row: alpha1 beta1 alpha2 beta2 alpha3 beta3 -> index into q.
@@ -52,6 +54,9 @@ class MeasuredData:
         format: ``"csv"`` (measured-data CSV) or ``"crl"`` (CRL-Dataset-CTCR-Pose).
         outside_domain: rows outside the snap-free domain (N,) -- accepted, flagged.
         increments: the CRL joint increments (N, 6) in q order, if the file had them.
+        session: the measurement session of every row (N,) -- the optional ``session`` column, any name
+            or number as text -- or None (one session). A session is a sequence of its own: its motion
+            history starts with its first row (`motion`).
     """
 
     q: np.ndarray
@@ -62,6 +67,7 @@ class MeasuredData:
     format: str = "csv"
     outside_domain: np.ndarray = field(default=None)  # type: ignore[assignment]
     increments: np.ndarray | None = None
+    session: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.outside_domain is None:
@@ -74,7 +80,20 @@ class MeasuredData:
         inc = None if self.increments is None else self.increments[idx]
         return MeasuredData(q=self.q[idx], tips_mm=self.tips_mm[idx], tubes=self.tubes,
                             lines=self.lines[idx], source=self.source, format=self.format,
-                            outside_domain=self.outside_domain[idx], increments=inc)
+                            outside_domain=self.outside_domain[idx], increments=inc,
+                            session=None if self.session is None else self.session[idx])
+
+    @property
+    def sessions(self) -> tuple[str, ...]:
+        """The measurement sessions, in the order of their first rows (empty: one session)."""
+        if self.session is None:
+            return ()
+        names, first = np.unique(self.session, return_index=True)
+        return tuple(str(v) for v in names[np.argsort(first)])
+
+    def motion(self) -> Motion:
+        """The motion history of the rows (`Motion.of`; each session its own sequence)."""
+        return Motion.of(self.q, session=self.session)
 
     def rows_text(self, idx, limit: int = 8) -> str:
         """``"rows 5, 9, 12 (and 3 more)"`` for row indices ``idx`` (0-based into this data)."""
@@ -143,7 +162,8 @@ def read_measured(path: str | Path, robot: Robot | None = None, *,
 def _parse_measured_csv(path: Path, text: str, head_line: int, n_tubes: int = 3) -> MeasuredData:
     tip_columns = tuple(tip_names(n_tubes)[3 * t: 3 * t + 3] for t in range(n_tubes))
     table = parse_table(text, path, joint_names(n_tubes) + tip_columns[0],
-                        optional=sum(tip_columns[1:], ()), allow_missing=True, n_tubes=n_tubes)
+                        optional=sum(tip_columns[1:], ()), allow_missing=True, n_tubes=n_tubes,
+                        labels=(SESSION_COLUMN,))
     tubes = [0]
     for t in range(1, n_tubes):
         present = [c in table.columns for c in tip_columns[t]]
@@ -158,7 +178,7 @@ def _parse_measured_csv(path: Path, text: str, head_line: int, n_tubes: int = 3)
     for t in tubes:
         tips[:, t, :] = table.values[:, [table.columns.index(c) for c in tip_columns[t]]]
     return MeasuredData(q=table.joints, tips_mm=tips, tubes=tuple(tubes), lines=table.lines,
-                        source=str(path), format="csv")
+                        source=str(path), format="csv", session=table.labels.get(SESSION_COLUMN))
 
 
 def _raise_nonfinite(path: Path, values: np.ndarray, lines: np.ndarray, names: Sequence[str]) -> None:
@@ -255,7 +275,7 @@ def _validate(data: MeasuredData, robot: Robot, min_rows: int) -> MeasuredData:
                          f"(more is better: a few hundred rows)")
     return MeasuredData(q=q, tips_mm=data.tips_mm, tubes=data.tubes, lines=data.lines,
                         source=data.source, format=data.format, outside_domain=outside,
-                        increments=data.increments)
+                        increments=data.increments, session=data.session)
 
 
 # ---- writing ------------------------------------------------------------------------------------

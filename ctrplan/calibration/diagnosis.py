@@ -38,15 +38,16 @@ from scipy import stats
 
 from ctrplan.base.dataio import plain
 from ctrplan.base.errors import InputError
-from ctrplan.calibration.data import MeasuredData, rows_text
+from ctrplan.calibration.data import MeasuredData
 from ctrplan.calibration.experiment import Experiment, separating_rows
-from ctrplan.calibration.fit import Evaluator, Prediction
 from ctrplan.calibration.noise import estimate_noise
 from ctrplan.calibration.options import DiagnoseOptions
+from ctrplan.calibration.predict import Evaluator, Prediction
 from ctrplan.calibration.selection import Candidate, Selection, Selector, configuration_groups
 from ctrplan.calibration.split import Split, contiguous_subsample
+from ctrplan.kinematics.cosserat import SolverSettings
 from ctrplan.model.causes.base import make_effect
-from ctrplan.model.measurement import motion_direction
+from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot
 
 
@@ -58,7 +59,7 @@ class Diagnosis:
     rows_in_file: int
     robot: Robot                      # the base model (its calibration included)
     options: DiagnoseOptions
-    direction: np.ndarray             # direction of motion of every row (R, 2N)
+    motion: Motion                    # the rows' motion history (of the whole file)
     selection: Selection
     unsolved: np.ndarray              # rows the nominal model could not solve (excluded)
     nominal: Prediction               # all rows
@@ -71,6 +72,11 @@ class Diagnosis:
     solves: int = 0
     noise: dict = field(default_factory=dict)          # `noise.estimate_noise`
     experiment: Experiment | None = None               # configurations that separate the ties
+
+    @property
+    def direction(self) -> np.ndarray:
+        """Direction of the latest motion of every row (R, 2N)."""
+        return self.motion.direction
 
     # ---- the choice -------------------------------------------------------------------------------
     @property
@@ -264,6 +270,7 @@ class Diagnosis:
             "remaining": self.remaining(),
             "parameters": {} if chosen is None else chosen.fit.parameters(),
             "derived": {} if chosen is None else chosen.fit.derived,
+            "sessions": self.sessions(),
             "extended": extended,
             "gain_pct": self.gain_pct(),
             "candidates": [c.to_json() for c in sel.candidates],
@@ -289,130 +296,29 @@ class Diagnosis:
             "solves": self.solves,
         }
 
+    def sessions(self) -> dict | None:
+        """The measurement sessions (None for data of one session) and, per named cause that differs
+        between them, its values in each session: {names, differ {cause: {session: {param: value}}}}."""
+        names = self.data.sessions
+        if not names:
+            return None
+        robot = self.extended_robot
+        per = robot.sessions.to_dict(self.robot) if robot.sessions else {}
+        differ: dict[str, dict] = {}
+        for session, causes in per.items():
+            for cause, values in causes.items():
+                differ.setdefault(cause, {})[session] = values
+        return {"names": list(names), "differ": differ}
+
     def sources(self) -> dict[str, str]:
         """The source of every plausible range a report line refers to, by check name (once each)."""
         return {k: v for c in self.candidates for k, v in sorted(c.fit.sources.items())}
 
     def summary(self) -> str:
-        """A human-readable report (the CLI prints it without --json)."""
-        j = self.to_json()
-        return "\n".join(self._summary_rows(j) + self._summary_candidates(j) + self._summary_verdict(j)
-                         + _summary_tail(j))
+        """A human-readable report (the CLI prints it without --json): `report.summary_text`."""
+        from ctrplan.calibration.report import summary_text
 
-    def _summary_rows(self, j: dict) -> list[str]:
-        used = "" if j["rows_used"] == j["rows"] else (
-            f", {j['rows_used']} used in contiguous runs ({j['rows_dropped']} dropped by max_rows)")
-        m = j["distinct_configurations"]
-        lines = [f"{self.data.source}: {j['rows']} rows{used}, {m} distinct configuration{'s' * (m != 1)} "
-                 f"({j['train_rows']} train, {j['heldout']['how']}), tubes measured: "
-                 f"{j['tubes_measured']}"]
-        if j["outside_domain_rows"]:
-            lines.append(f"  note: {rows_text(j['outside_domain_rows'])} lie outside the snap-free "
-                         f"planning domain (accepted)")
-        if j["unsolved_rows"]:
-            lines.append(f"  note: the nominal model does not solve {rows_text(j['unsolved_rows'])} "
-                         f"(excluded)")
-        lines.append("nominal model, held-out error per tube:")
-        for t in j["nominal"]["per_tube"]:
-            lines.append(f"  tube {t['tube']}: mean {t['mean_mm']:.3f} mm, median {t['median_mm']:.3f}, "
-                         f"p95 {t['p95_mm']:.3f}, {t['mean_pct_length']:.2f} % of arc length")
-        lines += [f"  where: {s}" for s in self.where.get("findings", [])]
-        return lines
-
-    def _summary_candidates(self, j: dict) -> list[str]:
-        splits = self.selection.splits
-        lines = [f"candidates (training BIC, held-out mean tip error, splits of {splits} where "
-                 f"significant; * significant on the main split):"]
-        for c in sorted(self.candidates, key=lambda c: c.fit.bic):
-            ref = "" if c.reference == "nominal" else f" vs {c.reference}"
-            bad = " IMPLAUSIBLE" if c.fit.implausible else ""
-            bad += " UNRESOLVED" if c.fit.unresolved() else ""
-            bad += " PAST-BOUND" if c.fit.pushed else ""
-            lines.append(f"  {'*' if c.significant else ' '} {c.name:<34s} dBIC {c.delta_bic:10.1f}  "
-                         f"held-out {c.heldout_mean(0):.3f} mm  gain {100 * c.main.gain:5.1f} %{ref}  "
-                         f"{c.significant_splits()}/{splits}{bad}")
-        lines += [f"  not fitted: {name} ({'; '.join(why)})" for name, why in j["not_fitted"].items()]
-        fixed = {k: v for c in self.candidates if len(c.causes) == 1 for k, v in c.fit.fixed.items()}
-        if fixed:
-            lines.append("  held at their file values (the data cannot show them):")
-            lines += [f"    {k}: {v}" for k, v in fixed.items()]
-        for title, key in (("implausible, not named", "implausible"), ("at its bound, not named",
-                                                                        "pushed_past_bound")):
-            lines += [f"  {title}: {name}: " + "; ".join(f"{k} {v}" for k, v in why.items())
-                      for name, why in j[key].items()]
-        lines += [f"  not resolved by the rows, not named: {name}: {', '.join(ps)}"
-                  for name, ps in j["unresolved"].items()]
-        noise_mm = j["noise_mm"]
-        noise_txt = "not estimated" if noise_mm is None else f"{noise_mm:.3f} mm mean tip error"
-        lines.append(f"measurement noise: {noise_txt} ({j['noise']['method']})")
-        return lines
-
-    def _summary_verdict(self, j: dict) -> list[str]:
-        nom, ext = j["nominal"], j["extended"]
-        if self.chosen is None:
-            off = f"the nominal model is off by {nom['mean_mm']:.3f} mm"
-            return [{"none": "cause: none -- the nominal model matches the held-out rows to the measurement "
-                             "noise",
-                     "undetermined": f"cause: undetermined -- {off}, but the rows cannot identify a cause: "
-                                     f"{j['undetermined']}; nothing named, no extended robot",
-                     "unexplained": f"cause: unexplained -- {off} (noise {_noise_text(j)}) and no plausible "
-                                    f"cause of the library beats it on the splits"}[j["cause"]]]
-        lines = [f"cause: {' + '.join(self.causes)}"]
-        if j["ties"]:
-            lines.append(f"  tie: {', '.join(j['ties'])} fit as well (neither is better on the held-out "
-                         "rows, and the training BIC is within its margin or its preference does not "
-                         "repeat there); the data do not tell them apart: the fewest parameters is named, "
-                         "tentatively" + ("; experiment.csv lists configurations that separate them"
-                                          if self.experiment is not None else ""))
-        if j["unstable"]:
-            lines.append("  not named (significant on too few splits): " + ", ".join(j["unstable"]))
-        lines += [_parameter_line(name, p) for name, p in j["parameters"].items()]
-        if j["derived"]:
-            lines.append("  i.e. " + ", ".join(f"{k} = " + ("not determined" if v is None else f"{v:.4g}")
-                                               for k, v in j["derived"].items()))
-        lines.append(f"held-out tip error: {nom['mean_mm']:.3f} -> {ext['mean_mm']:.3f} mm mean, "
-                     f"{nom['p95_mm']:.3f} -> {ext['p95_mm']:.3f} mm p95 (gain {j['gain_pct']:.1f} %)")
-        return lines
-
-
-def _noise_text(j: dict) -> str:
-    return "not estimated" if j["noise_mm"] is None else f"{j['noise_mm']:.3f} mm mean tip error"
-
-
-def _parameter_line(name: str, p: dict) -> str:
-    """One fitted parameter of the report: value +- std (unit), its base value, and what is special."""
-    if p.get("fitted") is False:
-        return f"  {name} not fitted: {p['reason']}"
-    std = "n/a (at its bound)" if p.get("at_bound") else ("n/a" if p["std"] is None else f"{p['std']:.3g}")
-    extra = ""
-    if p["unit"] == "rad":
-        extra = f"  ({np.degrees(p['value']):.3f} deg +- " + (
-            "n/a" if p["std"] is None else f"{np.degrees(p['std']):.3f}") + ")"
-    if p.get("at_edge"):
-        extra += f"  at the edge of its plausible range: {p['at_edge']}"
-    return f"  {name} = {p['value']:.6g} +- {std} {p['unit']} (was {p['nominal']:.6g}){extra}"
-
-
-def _summary_tail(j: dict) -> list[str]:
-    """Not explained, outliers, the sources of the plausible ranges cited above (once each), time."""
-    lines = []
-    if not j["explained"] and j["cause"] not in ("undetermined",):
-        left = "?" if j["unexplained_mm"] is None else f"{j['unexplained_mm']:.3f}"
-        lines.append(f"NOT EXPLAINED: the library does not explain the data -- {left} mm RMS of "
-                     f"held-out tip error is beyond the noise")
-        lines += [f"  where: {f}" for f in j["remaining"]["findings"]]
-    if j["outliers"]:
-        o = j["outliers"]
-        fate = "excluded from the fit" if j["outliers_excluded_from_fit"] else "kept in the fit"
-        lines.append(f"outliers (reported, {fate}): "
-                     + ", ".join(f"row {x['row']} ({x['error_mm']:.2f} mm)" for x in o[:10])
-                     + (f" and {len(o) - 10} more" if len(o) > 10 else ""))
-    cited = {k for why in list(j["implausible"].values()) + list(j["at_edge"].values()) for k in why}
-    texts = sorted({j["sources"][k] for k in cited if k in j["sources"]})
-    if texts:
-        lines.append("plausible ranges from: " + "; ".join(f"[{i + 1}] {t}" for i, t in enumerate(texts)))
-    lines.append(f"time: {j['seconds']:.1f} s ({j['solves']} Cosserat solves)")
-    return lines
+        return summary_text(self)
 
 
 def error_stats(err: np.ndarray, length: np.ndarray) -> dict:
@@ -427,12 +333,12 @@ def error_stats(err: np.ndarray, length: np.ndarray) -> dict:
 
 
 def diagnose(data: MeasuredData, robot: Robot | None = None, options: DiagnoseOptions | None = None, *,
-             direction: np.ndarray | None = None, progress: Callable[[str], None] | None = None) -> Diagnosis:
+             motion: Motion | None = None, progress: Callable[[str], None] | None = None) -> Diagnosis:
     """Diagnose measured tips against ``robot`` (nominal if None; its calibration is part of the base
     model); see the module docstring.
 
-    ``direction`` (R, 2N): direction of motion of every row, when ``data`` is a subset of a longer
-    acquisition (default: from the rows of ``data``, `motion_direction`). ``progress`` is called with
+    ``motion``: the rows' motion history, when ``data`` is a subset of a longer acquisition (default:
+    the rows of ``data`` are the acquisition, `MeasuredData.motion`). ``progress`` is called with
     a line saying what runs now (each fit, the experiment)."""
     t0 = time.perf_counter()
     robot = robot or Robot.nominal()
@@ -443,18 +349,19 @@ def diagnose(data: MeasuredData, robot: Robot | None = None, options: DiagnoseOp
         raise InputError(f"{data.source}: the data have {data.q.shape[1] // 2} tubes, robot {robot.name!r} "
                          f"has {robot.n_tubes}")
     rows_in_file = len(data)
-    direction_file = motion_direction(data.q) if direction is None else np.asarray(direction, dtype=float)
-    q_file, direction = data.q, direction_file
+    motion = data.motion() if motion is None else motion
+    q_file, direction_file = data.q, motion.direction
     if len(data) > opt.max_rows:
         keep = contiguous_subsample(len(data), opt.max_rows)
-        data, direction = data.subset(keep), direction[keep]
-    ev_all = Evaluator(data.q, direction)
+        data, motion = data.subset(keep), motion.subset(keep)
+    direction = motion.direction
+    ev_all = Evaluator(data.q, motion, SolverSettings())     # the reported errors: what `fk` computes
     nominal = ev_all.predict([robot])[0]
     unsolved = np.flatnonzero(~nominal.converged)
     solved = np.setdiff1d(np.arange(len(data)), unsolved)
     noise = estimate_noise(data.q[solved], direction[solved], (data.tips_mm - nominal.tips_mm)[solved],
                            data.tubes)
-    selector = Selector(data, robot, opt, direction, nominal, q_file, direction_file, progress)
+    selector = Selector(data, robot, opt, motion, nominal, q_file, direction_file, progress)
 
     def without(split: Split, drop: np.ndarray) -> Split:
         return replace(split, train=np.setdiff1d(split.train, np.union1d(unsolved, drop)),
@@ -470,7 +377,7 @@ def diagnose(data: MeasuredData, robot: Robot | None = None, options: DiagnoseOp
         sel = selector.select(without(main, outliers), [without(s, outliers) for s in resamples])
         extended = _extended(ev_all, sel, nominal)
         outliers = _outliers(data, extended, unsolved, opt.outlier_mads)
-    diag = Diagnosis(data=data, rows_in_file=rows_in_file, robot=robot, options=opt, direction=direction,
+    diag = Diagnosis(data=data, rows_in_file=rows_in_file, robot=robot, options=opt, motion=motion,
                      selection=sel, unsolved=unsolved, nominal=nominal, extended=extended,
                      outliers=outliers, outliers_refit=refit, noise=noise)
     from ctrplan.calibration.where import where_analysis

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ctrplan.calibration.fit import Evaluator
-from ctrplan.model.measurement import motion_direction
+from ctrplan.calibration.predict import Evaluator
+from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot
 
 #: Configurations drawn per row asked for (the best of them are kept).
@@ -84,10 +84,10 @@ def separating_rows(base: Robot, named: tuple[str, Robot], ties: list[tuple[str,
 def _differences(q: np.ndarray, models: list[Robot], tubes: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
     """Per row of ``q`` (in measuring order) and tie: the largest tip distance over ``tubes`` between
     ``models[0]`` and that tie (R, ties), mm; and whether every model solves the row and is stable."""
-    direction = motion_direction(q)
+    motion = Motion.of(q)
     step = np.r_[np.full(q.shape[1] // 2, PROBE_STEP[0]), np.full(q.shape[1] // 2, PROBE_STEP[1])]
-    preds = Evaluator(q, direction).predict(models)
-    probes = Evaluator(q + step, direction).predict(models, guess=preds[0].initial_state)
+    preds = Evaluator(q, motion).predict(models)
+    probes = Evaluator(q + step, motion).predict(models, guess=preds[0].initial_state)
     t = list(tubes)
     tips = np.stack([p.tips_mm[:, t] for p in preds])                         # (M, R, T, 3)
     moved = np.linalg.norm(np.stack([p.tips_mm[:, t] for p in probes]) - tips, axis=-1).max(axis=(0, 2))

@@ -5,9 +5,13 @@ A model is one `Robot`: its mechanics solved by the Cosserat backend, its calibr
 reported joints to the mechanics and the solved tips to the tracker (`ctrplan.model.measurement`).
 
 Cost model: a Jacobian costs one batched forward call per parameter that changes the mechanics
-(curvature, stiffness, loads: the kernel takes robot parameters per call); all perturbations that
-only change the joints (joint offsets, backlash) are stacked into ONE call with the rows; tip and
-frame perturbations (sensor offset, registration) need no solve at all. Every solve is warm-started
+(curvature, stiffness, loads: the kernel takes robot parameters per call); parameters that only
+change the joints the mechanics sees (joint offsets, latency, backlash, friction, windup) act through
+d tips / d q, one batched call per joint they move (the chain rule: a friction of nine slip elements
+on three moving joints costs three calls, not nine); tip and frame perturbations (sensor offset,
+registration) need no solve at all. A trial the solver cannot solve (a joint offset that pulls a
+tube behind the plate, a NaN) is a row without a solution: it keeps its last prediction, and the
+trust region shrinks back from it. Every solve is warm-started
 from the solution of the same row at the current parameters (`Backbone.initial_state`), so Newton
 needs 1-3 steps.
 """
@@ -20,11 +24,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from ctrplan.kinematics import CosseratBackend
+from ctrplan.calibration.predict import TRIAL_SOLVER, Evaluator, Prediction, View
 from ctrplan.model.causes.base import CONFIDENCE_Z, Effect, Param
 from ctrplan.model.robot import Robot
 
 FD_STEP = 1e-3  # finite-difference step in units of each parameter's typical scale
+JOINT_STEP = 1e-4  # finite-difference step of a joint (mm or rad) for parameters that act through the joints
 FIT_TOL = 1e-5  # relative tolerance of least squares on the cost and on the parameter step
 #: The Jacobian is reused while the parameters stay this close (typical deviations) to where it was
 #: computed: the last steps of a fit are short, the model is smooth on that scale.
@@ -33,69 +38,6 @@ JAC_REUSE = 0.1
 RESOLVED_SV = 1e-6
 #: A parameter known no better than this many typical lab deviations (``Param.scale``) is not resolved.
 RESOLVED_SCALES = 10.0
-
-
-@dataclass
-class Prediction:
-    """Predicted tips of a set of rows under one model."""
-
-    tips_mm: np.ndarray          # (n, 3, 3) what the tracker sees, measurement frame
-    robot_tips_mm: np.ndarray    # (n, 3, 3) solved tube tips, robot frame
-    converged: np.ndarray        # (n,)
-    initial_state: np.ndarray    # (n, 15)
-    tip_rotation: np.ndarray     # (n, 3, 3) tip frame R(l1) of tube 1, robot frame
-
-    def subset(self, idx: np.ndarray) -> Prediction:
-        return Prediction(tips_mm=self.tips_mm[idx], robot_tips_mm=self.robot_tips_mm[idx],
-                          converged=self.converged[idx], initial_state=self.initial_state[idx],
-                          tip_rotation=self.tip_rotation[idx])
-
-
-class Evaluator:
-    """Predicts measured tips of fixed rows (reported joints in acquisition order plus their
-    direction of motion) for any number of robot models, batching the solves of each mechanics."""
-
-    def __init__(self, q: np.ndarray, direction: np.ndarray):
-        self.q = np.asarray(q, dtype=float)
-        self.direction = np.asarray(direction, dtype=float)
-        self.solves = 0
-        self.calls = 0
-
-    def __len__(self) -> int:
-        return self.q.shape[0]
-
-    def predict(self, models: Sequence[Robot], guess: np.ndarray | None = None) -> list[Prediction]:
-        n = len(self.q)
-        groups: dict[Robot, list] = {}
-        plan = []
-        for robot in models:
-            # models that differ only in the joints they see share one batched solve
-            mech = robot.mechanics.with_changes(joint_offset=(0.0,) * robot.n_joints, name="")
-            qj = robot.calibration.mechanics_joints(self.q, self.direction) + np.asarray(robot.joint_offset)
-            g = groups.setdefault(mech, [])
-            key = qj.tobytes()
-            j = next((i for i, (k, _) in enumerate(g) if k == key), None)
-            if j is None:  # a new set of joints for this mechanics: solve it
-                g.append((key, qj))
-                j = len(g) - 1
-            plan.append((mech, j, robot.calibration))
-        solved: dict[Robot, tuple] = {}
-        for mech, g in groups.items():
-            stack = np.concatenate([qj for _, qj in g], axis=0)
-            tiled = None if guess is None else np.tile(guess, (len(g), 1))
-            bb = CosseratBackend(mech).forward(stack, points=2, check=False, guess=tiled)
-            self.solves += len(stack)
-            self.calls += 1
-            rot = bb.rotations[:, -1]
-            solved[mech] = (bb.tips_mm.reshape(len(g), n, *bb.tips_mm.shape[1:]),
-                            bb.converged.reshape(len(g), n), bb.initial_state.reshape(len(g), n, -1),
-                            rot.reshape(len(g), n, 3, 3))
-        out = []
-        for mech, j, calib in plan:
-            tips, conv, init, rot = solved[mech]
-            out.append(Prediction(tips_mm=calib.tracked_tips(tips[j], rot[j]), robot_tips_mm=tips[j],
-                                  converged=conv[j], initial_state=init[j], tip_rotation=rot[j]))
-        return out
 
 
 @dataclass
@@ -272,10 +214,14 @@ class _Problem:
         hit = self.cache.get(key)
         if hit is None:
             model = self.effect.with_values(self.base_robot, self.phys(z))
-            pred = self.ev.predict([model], guess=self.guess)[0]
-            ok = pred.converged
+            pred = self.ev.predict([model], guess=self.guess, settings=TRIAL_SOLVER)[0]
+            t = list(self.tubes)
+            ok = pred.converged & np.isfinite(pred.tips_mm[:, t]).all(axis=(1, 2))
             self.guess[ok] = pred.initial_state[ok]
             r = residual_vector(self.measured, pred, self.tubes, self.fallback)
+            bad = ~np.isfinite(r)
+            if bad.any():   # a trial whose prediction has no number there: those rows keep the last one
+                r[bad] = (self.measured[:, t] - self.fallback[:, t]).reshape(-1)[bad]
             self.fallback[ok] = pred.tips_mm[ok]
             if len(self.cache) > 8:
                 self.cache.pop(next(iter(self.cache)))
@@ -292,17 +238,42 @@ class _Problem:
         r, pred = self.evaluate(z)
         guess = np.where(pred.converged[:, None], pred.initial_state, self.guess)
         fallback = np.where(pred.converged[:, None, None], pred.tips_mm, self.fallback)
-        models = []
+        ev = self.ev
+        base = ev.view(self.effect.with_values(self.base_robot, self.phys(z)))
+        views = []
         for j in range(len(self.idx)):
             zj = np.array(z, dtype=float)
             zj[j] += FD_STEP
-            models.append(self.effect.with_values(self.base_robot, self.phys(zj)))
-        preds = self.ev.predict(models, guess=guess)
+            views.append(ev.view(self.effect.with_values(self.base_robot, self.phys(zj))))
+        # a parameter that changes only the joints the mechanics sees (offsets, latency, backlash,
+        # friction) acts through d tips / d q: one solve per joint that moves, not one per parameter
+        by_joints = [j for j, v in enumerate(views) if base.same_but_joints(v)]
+        solved = [j for j in range(len(views)) if j not in by_joints]
         J = np.empty((r.size, len(self.idx)))
-        for j, pj in enumerate(preds):
+        trials = ev.predict_views([views[j] for j in solved], guess=guess, settings=TRIAL_SOLVER)
+        for j, pj in zip(solved, trials, strict=True):
             J[:, j] = (residual_vector(self.measured, pj, self.tubes, fallback) - r) / FD_STEP
+        if by_joints:
+            q0 = base.joints(len(ev))
+            dq = {j: views[j].joints(len(ev)) - q0 for j in by_joints}
+            moved = sorted({c for j in by_joints for c in np.flatnonzero(np.abs(dq[j]).max(axis=0) > 0)})
+            d_res = self._joint_derivatives(base, moved, r, guess, fallback)
+            for j in by_joints:
+                J[:, j] = sum((d_res[c] * dq[j][:, c, None]).reshape(-1) for c in moved) / FD_STEP \
+                    if moved else 0.0
+        J[~np.isfinite(J)] = 0.0
         self.near_jac = (np.array(z, dtype=float), J)
         return J
+
+    def _joint_derivatives(self, base: View, joints: list[int], r: np.ndarray, guess: np.ndarray,
+                           fallback: np.ndarray) -> dict[int, np.ndarray]:
+        """d residual / d q_c (R, T * 3) per row, for each joint c of ``joints``, of the model whose
+        `View` is ``base``: one batched solve per joint, a forward step of `JOINT_STEP` (mm or rad)."""
+        probes = self.ev.predict_views([base.shifted(c, JOINT_STEP) for c in joints], guess=guess,
+                                       settings=TRIAL_SOLVER)
+        rows = len(self.ev)
+        return {c: ((residual_vector(self.measured, pc, self.tubes, fallback) - r)
+                    / JOINT_STEP).reshape(rows, -1) for c, pc in zip(joints, probes, strict=True)}
 
 
 def _result(effect: Effect, base_robot: Robot, params: list[Param], x: np.ndarray, r: np.ndarray, res,
@@ -392,31 +363,62 @@ def _uncertainty(J: np.ndarray, rss: float, n: int, k: int) -> tuple[np.ndarray,
     return cov, ~weak
 
 
+@dataclass
+class PartnerScore:
+    """A score test of adding a partner effect to a fit (`partner_scores`): the linearised training RSS
+    with it, and the partner's linearised values (file units) with their covariance."""
+
+    rss: float
+    x: np.ndarray
+    cov: np.ndarray
+    step: np.ndarray       # the linearised step in the fit's scaled units (x = x0 + scale * step)
+
+    def beyond(self, effect: Effect, robot: Robot, limits: dict[str, tuple[float, float]],
+               z: float = CONFIDENCE_Z) -> list[str]:
+        """The partner's parameters the linearised fit puts past a hard bound (or a limit the rows set)
+        by more than ``z`` standard deviations, and its implausible checks: fitting it is futile."""
+        sd = np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
+        out = []
+        for p, v, s in zip(effect.params(robot), self.x, sd, strict=True):
+            lo, hi = limits.get(p.name, (-np.inf, np.inf))
+            if v + z * s < max(p.lower, lo) or v - z * s > min(p.upper, hi):
+                out.append(p.name)
+        return out + list(effect.implausible(robot, self.x, self.cov))
+
+
 def partner_scores(fit: FitResult, partners: Sequence[Effect], ev: Evaluator, measured: np.ndarray,
-                   tubes: Sequence[int], guess: Prediction) -> list[float]:
-    """Linearised training RSS if each partner effect were added to the fitted ``fit`` (a score test:
-    one finite-difference Jacobian of the partner's parameters at the fitted model, one batched solve
-    per mechanical parameter, then linear least squares on the fit's residual). Lower is better."""
-    base_pred = ev.predict([fit.robot], guess=guess.initial_state)[0]
-    fallback = np.where(base_pred.converged[:, None, None], base_pred.tips_mm, guess.tips_mm)
-    r = residual_vector(measured, base_pred, tubes, fallback)
-    models, cols = [], []
+                   tubes: Sequence[int], guess: Prediction) -> list[PartnerScore]:
+    """The score test of adding each partner effect to the fitted ``fit``: one finite-difference
+    Jacobian of the partner's parameters at the fitted model (`_Problem.jac`: a batched solve per
+    mechanical parameter, per moving joint for the joint-side ones), then linear least squares on the
+    fit's residual. A lower linearised RSS is better."""
+    out = []
     for p_eff in partners:
         params = p_eff.params(fit.robot)
         x0 = p_eff.values(fit.robot)
-        for j, p in enumerate(params):
-            x = x0.copy()
-            x[j] += FD_STEP * p.scale
-            models.append(p_eff.with_values(fit.robot, x))
-        cols.append(len(params))
-    preds = ev.predict(models, guess=np.where(base_pred.converged[:, None], base_pred.initial_state,
-                                              guess.initial_state))
-    scores, i = [], 0
-    for k in cols:
-        J = np.stack([(residual_vector(measured, preds[i + j], tubes, fallback) - r) / FD_STEP
-                      for j in range(k)], axis=1)
-        i += k
+        scale = np.array([p.scale for p in params])
+        problem = _Problem(p_eff, fit.robot, ev, measured, tubes, guess, x0, np.arange(len(params)), scale)
+        r, _ = problem.evaluate(np.zeros(len(params)))
+        J = problem.jac(np.zeros(len(params)))
         delta, *_ = np.linalg.lstsq(J, -r, rcond=None)
         rl = r + J @ delta
-        scores.append(float(rl @ rl))
-    return scores
+        cov, _ = _uncertainty(J, float(rl @ rl), r.size, len(params))
+        out.append(PartnerScore(float(rl @ rl), x0 + delta * scale, cov * np.outer(scale, scale), delta))
+    return out
+
+
+def linearised_errors(fit: FitResult, partner: Effect, score: PartnerScore, ev: Evaluator,
+                      measured: np.ndarray, tubes: Sequence[int], guess: Prediction) -> np.ndarray:
+    """Tip errors (R, T) mm on the rows of ``ev`` (NaN for unmeasured tubes) of ``fit`` with ``partner``
+    added at its linearised step ``score.step`` (`partner_scores`): what the fit of the pair would
+    give there, to first order -- one Jacobian of the partner on these rows."""
+    params = partner.params(fit.robot)
+    scale = np.array([p.scale for p in params])
+    problem = _Problem(partner, fit.robot, ev, measured, tubes, guess, partner.values(fit.robot),
+                       np.arange(len(params)), scale)
+    zero = np.zeros(len(params))
+    r, _ = problem.evaluate(zero)
+    res = (r + problem.jac(zero) @ score.step).reshape(len(ev), len(tubes), 3)
+    out = np.full(measured.shape[:2], np.nan)
+    out[:, list(tubes)] = np.linalg.norm(res, axis=-1)
+    return out

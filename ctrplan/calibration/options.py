@@ -19,7 +19,7 @@ class DiagnoseOptions:
     seed: int = 0                  # seed of the held-out blocks
     pairs: int = 3                 # grow a cause set by trying this many partners (0: single causes only)
     grow_from: int = 2             # grow cause sets from this many best single causes
-    max_causes: int = 3            # up to this many causes
+    max_causes: int = 4            # up to this many causes
     bic_margin: float = 10.0       # BIC must drop by more than this ("very strong" evidence)
     min_gain: float = 0.05         # and the held-out mean error by at least this fraction
     alpha: float = 0.01            # with this significance (one-sided Wilcoxon, held-out rows)

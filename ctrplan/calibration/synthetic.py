@@ -14,9 +14,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ctrplan.calibration.data import MeasuredData
-from ctrplan.calibration.fit import Evaluator
+from ctrplan.calibration.predict import Evaluator
+from ctrplan.kinematics.cosserat import SolverSettings
 from ctrplan.model.causes.base import make_effect
-from ctrplan.model.measurement import motion_direction
+from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot
 
 
@@ -73,7 +74,7 @@ def generate(n: int = 200, cause: str = "none", seed: int | None = 0, noise_mm: 
         truth = effect.with_values(truth, x)
         params.update({p.name: float(v) for p, v in zip(effect.params(robot), x, strict=True)})
     q = random_walk(n, robot, rng)
-    pred = Evaluator(q, motion_direction(q)).predict([truth])[0]
+    pred = Evaluator(q, Motion.of(q), SolverSettings()).predict([truth])[0]
     if not pred.converged.all():  # pragma: no cover - the walk stays in the snap-free domain
         raise RuntimeError("synthetic truth did not converge")
     clean = pred.tips_mm

@@ -7,7 +7,7 @@ import numpy as np
 from scipy import stats
 
 from ctrplan.base.dataio import joint_names
-from ctrplan.calibration.fit import Evaluator
+from ctrplan.calibration.predict import Evaluator
 
 #: Finite-difference steps for the joint sensitivities: mm for beta, rad for alpha.
 BETA_STEP_MM, ALPHA_STEP_RAD = 1e-3, 1e-4
@@ -25,7 +25,7 @@ def joint_sensitivity(diag) -> np.ndarray:
     d = diag.data
     nj = d.q.shape[1]
     step = joint_steps(nj)
-    ev = Evaluator(d.q, diag.direction)
+    ev = Evaluator(d.q, diag.motion)
     models = []
     for j in range(nj):
         off = np.zeros(nj)
@@ -92,10 +92,11 @@ def where_analysis(diag) -> dict:
         if np.isfinite(rho) and abs(rho) > abs(best[0]):
             best = (rho, name)
     if best[1] is not None and abs(best[0]) >= 0.3:
-        b = by_joint[best[1]]
+        low, high = by_joint[best[1]]["quartile_mean_mm"][::3]
+        quarters = "" if low is None or high is None else \
+            f": {low:.2f} mm in its lowest quarter, {high:.2f} mm in its highest"
         findings.append(f"tip error {'grows' if best[0] > 0 else 'shrinks'} with {best[1]} (Spearman "
-                        f"{best[0]:+.2f}): {b['quartile_mean_mm'][0]:.2f} mm in its lowest quarter, "
-                        f"{b['quartile_mean_mm'][3]:.2f} mm in its highest")
+                        f"{best[0]:+.2f}){quarters}")
     # direction of motion
     sens = joint_sensitivity(diag)
     diag.sensitivity = sens

@@ -25,7 +25,9 @@ from ctrplan.cli.options import BackendOpt, ModelOpt, RobotOpt, load_backend
 from ctrplan.kinematics import Backbone
 from ctrplan.kinematics.base import DEFAULT_POINTS
 from ctrplan.kinematics.registry import EXACT_MODEL
+from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot, read_joints
+from ctrplan.model.sessions import SESSION_COLUMN
 
 #: Output rows (configurations x backbone points) solved and written per chunk.
 CHUNK_ROWS = 10_000
@@ -77,26 +79,26 @@ def _run(configs: Path, backend: str, robot: str | None, model: str | None, allo
     check_fits("--points", points, 2 * backbone_bytes(robot_model.n_tubes, 1) + CSV_ROW_BYTES,
                "backbone points per configuration")
     with atomic_write(output) if output else nullcontext(sys.stdout) as fh:
-        kinematics = load_backend(backend, robot_model, model)
-        if stability:
-            kinematics = kinematics.checking_stability()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             table = read_joints(configs, robot_model, allow_outside_domain=allow_outside_domain)
         for w in caught:
             typer.echo(f"ctrplan: warning: {w.message}", err=True)
-        # the robot file's calibration (an extended robot of `ctrplan diagnose`): backlash and windup
-        # on the rows in their order, then sensor offset and registration on each solved backbone
-        calib = robot_model.calibration
-        reached = calib.mechanics_joints(table.joints)
+        models = _session_models(robot_model, table, backend, model, stability)
         chunk = max(1, CHUNK_ROWS // points)
         failed = []
         fh.write(",".join(header(robot_model)) + "\n")
         with progress_bar(len(table.lines), "configurations") as advance:
             for start in range(0, len(table.lines), chunk):
-                rows_ = slice(start, start + chunk)
+                rows_ = np.arange(start, min(start + chunk, len(table.lines)))
                 lines = table.lines[rows_]
-                backbone = calib.apply(kinematics.forward(reached[rows_], points=points, check=False))
+                parts = []
+                for of_session, calib, reached, kinematics in models:
+                    mine = np.flatnonzero(of_session[rows_])
+                    if mine.size:
+                        bb = kinematics.forward(reached[rows_[mine]], points=points, check=False)
+                        parts.append((mine, calib.apply(bb)))
+                backbone = Backbone.interleaved(parts)
                 backbone = replace(backbone, q=table.joints[rows_])  # outputs name the commanded joints
                 failed.append(lines[~backbone.converged])
                 fh.write(format_csv(None, *rows(lines, backbone)))
@@ -106,6 +108,26 @@ def _run(configs: Path, backend: str, robot: str | None, model: str | None, allo
         listed = ", ".join(map(str, failed[:10])) + (", ..." if failed.size > 10 else "")
         typer.echo(f"ctrplan: note: {failed.size} of {len(table.lines)} configurations did not "
                    f"converge (rows {listed}); their outputs are NaN", err=True)
+
+
+def _session_models(robot: Robot, table, backend: str, model: str | None, stability: bool) -> list[tuple]:
+    """How each row is predicted: per measurement session (one, unless the robot's values differ between
+    sessions and the file has a ``session`` column), the rows of it (mask), the robot's calibration --
+    latency, backlash, friction and windup on the rows in their order (``reached``: the joints its
+    mechanics sees), then sensor offset and registration on each solved backbone -- and the backend of
+    its mechanics."""
+    labels = table.labels.get(SESSION_COLUMN)
+    motion = Motion.of(table.joints, session=labels)        # each session a sequence of its own
+    names = [None] if labels is None or not robot.sessions else list(dict.fromkeys(labels.tolist()))
+    out = []
+    for name in names:
+        r = robot if name is None else robot.for_session(name)
+        kinematics = load_backend(backend, r, model)
+        if stability:
+            kinematics = kinematics.checking_stability()
+        mask = np.ones(len(table.lines), dtype=bool) if name is None else labels == name
+        out.append((mask, r.calibration, r.calibration.mechanics_joints(table.joints, motion), kinematics))
+    return out
 
 
 @app.command()

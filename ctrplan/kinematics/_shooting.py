@@ -593,11 +593,37 @@ def _physical(Y, nodes):
 
 
 @njit(cache=True)
+def solvable(q, lengths, straight, kappa, EI, GJ, force, weight, ends):
+    """Whether the kernels can integrate configuration q (2N,) at all: every number finite (joints,
+    tube parameters, loads), stiffnesses and lengths positive, tube 1 reaching in front of the plate
+    (l1 > 0). Anything else -- a fitter's trial that pulls a tube behind the plate, a NaN -- is a
+    configuration without a solution, not an error."""
+    for v in q:
+        if not math.isfinite(v):
+            return False
+    for i in range(len(kappa)):
+        if not (math.isfinite(kappa[i]) and math.isfinite(straight[i]) and math.isfinite(ends[i])):
+            return False
+        if not (EI[i] > 0.0 and GJ[i] > 0.0 and lengths[i] > 0.0 and math.isfinite(EI[i] + GJ[i])):
+            return False
+        for a in range(3):
+            if not math.isfinite(weight[i, a]):
+                return False
+    for a in range(3):
+        if not math.isfinite(force[a]):
+            return False
+    return ends[0] > 0.0
+
+
+@njit(cache=True)
 def solve_one(q, x0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weight, loaded,
-              h_multi, h_single, tol, max_iter, with_stability, states, tips, state0):
+              h_multi, h_single, tol, max_iter, with_stability, retry_cold, states, tips, state0):
     """Solve one configuration q (2N,). ``x0`` is the warm-start guess, used when ``warm``; otherwise
     (or if the warm start fails) a cold start from zero torsion. ``s_frac`` (P,) are output arc
     lengths as fractions of l1.
+
+    ``retry_cold``: when a warm start fails, solve cold (else the row is not converged -- what a fitter
+    wants: its warm starts track the solution, and a cold start under load is a continuation, slow).
 
     Fills ``states`` (P, 2N + 9), ``tips`` (N, 3) and ``state0`` (2N + 9,) at s = 0; returns
     ``(x, converged, iterations, residual in 1/m, stability)`` with ``stability`` from
@@ -607,6 +633,14 @@ def solve_one(q, x0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weig
     beta = q[:nt].copy()
     alpha = q[nt:].copy()
     ends = beta + lengths
+    if not solvable(q, lengths, straight, kappa, EI, GJ, force, weight, ends):
+        states[:, :] = np.nan
+        tips[:, :] = np.nan
+        state0[:] = np.nan
+        return np.zeros(x0.shape[0]), False, 0, np.nan, np.nan
+    for v in x0:
+        if not math.isfinite(v):
+            warm = False     # a guess without a number in it: start cold
     nodes, seg_of, present, kc, bend, end_node = build_grid(beta, lengths, straight, EI, h_multi, h_single)
     conv = False
     it = 0
@@ -614,7 +648,7 @@ def solve_one(q, x0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weig
     if warm:
         x, conv, it, rn = shoot(x0, beta, alpha, kappa, EI, GJ, ends, force, weight, loaded,
                                 nodes, seg_of, present, kc, bend, end_node, tol, max_iter)
-    if not conv:
+    if not conv and (retry_cold or not warm):
         if loaded:
             x, conv, itc, rn = _solve_loaded_cold(beta, alpha, kappa, EI, GJ, ends, force, weight,
                                                   nodes, seg_of, present, kc, bend, end_node, tol,
@@ -653,13 +687,13 @@ def solve_one(q, x0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weig
 
 @njit(cache=True, parallel=True)
 def solve_many(Q, X0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weight, loaded,
-               h_multi, h_single, tol, max_iter, with_stability, states, tips, state0, X, conv, iters,
-               resid, stab):
+               h_multi, h_single, tol, max_iter, with_stability, retry_cold, states, tips, state0, X, conv,
+               iters, resid, stab):
     """`solve_one` over a batch (B, 2N) in parallel; outputs indexed by the batch row."""
     for b in prange(Q.shape[0]):
         x, c, it, r, st = solve_one(Q[b], X0[b], warm, s_frac, lengths, straight, kappa, EI, GJ, force,
                                     weight, loaded, h_multi, h_single, tol, max_iter, with_stability,
-                                    states[b], tips[b], state0[b])
+                                    retry_cold, states[b], tips[b], state0[b])
         X[b, :] = x
         conv[b] = c
         iters[b] = it
@@ -669,8 +703,8 @@ def solve_many(Q, X0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, wei
 
 @njit(cache=True, parallel=True)
 def solve_chains(Q, X0, warm, starts, s_frac, lengths, straight, kappa, EI, GJ, force, weight, loaded,
-                 h_multi, h_single, tol, max_iter, with_stability, states, tips, state0, X, conv, iters,
-                 resid, stab):
+                 h_multi, h_single, tol, max_iter, with_stability, retry_cold, states, tips, state0, X, conv,
+                 iters, resid, stab):
     """`solve_one` along consecutive rows of a path (B, 2N), in chains ``starts[c]:starts[c + 1]``
     run in parallel: a chain's first row starts from ``X0`` (when ``warm``), every later row from the
     solution of the row before it (continuation; cold where that did not converge), extrapolated
@@ -683,7 +717,7 @@ def solve_chains(Q, X0, warm, starts, s_frac, lengths, straight, kappa, EI, GJ, 
                 x0 = 2.0 * X[b - 1] - X[b - 2]    # extrapolated along the path
             x, cv, it, r, st = solve_one(Q[b], x0, follow or warm, s_frac, lengths, straight, kappa, EI,
                                          GJ, force, weight, loaded, h_multi, h_single, tol, max_iter,
-                                         with_stability, states[b], tips[b], state0[b])
+                                         with_stability, retry_cold, states[b], tips[b], state0[b])
             X[b, :] = x
             conv[b] = cv
             iters[b] = it

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -71,6 +71,24 @@ class Backbone:
 
     def __len__(self) -> int:
         return self.q.shape[0]
+
+    @classmethod
+    def interleaved(cls, parts: list[tuple[np.ndarray, Backbone]]) -> Backbone:
+        """One backbone of parts ``(rows, backbone)`` whose ``rows`` (indices into the result) together
+        cover 0..B-1 once (e.g. rows of several measurement sessions, each solved by its own model)."""
+        n = sum(len(rows) for rows, _ in parts)
+        first = parts[0][1]
+        out = {}
+        for f in fields(cls):
+            value = getattr(first, f.name)
+            if not isinstance(value, np.ndarray):
+                out[f.name] = value
+                continue
+            arr = np.empty((n, *value.shape[1:]), dtype=value.dtype)
+            for rows, b in parts:
+                arr[rows] = getattr(b, f.name)
+            out[f.name] = arr
+        return cls(**out)
 
     @property
     def n_tubes(self) -> int:

@@ -26,6 +26,8 @@ class SolverSettings:
     sum GJ_i u_iz = 0 (fast); if False, always shoot for all N + 2 (the general loaded path).
     ``stability``: also compute the elastic-stability measure of every solution
     (`Backbone.stability`; about one more Jacobian's worth of integration per configuration).
+    ``retry_cold``: a row whose warm start fails is solved again from cold (False: it is reported not
+    converged -- for fitters, whose warm starts follow the solution).
     """
 
     step_multi_mm: float = 2.0
@@ -34,6 +36,7 @@ class SolverSettings:
     max_iterations: int = 40
     exploit_free_space: bool = True
     stability: bool = False
+    retry_cold: bool = True
 
 
 @dataclass(frozen=True)
@@ -109,7 +112,7 @@ class CosseratBackend(Backend):
         rod = replace(self.rod, lengths=self.rod.lengths + d, straight=self.rod.straight + d)
         st = self.settings
         self._kernel_args = (*rod.shooting_arrays(), self.loaded, st.step_multi_mm, st.step_single_mm,
-                             st.tolerance_per_m * 1e-3, st.max_iterations, st.stability)
+                             st.tolerance_per_m * 1e-3, st.max_iterations, st.stability, st.retry_cold)
 
     @property
     def n_unknowns(self) -> int:

@@ -11,8 +11,9 @@ tracker sees relate to its mechanics.
 
 A prediction for measured rows, for any backend, takes three steps:
 
-1. `Calibration.mechanics_joints` -- reported joints (rows in acquisition order, with their direction
-   of motion, `motion_direction`) -> the joints the mechanics sees (backlash, torsional windup);
+1. `Calibration.mechanics_joints` -- reported joints (rows in acquisition order, with their motion
+   history, `ctrplan.model.motion.Motion`) -> the joints the mechanics sees (latency, backlash,
+   friction, torsional windup);
 2. the pure mechanics (`Robot.mechanics`, its joint offsets included) solves them;
 3. `Calibration.tracked_tips` -- the solved tube tips in the robot frame (and the tip frame of tube 1
    where `needs_tip_rotation`: a sensor offset) -> what the tracker sees (registration).
@@ -20,15 +21,12 @@ A prediction for measured rows, for any backend, takes three steps:
 In a robot file each term is one key of the ``calibration`` mapping (see each effect's ``key``)::
 
     calibration:
+      latency_rows: t
       backlash_rad: [b1, ..., bN]
+      friction: {radii: [...], weights: [[...], ...]}      # see `Friction`
       windup_rad_per_mm: [w1, ..., wN]
       sensor_offset_mm: [dx, dy, dz]
       registration: {rotation_vector_rad: [rx, ry, rz], translation_mm: [tx, ty, tz]}
-      lag_correction: {radii_rad: [r1, ..., rK], weights_rad: [[w11, ..., w1K], ..., [wN1, ..., wNK]]}
-
-``lag_correction`` is not a cause of `ctrplan diagnose` but learned from the shots by `ctrplan train
---measured` (`LagCorrection`): the lag of the rotation joints after a reversal, which backlash (an
-instant flip) does not describe.
 """
 
 from __future__ import annotations
@@ -43,12 +41,12 @@ from ctrplan.base.errors import InputError
 from ctrplan.base.yamlio import YamlDoc
 from ctrplan.model.causes.base import EFFECTS, SIDES
 from ctrplan.model.causes.measurement_side import MeasurementEffect
+from ctrplan.model.motion import Motion
 
 if TYPE_CHECKING:
     from ctrplan.kinematics.backbone import Backbone
 
 CALIBRATION_KEY = "calibration"
-LAG_KEY = "lag_correction"
 #: The measurement-side effects by their robot-file key.
 _BY_KEY = {e.key: e() for e in EFFECTS.values() if issubclass(e, MeasurementEffect)}
 
@@ -62,7 +60,6 @@ class Calibration:
     """
 
     terms: tuple[tuple[str, tuple[float, ...]], ...] = ()
-    lag: LagCorrection | None = None    # learned by `ctrplan train --measured`, applied after the terms
 
     def __post_init__(self) -> None:
         for name, _ in self.terms:
@@ -80,15 +77,15 @@ class Calibration:
         """This calibration with term ``name`` set to ``values`` (removed when all zero)."""
         rest = tuple(t for t in self.terms if t[0] != name)
         vals = tuple(float(v) for v in values)
-        return Calibration(rest + ((name, vals),) if any(vals) else rest, self.lag)
+        return Calibration(rest + ((name, vals),) if any(vals) else rest)
 
-    def with_lag(self, lag: LagCorrection | None) -> Calibration:
-        """This calibration with the learned lag correction ``lag`` (None: without one)."""
-        return Calibration(self.terms, lag)
+    def without(self, side: str) -> Calibration:
+        """This calibration without its terms of ``side`` (joints, tip or frame)."""
+        return Calibration(tuple((n, v) for n, v in self.terms if EFFECTS[n].side != side))
 
     @property
     def is_identity(self) -> bool:
-        return not self.terms and self.lag is None
+        return not self.terms
 
     def _side(self, side: str):
         for name, vals in self.terms:
@@ -97,21 +94,20 @@ class Calibration:
                 yield effect, np.array(vals)
 
     # ---- the maps a prediction applies --------------------------------------------------------------
-    def mechanics_joints(self, q: np.ndarray, direction: np.ndarray | None = None) -> np.ndarray:
+    def mechanics_joints(self, q: np.ndarray, motion: Motion | None = None) -> np.ndarray:
         """The joints the mechanics sees (B, 2N), mm and rad, for reported joints q (B, 2N) in
-        acquisition order. ``direction`` (B, 2N): each row's direction of motion (`motion_direction(q)`
-        if None -- pass it when q is a subset of a longer sequence). The robot's joint offsets are not
-        in it: the backends add them."""
+        acquisition order. ``motion``: the rows' motion history (`Motion.of(q)` if None -- pass it when
+        q is a subset of a longer sequence). The robot's joint offsets are not in it: the backends add
+        them."""
         q = np.asarray(q, dtype=float)
         terms = list(self._side("joints"))
-        if not terms and self.lag is None:
+        if not terms:
             return q
-        d = motion_direction(np.atleast_2d(q)).reshape(q.shape) if direction is None \
-            else np.asarray(direction)
-        out = q
+        m = Motion.of(np.atleast_2d(q)) if motion is None else motion
+        out = np.atleast_2d(q)
         for effect, vals in terms:
-            out = effect.joints(vals, out, d)
-        return out if self.lag is None else self.lag.joints(q, d, out)
+            out = effect.joints(vals, out, m)
+        return out.reshape(q.shape)
 
     @property
     def needs_tip_rotation(self) -> bool:
@@ -166,8 +162,7 @@ class Calibration:
         """`InputError` for work that models the mechanics only (``verb``: plan, train) when this
         calibration is not the identity -- it would otherwise be ignored silently."""
         if not self.is_identity:
-            names = ", ".join([name.replace("_", " ") for name, _ in self.terms]
-                              + (["learned lag correction"] if self.lag is not None else []))
+            names = ", ".join(name.replace("_", " ") for name, _ in self.terms)
             raise InputError(
                 f"robot {robot_name!r}: its calibration section ({names}) describes how it is measured and "
                 f"cannot be used to {verb}; delete that section from the robot file to {verb} with its "
@@ -176,8 +171,7 @@ class Calibration:
     # ---- the robot file -------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         """The ``calibration`` mapping of a robot file: one key per term."""
-        out = {EFFECTS[name].key: EFFECTS[name]().write(vals) for name, vals in self.terms}
-        return out if self.lag is None else {**out, LAG_KEY: self.lag.to_dict()}
+        return {EFFECTS[name].key: EFFECTS[name]().write(vals) for name, vals in self.terms}
 
     @classmethod
     def from_doc(cls, doc: YamlDoc, n_tubes: int) -> Calibration:
@@ -190,99 +184,9 @@ class Calibration:
             raise doc.error(keys, f"expected a mapping with some of the keys {', '.join(_BY_KEY)}")
         out = cls()
         for k, value in raw.items():
-            if k == LAG_KEY:
-                out = out.with_lag(LagCorrection.from_doc(doc, keys + (k,), value, n_tubes))
-                continue
             effect = _BY_KEY.get(k)
             if effect is None:
-                allowed = ", ".join(sorted([*_BY_KEY, LAG_KEY]))
+                allowed = ", ".join(sorted(_BY_KEY))
                 raise doc.error(keys + (k,), f"unknown key (allowed: {allowed})")
             out = out.with_term(effect.name, effect.read(doc, keys + (k,), value, n_tubes))
         return out
-
-
-def motion_direction(q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
-    """Direction of the latest motion of every joint (R, 2N) in {-1, 0, +1}, from consecutive rows.
-
-    A joint that did not move keeps the direction of its last move (a backlash gap stays taken up on
-    the side it was last driven); before its first move the direction is 0.
-    """
-    q = np.asarray(q, dtype=float)
-    d = np.zeros_like(q)
-    step = np.diff(q, axis=0)
-    cur = np.zeros(q.shape[1])
-    for r in range(1, len(q)):
-        s = step[r - 1]
-        moved = np.abs(s) > tol
-        cur = np.where(moved, np.sign(s), cur)
-        d[r] = cur
-    return d
-
-
-def play_features(x: np.ndarray, radii_rad, direction: np.ndarray) -> np.ndarray:
-    """Normalised lags (R, C, K) of play (backlash) operators of half-widths ``radii_rad`` (K,) behind
-    the commanded angles x (R, C) in acquisition order: the operator's output follows x only when x is
-    more than r away (y_k = clip(y_(k-1), x_k - r, x_k + r), y_0 = x_0: no lag before the first move)
-    and the feature is (x - y) / r, in [-1, 1]; r = 0 gives ``direction`` (R, C), the direction of
-    motion. These are the inputs of a Prandtl-Ishlinskii hysteresis model."""
-    x = np.asarray(x, dtype=float)
-    r = np.asarray(radii_rad, dtype=float)
-    out = np.empty(x.shape + r.shape)
-    y = np.repeat(x[:1, :, None], r.size, axis=-1) if len(x) else None
-    for k in range(len(x)):
-        y = np.clip(y, x[k, :, None] - r, x[k, :, None] + r)
-        out[k] = (x[k, :, None] - y) / np.where(r > 0, r, 1.0)
-    out[..., r == 0] = np.asarray(direction, dtype=float)[..., None]
-    return out
-
-
-@dataclass(frozen=True)
-class LagCorrection:
-    """A learned direction-dependent lag of the rotation joints (a Prandtl-Ishlinskii model, the
-    standard model of actuator hysteresis): alpha_i reaches ``alpha_i - sum_k w_ik phi_ik``, where
-    phi_ik are the `play_features` of the commanded alpha_i (radius 0: the direction of motion, i.e.
-    backlash; larger radii: a lag that builds up over that much travel after a reversal). Rad.
-
-    Learned from measured shots by `ctrplan train --measured` (`ctrplan.training.lag`); its inputs
-    depend on the rows' order, so rows given together are one sequence (the first rows of a sequence
-    have no history: lag 0 until each joint has moved)."""
-
-    radii_rad: tuple[float, ...]
-    weights_rad: tuple[tuple[float, ...], ...]     # (N, K): one row per rotation joint
-
-    def lag_rad(self, q: np.ndarray, direction: np.ndarray) -> np.ndarray:
-        """The lag (R, N) rad of each rotation joint for reported joints q (R, 2N) in acquisition
-        order with their ``direction`` of motion (R, 2N)."""
-        n = q.shape[-1] // 2
-        phi = play_features(q[:, n:], self.radii_rad, direction[:, n:])
-        return np.einsum("rik,ik->ri", phi, np.asarray(self.weights_rad))
-
-    def joints(self, q: np.ndarray, direction: np.ndarray, mechanics_q: np.ndarray) -> np.ndarray:
-        """``mechanics_q`` (R, 2N) with the lag of the commanded sequence q (R, 2N) subtracted from the
-        rotations."""
-        q2 = np.atleast_2d(q)
-        out = np.array(np.atleast_2d(mechanics_q), dtype=float, copy=True)
-        n = q2.shape[-1] // 2
-        out[:, n:] -= self.lag_rad(q2, np.atleast_2d(direction).reshape(q2.shape))
-        return out.reshape(np.shape(mechanics_q))
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"radii_rad": list(self.radii_rad), "weights_rad": [list(w) for w in self.weights_rad]}
-
-    @classmethod
-    def from_doc(cls, doc: YamlDoc, keys: tuple, value: Any, n_tubes: int) -> LagCorrection:
-        """The correction of a robot file's ``lag_correction`` mapping (validated)."""
-        if not isinstance(value, dict) or set(value) != {"radii_rad", "weights_rad"}:
-            raise doc.error(keys, "expected a mapping with the keys radii_rad and weights_rad")
-        radii, weights = value["radii_rad"], value["weights_rad"]
-        try:
-            r = np.array(radii, dtype=float)
-            w = np.array(weights, dtype=float)
-        except (TypeError, ValueError):
-            raise doc.error(keys, "radii_rad and weights_rad must be numbers") from None
-        if r.ndim != 1 or not r.size or not np.isfinite(r).all() or (r < 0).any():
-            raise doc.error(keys + ("radii_rad",), "expected a list of finite numbers >= 0 (rad)")
-        if w.shape != (n_tubes, r.size) or not np.isfinite(w).all():
-            raise doc.error(keys + ("weights_rad",), f"expected {n_tubes} lists of {r.size} finite "
-                                                     f"numbers (rad), one per tube")
-        return cls(tuple(r.tolist()), tuple(tuple(row) for row in w.tolist()))

@@ -30,6 +30,7 @@ from ctrplan.base.errors import DomainError, InputError
 from ctrplan.base.yamlio import YamlDoc, load_yaml
 from ctrplan.model.actuators import ACTUATORS_KEY, Actuator, actuators_from_yaml
 from ctrplan.model.measurement import CALIBRATION_KEY, Calibration
+from ctrplan.model.sessions import SESSION_COLUMN, SESSIONS_KEY, SessionValues
 
 BUILTIN_ROBOTS = ("nominal",)
 
@@ -310,6 +311,7 @@ class Robot:
     calibration: Calibration = field(default_factory=Calibration)
     name: str = "custom"
     limits: JointLimits = field(default_factory=JointLimits)
+    sessions: SessionValues = field(default_factory=SessionValues)
     actuators: tuple[Actuator, ...] = ()
 
     def __post_init__(self) -> None:
@@ -347,8 +349,16 @@ class Robot:
     @property
     def mechanics(self) -> Robot:
         """The pure mechanics: this robot without its measurement-side calibration (what a backend
-        solves and a PINN is trained on; joint offsets, loads and tube parameters kept)."""
-        return self if self.calibration.is_identity else replace(self, calibration=Calibration())
+        solves and a PINN is trained on; joint offsets, loads and tube parameters kept) and without the
+        values that differ between measurement sessions (its shared values)."""
+        if self.calibration.is_identity and not self.sessions:
+            return self
+        return replace(self, calibration=Calibration(), sessions=SessionValues())
+
+    def for_session(self, session: str) -> Robot:
+        """The robot of measurement session ``session`` (`ctrplan.model.sessions`): the shared robot
+        with the values that differ in that session (the shared robot for a session it does not name)."""
+        return self.sessions.apply(self, session) if self.sessions else self
 
     def save(self, path: str | Path, comment: str = "") -> None:
         """Write the robot file (`to_dict`, atomic); ``comment`` lines go on top as YAML comments."""
@@ -409,6 +419,8 @@ class Robot:
         }
         if not self.calibration.is_identity:  # absent when unused: fingerprints stay stable
             out[CALIBRATION_KEY] = self.calibration.to_dict()
+        if self.sessions:
+            out[SESSIONS_KEY] = self.sessions.to_dict(self)
         if self.limits != JointLimits():
             out["limits"] = dict(vars(self.limits))
         if self.actuators:
@@ -631,7 +643,7 @@ def robot_from_yaml(doc: YamlDoc) -> Robot:
     """Build a validated `Robot` from a parsed robot file; errors name the key and line."""
     d = doc.data
     _unknown(doc, (), d, {"name", "tubes", "domain", "loads", "joint_offset", "limits", CALIBRATION_KEY,
-                          ACTUATORS_KEY})
+                          SESSIONS_KEY, ACTUATORS_KEY})
     tubes_raw = d.get("tubes")
     if not isinstance(tubes_raw, list) or not 1 <= len(tubes_raw) <= MAX_TUBES:
         raise doc.error(("tubes",), f"expected a list of 1 to {MAX_TUBES} tubes (innermost first)")
@@ -672,6 +684,9 @@ def robot_from_yaml(doc: YamlDoc) -> Robot:
     robot = Robot(tubes=tuple(tubes), domain=domain, loads=loads, joint_offset=offset,
                   calibration=calibration, name=str(name), limits=_limits_from_yaml(doc),
                   actuators=actuators_from_yaml(doc, joint_names(n)))
+    if SESSIONS_KEY in d:
+        sessions = SessionValues.from_doc(doc, (SESSIONS_KEY,), d[SESSIONS_KEY], robot)
+        robot = robot.with_changes(sessions=sessions)
     return robot
 
 
@@ -691,13 +706,13 @@ def _limits_from_yaml(doc: YamlDoc) -> JointLimits:
 
 
 def read_joints(path: str | Path, robot: Robot, *, allow_outside_domain: bool = False) -> Table:
-    """Read a configurations CSV (header ``beta1,...,betaN,alpha1,...,alphaN`` for the robot's N tubes)
-    and validate every row against ``robot``.
+    """Read a configurations CSV (header ``beta1,...,betaN,alpha1,...,alphaN`` for the robot's N tubes,
+    optionally a ``session`` column: `Table.labels`) and validate every row against ``robot``.
 
     Out-of-domain rows raise `DomainError` (or warn, with ``allow_outside_domain``) naming the row's
     line and the violated inequality; physically impossible rows always raise `InputError`.
     """
-    table = read_table(path, robot.joint_names, n_tubes=robot.n_tubes)
+    table = read_table(path, robot.joint_names, n_tubes=robot.n_tubes, labels=(SESSION_COLUMN,))
     check_joint_rows(robot, table.joints, table.lines, str(table.path),
                      allow_outside_domain=allow_outside_domain)
     return table

@@ -19,7 +19,7 @@ import numpy as np
 from ctrplan.base.errors import InputError
 from ctrplan.calibration.data import MeasuredData
 from ctrplan.calibration.split import contiguous_subsample, split_rows
-from ctrplan.model.measurement import motion_direction
+from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot
 from ctrplan.training.trainer import Observations
 
@@ -29,7 +29,7 @@ class FewShot:
     """Measured data split for fine-tuning; row indices are 0-based into ``data``, sorted."""
 
     data: MeasuredData
-    direction: np.ndarray       # (N, 6) direction of motion of every row, from the full sequence
+    motion: Motion              # the motion history of every row, from the full sequence
     shots: np.ndarray           # training rows used
     heldout: np.ndarray         # held-out rows inside the snap-free domain
     train_rows: int             # training rows inside the domain (shots were drawn from these)
@@ -58,7 +58,7 @@ def split_shots(data: MeasuredData, shots: int | None = None, heldout_fraction: 
         raise InputError(f"shots: {shots} requested but {data.source} has {len(train)} training rows "
                          f"inside the snap-free domain ({len(heldout)} held out with heldout_fraction "
                          f"{heldout_fraction:g})")
-    return FewShot(data=data, direction=motion_direction(data.q),
+    return FewShot(data=data, motion=data.motion(),
                    shots=train[contiguous_subsample(len(train), shots)], heldout=heldout,
                    train_rows=len(train), heldout_fraction=heldout_fraction, seed=seed,
                    heldout_last=heldout_last)
@@ -79,9 +79,7 @@ def mechanics_joints(robot: Robot, fs: FewShot, rows: np.ndarray, alone: bool = 
     """Joints (R, 2N) the mechanics of ``robot`` sees for ``rows`` (its joint offsets not applied): the
     robot's calibration maps the reported joints (backlash, windup, a learned lag) in the order of the
     whole sequence, or with ``alone`` of the rows by themselves -- as `ctrplan fk` sees a file of them."""
-    if alone:
-        return robot.calibration.mechanics_joints(fs.data.q[rows])
-    return robot.calibration.mechanics_joints(fs.data.q, fs.direction)[rows]
+    return robot.calibration.mechanics_joints(fs.data.q[rows], None if alone else fs.motion.subset(rows))
 
 
 def model_joints(robot: Robot, fs: FewShot, rows: np.ndarray, alone: bool = False) -> np.ndarray:

@@ -10,9 +10,10 @@ Stages (each timed; the card and the printout say how long each took):
    recipe's supervised training on exact solutions of the extended mechanics, started from the given
    PINN and given `ADAPT_MINUTES` (hard-example mining included). This PINN is as good a model of the
    extended robot as the start PINN was of its own.
-3. **learn from the shots** what the physics does not explain: first the lag of the rotation joints
-   after a reversal (`ctrplan.training.lag`: a small correction whose inputs are the direction of
-   motion and play operators of the commanded angles), kept when it lowers the validation error; then
+3. **learn from the shots** what the physics does not explain: first the lag of the joints after a
+   reversal (`ctrplan.training.lag`: the cause library's `friction`, Maxwell-slip elements on the
+   travel of each joint, fitted on all the fit shots when the diagnosis did not name it), kept when it
+   lowers the validation error; then
    the network (with absolute-angle inputs added at zero weight, so it can learn what breaks the
    rotation symmetry -- a tracker offset fixed in the base frame, an encoder error) is fitted to the
    shots through the extended robot's calibration, with exact solutions of the extended mechanics
@@ -43,10 +44,11 @@ from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.model_file import file_sha256, read_card, save_model, write_card_field
 from ctrplan.kinematics.pinn import PinnBackend
 from ctrplan.kinematics.pinn_net import PinnNet
+from ctrplan.model.causes.base import make_effect
 from ctrplan.model.robot import Robot
 from ctrplan.training.evaluate import compare
 from ctrplan.training.fewshot import FewShot, mechanics_joints, model_joints, observations, validation_split
-from ctrplan.training.lag import fit_lag, with_lag
+from ctrplan.training.lag import fit_friction
 from ctrplan.training.physics import quat_to_matrix
 from ctrplan.training.trainer import Recipe, TrainResult, get_recipe, remove_checkpoint, train
 
@@ -55,7 +57,7 @@ ADAPT_MINUTES = 4.0
 
 #: Rows of the comparison table: key -> label.
 MODELS = {"nominal": "nominal Cosserat", "extended": "extended Cosserat",
-          "extended_lag": "extended + learned lag", "pinn_start": "PINN before",
+          "extended_lag": "extended + learned friction", "pinn_start": "PINN before",
           "pinn_adapted": "PINN adapted", "pinn_finetuned": "PINN fine-tuned"}
 #: The PINN stages one of which is written as the model (the best on the validation shots).
 STAGES = ("pinn_start", "pinn_adapted", "pinn_finetuned")
@@ -153,21 +155,22 @@ def tube1_error_mm(tips: np.ndarray, fs: FewShot, rows: np.ndarray) -> float:
 
 
 def learn_lag(ext: Robot, fs: FewShot, fit: np.ndarray, val: np.ndarray, say) -> tuple[Robot, dict]:
-    """The extended robot with a lag correction learned on the ``fit`` shots (`ctrplan.training.lag`)
-    when it lowers the extended Cosserat model's error on the validation shots ``val``; its record."""
-    lag = fit_lag(ext, fs.data.q, fs.direction, fit, fs.data.tips_mm[fit, 0])
-    if lag is None or not len(val):
-        say("learned lag: none (no rotation reverses in the shots, or no validation shots)")
-        return ext, {"kept": False, "reason": "no rotation reverses in the shots, or no validation shots"}
-    model = with_lag(ext, lag)
+    """The extended robot with the `friction` of its joints fitted on the ``fit`` shots
+    (`ctrplan.training.lag`) when that lowers the extended Cosserat model's error on the validation
+    shots ``val``; its record (the fitted friction, in its robot-file form)."""
+    model = fit_friction(ext, fs.data.q[fit], fs.motion.subset(fit), fs.data.tubes, fs.data.tips_mm[fit])
+    if model is None or not len(val):
+        say("learned lag: none (no joint reverses in the shots, or no validation shots)")
+        return ext, {"kept": False, "reason": "no joint reverses in the shots, or no validation shots"}
     before = tube1_error_mm(cosserat_tips(ext, fs, val), fs, val)
     after = tube1_error_mm(cosserat_tips(model, fs, val), fs, val)
     keep = after < before
-    say(f"learned lag of the rotations (direction of motion and play as inputs): validation mean "
+    say(f"learned friction of the joints (Maxwell-slip elements on the travel): validation mean "
         f"{before:.3f} -> {after:.3f} mm, {'kept' if keep else 'not kept'}")
+    friction = make_effect("friction")
     return (model if keep else ext), {"kept": bool(keep), "validation_mean_mm": {"without": round(before, 4),
                                                                              "with": round(after, 4)},
-                                      **lag.to_dict()}
+                                      "friction": friction.write(friction.values(model))}
 
 
 def choose_stage(fs: FewShot, val: np.ndarray, stages: dict[str, tuple[PinnNet, Robot]]) -> dict:
@@ -197,7 +200,7 @@ def finetune(fs: FewShot, start: PinnBackend, out: Path, recipe: Recipe, *, init
     fit, val = validation_split(fs)
     t0 = time.perf_counter()
     say(f"stage 1/3: diagnose on {len(fit)} shots (the last {len(val)} shots validate the stages)")
-    diag = diagnose(fs.data.subset(fit), start.robot, diagnose_options, direction=fs.direction[fit])
+    diag = diagnose(fs.data.subset(fit), start.robot, diagnose_options, motion=fs.motion.subset(fit))
     ext = diag.extended_robot
     seconds["diagnose_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()

@@ -19,7 +19,9 @@ from ctrplan.calibration import (
 from ctrplan.calibration.data import matrix_quaternion, quaternion_matrix
 from ctrplan.calibration.synthetic import generate
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot
+from tests.independent.lab import make
 
 
 @pytest.fixture(scope="module")
@@ -262,3 +264,32 @@ def test_motion_direction_persists_when_joint_rests():
     d = motion_direction(q)
     np.testing.assert_array_equal(d[:, 3], [0, 1, 1, -1, -1, 1])
     assert not d[:, [0, 1, 2, 4, 5]].any()
+
+
+def test_a_rotation_wrapping_around_keeps_its_direction():
+    """Reported angles wrap at +-pi (3.10 -> -3.13 rad is a step of +0.053 rad): the real data's
+    alpha1 and alpha2 wrapped 26 times, each read as a reversal before."""
+    a = np.array([3.0, 3.1, -3.13, -3.0, -3.1, 3.1])
+    q = np.zeros((6, 6))
+    q[:, 4] = a
+    d = motion_direction(q)
+    np.testing.assert_array_equal(d[:, 4], [0, 1, 1, 1, -1, -1])
+    travel = Motion.of(q).travel[:, 4]
+    np.testing.assert_allclose(np.diff(travel), [0.1, 2 * np.pi - 6.23, 0.13, -0.1, 6.2 - 2 * np.pi])
+
+
+def test_session_column_is_read_and_each_session_is_its_own_sequence(tmp_path):
+    lab = make(60, {}, seed=3)
+    lab.session = np.array(["2024-05-01"] * 30 + ["7"] * 30)
+    path = tmp_path / "m.csv"
+    lab.write_csv(path)
+    data = read_measured(path)
+    assert data.sessions == ("2024-05-01", "7")
+    assert data.subset(np.arange(25, 35)).sessions == ("2024-05-01", "7")
+    motion = data.motion()
+    assert not motion.step[30].any() and motion.step[29].any()     # no step across the session change
+    assert not motion.direction[30].any()
+    text = path.read_text().replace(",7\n", ",\n", 1)
+    path.write_text(text)
+    with pytest.raises(InputError, match=r"row 32: session is empty"):
+        read_measured(path)

@@ -14,13 +14,15 @@ from scipy.spatial.transform import Rotation
 
 from ctrplan.base.errors import InputError
 from ctrplan.calibration import CAUSES, EFFECTS, make_effect
-from ctrplan.calibration.fit import Evaluator
+from ctrplan.calibration.predict import Evaluator
 from ctrplan.cli.diagnose import CandidatesOpt
 from ctrplan.kinematics import CosseratBackend
+from ctrplan.kinematics.cosserat import SolverSettings
 from ctrplan.model.causes.base import SIDES
 from ctrplan.model.causes.measurement_side import MeasurementEffect
 from ctrplan.model.causes.mechanics import StiffnessRatio
-from ctrplan.model.measurement import Calibration, motion_direction
+from ctrplan.model.measurement import Calibration
+from ctrplan.model.motion import Motion
 from ctrplan.model.robot import JointDomain, Robot, Tube
 from tests.independent.cosserat import Tubes, solve
 
@@ -43,8 +45,8 @@ def test_one_list_of_causes_derived_from_the_classes():
         assert isinstance(e, MeasurementEffect) == (e.side != "mechanics")
     # the command line offers the same list
     assert all(c in CandidatesOpt.__metadata__[0].help for c in CAUSES)
-    with pytest.raises(InputError, match=r"unknown cause 'friction' \(known: curvature, "):
-        make_effect("curvature+friction")
+    with pytest.raises(InputError, match=r"unknown cause 'stiction' \(known: curvature, stiffness_ratio, "):
+        make_effect("curvature+stiction")
 
 
 @pytest.mark.parametrize("name", CAUSES)
@@ -87,8 +89,42 @@ def test_vector_limits_of_sensor_offset_gravity_and_tip_force():
     g = make_effect("gravity")
     assert g.implausible(robot, np.array([9.81, 0.0, 0.0])) == {}
     assert "gravity_magnitude_m_s2" in g.implausible(robot, np.array([15.0, 15.0, 0.0]))
-    force = np.array([0.015, 0.015, 0.0])
+    force = np.array([0.02, 0.02, 0.0])      # 28 mN: more than a cable's 20 mN and a 1.5 mm tool's 4 mN
     assert "tip_force_magnitude_n" in make_effect("tip_force").implausible(robot, force)
+
+
+def _made_of(robot: Robot, youngs_gpa: float, density: float) -> Robot:
+    return robot.with_changes(tubes=tuple(replace(t, youngs_modulus_mpa=youngs_gpa * 1e3,
+                                                  shear_modulus_mpa=youngs_gpa * 1e3 / 2.7,
+                                                  density_kg_m3=density) for t in robot.tubes))
+
+
+def test_plausible_ranges_follow_the_material_of_the_robot_file():
+    """A nylon robot (E 2 GPa, 1/25 of nitinol's 50) under gravity, with a tool on its 6 mm tip and a
+    curvature relaxed by 55 %, is plausible; the same values for the nitinol file are not. Numbers
+    from the material ranges (closed forms): |g| <= 9.81 (rho_max / E_min) / (rho / E)."""
+    from ctrplan.model.causes.materials import NITINOL, POLYMER, material_of
+
+    nitinol = Robot.nominal()
+    nylon = _made_of(nitinol, 2.0, 1140.0)
+    assert material_of(nylon.tubes[0]) is POLYMER and material_of(nitinol.tubes[0]) is NITINOL
+    g = make_effect("gravity")
+    assert math.isclose(g.max_magnitude(nylon), 9.81 * (2200 / 300) / (1140 / 2000))
+    assert math.isclose(g.max_magnitude(nitinol), 9.81 * (6500 / 28e3) / (6450 / 50e3))
+    down = np.array([0.0, -9.81, 0.0])
+    assert g.implausible(nylon, down) == {} and g.implausible(nitinol, down) == {}
+    assert "gravity_magnitude_m_s2" in g.implausible(nitinol, 25 * down)      # nitinol read as nylon
+    kappa = make_effect("curvature")
+    relaxed = kappa.values(nylon) * [1.0, 0.45, 1.0, 1.0, 1.0, 1.0]     # curvatures, then curved lengths
+    assert kappa.implausible(nylon, relaxed) == {} and "kappa2_1_per_m" in kappa.implausible(nitinol, relaxed)
+    wide = nylon.with_changes(tubes=tuple(replace(t, outer_diameter_mm=6.0, inner_diameter_mm=5.0)
+                                          for t in nylon.tubes))
+    force = make_effect("tip_force")
+    tool = 9.81 * 7900 * math.pi / 4 * 0.006 ** 2 * 0.03             # a 6 mm steel tool, 30 mm long
+    assert math.isclose(force.max_force(wide), 0.02 + tool)
+    weight = np.array([0.0, -0.04, 0.0])                               # 40 mN
+    assert force.implausible(wide, weight) == {} and force.implausible(nitinol, weight) != {}
+    assert "tool" in force.params(wide)[0].plausible.source
 
 
 # ---- one robot, read back equal ---------------------------------------------------------------------
@@ -126,8 +162,8 @@ def test_two_tube_backlash_is_two_values(tmp_path):
     path.write_text(path.read_text().replace("backlash_rad: [0.02, 0.03]", "backlash_rad: [0.02, 0.03, 0.0]"))
     with pytest.raises(InputError, match=r"two\.yaml:\d+: calibration\.backlash_rad: expected a list of 2 "):
         Robot.load(path)
-    path.write_text(path.read_text().replace("backlash_rad: [0.02, 0.03, 0.0]", "friction: [1]"))
-    with pytest.raises(InputError, match=r"calibration\.friction: unknown key \(allowed: backlash_rad, "):
+    path.write_text(path.read_text().replace("backlash_rad: [0.02, 0.03, 0.0]", "stiction: [1]"))
+    with pytest.raises(InputError, match=r"calibration\.stiction: unknown key \(allowed: backlash_rad, "):
         Robot.load(path)
 
 
@@ -148,8 +184,10 @@ def test_measurement_side_maps_against_a_computation_written_here():
         .with_term("sensor_offset", d).with_term("backlash", b)
     assert [name for name, _ in cal.terms] == ["backlash", "torsional_windup", "sensor_offset",
                                                "registration"]
-    direction = np.sign(np.diff(q, axis=0, prepend=q[:1]))      # every joint moves in every row here
-    reached = cal.mechanics_joints(q, direction)
+    step = np.diff(q, axis=0, prepend=q[:1])
+    step[:, 3:] = np.angle(np.exp(1j * step[:, 3:]))           # a rotation steps the short way round
+    direction = np.sign(step)                                   # every joint moves in every row here
+    reached = cal.mechanics_joints(q, Motion.of(q))
     np.testing.assert_allclose(reached[:, :3], q[:, :3])
     np.testing.assert_allclose(reached[:, 3:], q[:, 3:] - (b + w * -q[:, :3]) * direction[:, 3:])
     tips = rng.normal(size=(30, 3, 3)) * 50
@@ -166,11 +204,11 @@ def test_measurement_side_maps_against_a_computation_written_here():
 def test_prediction_is_mechanics_joints_then_pure_mechanics_then_tracker(robot):
     ext = make_effect("joint_offset+backlash+sensor_offset+registration+curvature").with_values(
         robot, np.r_[0.5, -1.0, 0.3, 0.02, -0.01, 0.0, 0.03, 0.02, 0.01, 0.2, -0.1, 3.0,
-                     0.01, 0.02, -0.01, 1.0, 0.5, -0.3, 30.0, 12.0, 4.0])
+                     0.01, 0.02, -0.01, 1.0, 0.5, -0.3, 30.0, 12.0, 4.0, 38.0, 100.0, 100.0])
     q = robot.sample_joints(25, rng=4)
-    direction = motion_direction(q)
-    pred = Evaluator(q, direction).predict([ext])[0]
-    bb = CosseratBackend(ext.mechanics).forward(ext.calibration.mechanics_joints(q, direction), points=2,
+    motion = Motion.of(q)
+    pred = Evaluator(q, motion, SolverSettings()).predict([ext])[0]
+    bb = CosseratBackend(ext.mechanics).forward(ext.calibration.mechanics_joints(q, motion), points=2,
                                                 check=False)
     np.testing.assert_allclose(pred.tips_mm, ext.calibration.tracked_tips(bb.tips_mm, bb.rotations[:, -1]),
                                atol=1e-9)

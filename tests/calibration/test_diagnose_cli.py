@@ -24,10 +24,10 @@ from ctrplan.calibration.synthetic import generate
 from ctrplan.cli.app import main
 from ctrplan.model.causes.base import offset_limits
 from ctrplan.model.robot import Robot
-from tests.independent.lab import make, test_seed
+from tests.independent.lab import lab_seed, make
 from tests.paths import REPO
 
-SEED = test_seed()
+SEED = lab_seed()
 TWO_TUBE = REPO / "examples" / "robots" / "two_tube.yaml"
 HEAD = "beta1,beta2,beta3,alpha1,alpha2,alpha3,tip1_x,tip1_y,tip1_z\n"
 ROW = "-20,-10,-5,0.1,0.2,0.3,1,2,150\n"
@@ -269,8 +269,8 @@ def test_cli_bad_options_one_line_exit_2(tmp_path, capsys):
     assert rc == 2 and captured.out == ""
     assert captured.err.count("\n") == 1 and "missing column 'tip1_z'" in captured.err
     assert not out.exists()
-    rc = main(["diagnose", str(bad), "--candidates", "curvature,friction"])
-    assert rc == 2 and "--candidates: unknown cause 'friction'" in capsys.readouterr().err
+    rc = main(["diagnose", str(bad), "--candidates", "curvature,stiction"])
+    assert rc == 2 and "--candidates: unknown cause 'stiction'" in capsys.readouterr().err
 
 
 def test_among_fits_the_data_cannot_tell_apart_the_fewest_parameters_wins():

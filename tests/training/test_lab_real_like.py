@@ -1,6 +1,6 @@
 """The real-like lab (`tests/independent/lab.real_like`: fixed joints, play + hysteresis lag, a large
-tracker registration, only tube 1 measured) and the learned lag correction of `ctrplan.model.measurement`,
-checked against closed forms."""
+tracker registration, only tube 1 measured) and the cause library's `friction` (the one model of a
+direction-dependent lag, learned by `train --measured` too), checked against closed forms."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from ctrplan.model.measurement import LagCorrection, motion_direction, play_features
+from ctrplan.model.causes.base import make_effect
+from ctrplan.model.motion import Motion
 from ctrplan.model.robot import Robot
 from tests.independent import lab
 
@@ -76,40 +77,50 @@ def test_real_like_writes_only_tube1(real, tmp_path):
     assert head == ["beta1", "beta2", "beta3", "alpha1", "alpha2", "alpha3", "tip1_x", "tip1_y", "tip1_z"]
 
 
-def test_play_features_closed_form():
+def test_play_closed_form():
     """Radius 0 is the direction of motion; radius r ramps from +1 to -1 over 2 r after a reversal."""
-    x = np.r_[0.0, 0.1, 0.2, 0.18, 0.16, 0.14, 0.12, 0.3][:, None]
-    d = motion_direction(x)
-    phi = play_features(x, [0.0, 0.02], d)[:, 0]
-    assert np.array_equal(phi[:, 0], d[:, 0])
-    assert np.allclose(phi[:, 1], [0, 1, 1, 0, -1, -1, -1, 1])
+    x = np.r_[0.0, 0.1, 0.2, 0.18, 0.16, 0.14, 0.12, 0.3]
+    q = np.zeros((len(x), 2))
+    q[:, 1] = x
+    motion = Motion.of(q)
+    assert np.array_equal(motion.play(1, 0.0), [0, 1, 1, -1, -1, -1, -1, 1])
+    assert np.allclose(motion.play(1, 0.02), [0, 1, 1, 0, -1, -1, -1, 1])
 
 
-def test_lag_correction_joints_and_robot_file(tmp_path):
-    """alpha_i reaches alpha_i - sum_k w_ik phi_ik; the robot file keeps the correction."""
-    lag = LagCorrection((0.0, 0.02), ((0.01, 0.03), (0.0, 0.0), (0.0, 0.0)))
-    q = np.zeros((4, 6))
-    q[:, 3] = [0.0, 0.1, 0.2, 0.18]
-    robot = Robot.nominal()
-    robot = robot.with_changes(calibration=robot.calibration.with_lag(lag))
+def test_friction_joints_and_robot_file(tmp_path):
+    """alpha_i reaches alpha_i - sum_k w_ik phi_ik; the robot file keeps the friction, not the
+    fingerprint of the mechanics."""
+    friction = make_effect("friction")
+    r = friction.RADII_RAD
+    w = np.zeros((6, 4))
+    w[3] = [0.0, 0.01, 0.02, 0.0]
+    q = np.zeros((5, 6))
+    r = r[1:]                                                    # the 2- and 6-deg elements
+    q[:, 3] = [0.0, 0.1, 0.2, 0.2 - r[0], 0.2 - 2 * r[0]]
+    robot = friction.with_values(Robot.nominal(), w.ravel())
     qm = robot.calibration.mechanics_joints(q)
-    assert np.allclose(qm[:, 3], q[:, 3] - (0.01 * np.r_[0, 1, 1, -1] + 0.03 * np.r_[0, 1, 1, 0]))
+    phi1 = np.array([0.0, 1.0, 1.0, 0.0, -1.0])                 # the 2-deg element turns over 2 r
+    phi2 = np.array([0.0, 0.1 / r[1], 1.0, 1.0 - r[0] / r[1], 1.0 - 2 * r[0] / r[1]])   # the 6-deg one
+    expect = q[:, 3] - 0.01 * phi1 - 0.02 * phi2
+    assert np.allclose(qm[:, 3], expect)
     assert np.array_equal(qm[:, [0, 1, 2, 4, 5]], q[:, [0, 1, 2, 4, 5]])
     path = tmp_path / "r.yaml"
     robot.save(path)
-    assert yaml.safe_load(path.read_text())["calibration"]["lag_correction"]["radii_rad"] == [0.0, 0.02]
+    stored = yaml.safe_load(path.read_text())["calibration"]["friction"]
+    assert np.allclose(stored["rotation_lag_rad"][0], [0.0, 0.01, 0.02, 0.0])
     back = Robot.load(path)
-    assert back.calibration.lag == lag and back.fingerprint == Robot.nominal().fingerprint
+    assert back.calibration == robot.calibration and back.fingerprint == Robot.nominal().fingerprint
 
 
-def test_learned_lag_recovers_the_lab_lag():
-    """On real-like lab rows, with the true mechanics and registration (and no backlash term), the lag
-    correction fitted on the first rows recovers the total lag of alpha1 and alpha2 (the sum of its
-    weights: the lag after a long move) and brings later rows near the noise, which backlash alone with
-    the true total lag does not."""
+def test_friction_fitted_from_the_shots_recovers_the_lab_lag():
+    """On real-like lab rows, with the true mechanics and registration, the friction fitted on the
+    first rows (as `train --measured` learns it) recovers the total lag of alpha1 and alpha2 (the sum of
+    its weights: the lag after a long move) and brings later rows near the noise, which backlash alone
+    with the true total lag does not."""
     from dataclasses import replace
 
-    from ctrplan.training.lag import fit_lag, tube1_tips, with_lag
+    from ctrplan.calibration.predict import Evaluator
+    from ctrplan.training.lag import fit_friction
 
     data = lab.real_like(n=360, seed=4)
     nominal = Robot.nominal()
@@ -120,17 +131,20 @@ def test_learned_lag_recovers_the_lab_lag():
     frame = reg["rotation_vector_rad"] + reg["translation_mm"]
     calibration = nominal.calibration.with_term("registration", frame)
     robot = nominal.with_changes(tubes=tubes, calibration=calibration)
-    q, d = data.q, motion_direction(data.q)
+    motion = Motion.of(data.q)
     fit, test = np.arange(240), np.arange(240, 360)
-    lag = fit_lag(robot, q, d, fit, data.tips_mm[fit, 0])
-    total = np.degrees(np.sum(lag.weights_rad, axis=1))
-    assert np.allclose(total[:2], lab.REAL_LAG_DEG, atol=0.5) and total[2] == 0.0   # alpha3 never moves
+    tips = np.repeat(data.tips_mm[:, :1], 3, axis=1)
+    learned = fit_friction(robot, data.q[fit], motion.subset(fit), (0,), tips[fit])
+    friction = make_effect("friction")
+    w = friction.values(learned).reshape(6, -1)
+    total = np.degrees(w.sum(axis=1))
+    assert np.allclose(total[3:5], lab.REAL_LAG_DEG, atol=0.6) and total[5] == 0.0   # alpha3 never moves
 
     def mean_error(model: Robot) -> float:
-        tips = tube1_tips(model, model.calibration.mechanics_joints(q, d)[test])
-        return float(np.linalg.norm(tips - data.tips_mm[test, 0], axis=1).mean())
+        pred = Evaluator(data.q[test], motion.subset(test)).predict([model])[0]
+        return float(np.linalg.norm(pred.tips_mm[:, 0] - data.tips_mm[test, 0], axis=1).mean())
 
     backlash = robot.with_changes(calibration=robot.calibration.with_term(
         "backlash", [*np.radians(lab.REAL_LAG_DEG), 0.0]))
     noise = 1.596 * lab.REAL_SIGMA_MM           # mean norm of 3-D Gaussian noise: 2 sqrt(2 / pi) sigma
-    assert mean_error(with_lag(robot, lag)) < 1.15 * noise < mean_error(backlash)
+    assert mean_error(learned) < 1.15 * noise < mean_error(backlash)

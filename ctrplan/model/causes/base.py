@@ -25,12 +25,6 @@ EFFECTS: dict[str, type[Effect]] = {}
 #: The order in which the sides act on a prediction.
 SIDES = ("joints", "mechanics", "tip", "frame")
 
-#: Young's modulus of superelastic NiTi, GPa: martensite (lowest) and austenite (highest).
-NITI_E_GPA = (28.0, 83.0)
-NITI_E_SOURCE = ("superelastic NiTi: E 28-41 GPa (martensite) to 70-83 GPa (austenite), Johnson Matthey "
-                 "'Nitinol technical properties'; E of polycrystalline NiTi moves with processing "
-                 "(Bucsek, Paranjape & Stebner 2016)")
-STANDARD_GRAVITY = 9.81
 
 
 @dataclass(frozen=True)
@@ -141,6 +135,9 @@ class Effect(ABC):
     #: Where the robot file keeps the parameters (documentation and messages).
     key: ClassVar[str] = ""
     description: ClassVar[str] = ""
+    #: Whether its values may differ between measurement sessions (a tracker registered anew, a curvature
+    #: that relaxed, a robot mounted anew): data of several sessions also try ``<name>@sessions``.
+    between_sessions: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -287,15 +284,75 @@ class Combined(Effect):
         return {k: v for e, xe in self._parts(robot, x) for k, v in e.derived(robot, xe).items()}
 
 
-def make_effect(name: str) -> Effect:
-    """The effect of a cause name; ``a+b`` combines several."""
+#: A cause whose values differ between measurement sessions is named ``<cause>@sessions``.
+PER_SESSION = "@sessions"
+
+
+class PerSession(Effect):
+    """A cause whose values differ between measurement sessions (`ctrplan.model.sessions`): one value
+    set per session -- one shared model (their mean, in the robot's fields) plus per-session deviations
+    -- each session's rows predicted with its own. Its checks hold for every session's values."""
+
+    def __init__(self, inner: Effect, sessions: Sequence[str]):
+        self.inner, self.sessions = inner, tuple(sessions)
+
+    @property
+    def causes(self) -> tuple[str, ...]:
+        return (self.inner.name + PER_SESSION,)
+
+    def _k(self, robot) -> int:
+        return len(self.inner.params(robot))
+
+    def params(self, robot):
+        return [replace(p, name=f"{p.name}@{s}") for s in self.sessions for p in self.inner.params(robot)]
+
+    def values(self, robot):
+        return np.concatenate([self.inner.values(robot.for_session(s)) for s in self.sessions])
+
+    def with_values(self, robot, x):
+        per = np.asarray(x, dtype=float).reshape(len(self.sessions), -1)
+        shared = self.inner.with_values(robot, per.mean(axis=0))
+        return shared.with_changes(sessions=robot.sessions.with_cause(
+            self.inner.name, dict(zip(self.sessions, per, strict=True))))
+
+    def unseen(self, q, direction, robot):
+        unseen = self.inner.unseen(q, direction, robot)
+        return {f"{k}@{s}": v for s in self.sessions for k, v in unseen.items()}
+
+    def limits(self, q, robot):
+        return {f"{k}@{s}": v for s in self.sessions for k, v in self.inner.limits(q, robot).items()}
+
+    def checks(self, robot):
+        k = self._k(robot)
+        return [replace(c, name=f"{c.name}@{s}", value=_shifted(c.value, i * k, k))
+                for i, s in enumerate(self.sessions) for c in self.inner.checks(robot)]
+
+    def initial_guess(self, robot, predicted, measured):
+        g = self.inner.initial_guess(robot, predicted, measured)
+        return None if g is None else np.tile(g, len(self.sessions))
+
+    def derived(self, robot, x):
+        per = np.asarray(x, dtype=float).reshape(len(self.sessions), -1)
+        names = [p.name for p in self.inner.params(robot)]
+        out = {f"{n}_shared": float(v) for n, v in zip(names, per.mean(axis=0), strict=True)}
+        out |= {f"{n}_spread_between_sessions": float(np.ptp(per[:, i])) for i, n in enumerate(names)}
+        return out
+
+
+def make_effect(name: str, sessions: Sequence[str] = ()) -> Effect:
+    """The effect of a cause name; ``a+b`` combines several; ``a@sessions`` is cause ``a`` differing
+    between the measurement ``sessions`` (`PerSession`)."""
     parts = [p.strip() for p in name.split("+") if p.strip()]
+    effects = []
     for p in parts:
-        if p not in EFFECTS:
-            raise InputError(f"unknown cause {p!r} (known: {', '.join(EFFECTS)})")
-    if len(parts) == 1:
-        return EFFECTS[parts[0]]()
-    return Combined([EFFECTS[p]() for p in parts])
+        base = p.removesuffix(PER_SESSION)
+        if base not in EFFECTS:
+            raise InputError(f"unknown cause {base!r} (known: {', '.join(EFFECTS)})")
+        if base != p and len(sessions) < 2:
+            raise InputError(f"cause {p!r}: values that differ between sessions need data of two or more "
+                             f"measurement sessions (a 'session' column)")
+        effects.append(EFFECTS[base]() if base == p else PerSession(EFFECTS[base](), sessions))
+    return effects[0] if len(effects) == 1 else Combined(effects)
 
 
 # ---- helpers --------------------------------------------------------------------------------------

@@ -10,56 +10,84 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ctrplan.model.causes.base import (
-    NITI_E_GPA,
-    NITI_E_SOURCE,
-    STANDARD_GRAVITY,
-    Check,
-    Effect,
-    Param,
-    Plausible,
-    _norm,
-)
+from ctrplan.model.causes.base import Check, Effect, Param, Plausible, _norm
+from ctrplan.model.causes.materials import STANDARD_GRAVITY, material_of, max_load_ratio
 
 if TYPE_CHECKING:
     from ctrplan.model.robot import Robot
 
 
 class Curvature(Effect):
+    """The heat-set curve of each tube: its pre-curvature kappa_i and the length of the curved part (its
+    distal end), the straight part taking the rest of the tube -- a tube's length is measured, where its
+    curve begins is not. Each alone moves the tip where the other must compensate (a curve set to its
+    angle over another length than drawn is both: on a real robot's data neither helped alone, together
+    they halved the error left)."""
+
     name = "curvature"
-    key = "tubes[i].curvature_1_per_m"
-    description = "pre-curvature kappa_i of each tube (1/m)"
-    #: Largest bending strain kappa * OD / 2 superelastic NiTi recovers.
-    MAX_STRAIN = 0.08
-    SOURCE = ("heat-set curvature of nitinol tubes is reproduced within tens of per cent (springback "
-              "after shape setting; CTR model calibrations fit it for that reason, e.g. Webster, Romano & "
-              "Cowan 2009): file value +- 50 % (+- 1 1/m for a straight tube), and at most 8 % bending "
-              "strain kappa * OD / 2 (the strain superelastic NiTi recovers)")
+    between_sessions = True
+    key = "tubes[i].curvature_1_per_m, curved_length_mm (straight_length_mm the rest)"
+    description = ("pre-curvature kappa_i of each tube (1/m) and the length of its curved part (mm), the "
+                   "straight part taking the rest")
+    LENGTH_SOURCE = ("a curve is heat-set on a fixture and ends in a transition zone up to 10 mm long "
+                     "(where the tube left the fixture, and where the heat reached): file value +- 15 % or "
+                     "+- 10 mm, whichever is larger, within the tube")
 
     def params(self, robot):
-        out = []
+        kappas, lengths = [], []
         for i, t in enumerate(robot.tubes):
-            k = t.curvature_per_mm * 1e3
-            low = max(min(0.5 * k, k - 1.0), 0.0)
-            high = min(max(1.5 * k, k + 1.0), self.MAX_STRAIN / t.outer_radius_mm * 1e3)
-            out.append(Param(f"kappa{i + 1}_1_per_m", "1/m", max(0.1 * k, 0.5), 0.0, np.inf,
-                             Plausible(low, high, self.SOURCE)))
-        return out
+            k, m = t.curvature_per_mm * 1e3, material_of(t)
+            low = max(min((1.0 + m.curvature_change[0]) * k, k - 1.0), 0.0)
+            strain_limit = m.max_strain / t.outer_radius_mm * 1e3
+            high = min(max((1.0 + m.curvature_change[1]) * k, k + 1.0), strain_limit)
+            source = (f"{m.source}; the file's E makes tube {i + 1} {m.name}: file value "
+                      f"{100 * m.curvature_change[0]:+.0f} % to {100 * m.curvature_change[1]:+.0f} % "
+                      f"(+- 1 1/m for a straight tube), bending strain kappa * OD / 2 at most "
+                      f"{100 * m.max_strain:g} %")
+            kappas.append(Param(f"kappa{i + 1}_1_per_m", "1/m", max(0.1 * k, 0.5), 0.0, np.inf,
+                                Plausible(low, high, source)))
+            spread = max(0.15 * t.curved_length_mm, 10.0)
+            around = Plausible(max(t.curved_length_mm - spread, 0.0),
+                               min(t.curved_length_mm + spread, t.length_mm), self.LENGTH_SOURCE)
+            lengths.append(Param(f"curved{i + 1}_mm", "mm", 1.0, 0.0, t.length_mm, around))
+        return kappas + lengths
 
     def values(self, robot):
-        return np.array([t.curvature_per_mm * 1e3 for t in robot.tubes])
+        return np.array([t.curvature_per_mm * 1e3 for t in robot.tubes]
+                        + [t.curved_length_mm for t in robot.tubes])
 
     def with_values(self, robot, x):
-        return robot.with_changes(tubes=tuple(replace(t, curvature_per_mm=float(v) * 1e-3)
-                                              for t, v in zip(robot.tubes, x, strict=True)))
+        n = robot.n_tubes
+        kappa, curved = np.asarray(x[:n], dtype=float), np.clip(x[n:], 0.0, robot.lengths_mm)
+        return robot.with_changes(tubes=tuple(
+            replace(t, curvature_per_mm=float(k) * 1e-3, curved_length_mm=float(c),
+                    straight_length_mm=t.length_mm - float(c))
+            for t, k, c in zip(robot.tubes, kappa, curved, strict=True)))
 
     def unseen(self, q, direction, robot):
-        return {f"kappa{i + 1}_1_per_m": f"tube {i + 1} has no curved part"
-                for i, t in enumerate(robot.tubes) if t.curved_length_mm <= 0.0}
+        n = robot.n_tubes
+        beta = robot.apply_offset(q)[:, :n]
+        begins = beta + np.array([t.straight_length_mm for t in robot.tubes])
+        out = {}
+        for i, t in enumerate(robot.tubes):
+            if t.curved_length_mm <= 0.0:
+                out[f"kappa{i + 1}_1_per_m"] = f"tube {i + 1} has no curved part"
+                out[f"curved{i + 1}_mm"] = f"tube {i + 1} has no curved part"
+            elif begins[:, i].max() <= 1e-9:
+                out[f"curved{i + 1}_mm"] = (f"the curve of tube {i + 1} begins at or behind the plate in "
+                                            f"every row")
+            elif np.ptp(beta[:, i]) <= 1e-9:
+                out[f"curved{i + 1}_mm"] = (f"beta{i + 1} never moves: where the curve of tube {i + 1} "
+                                            f"begins does not show apart from its curvature")
+        return out
 
     def derived(self, robot, x):
-        return {f"kappa{i + 1}_change_pct": 100.0 * (float(v) / (t.curvature_per_mm * 1e3) - 1.0)
-                for i, (t, v) in enumerate(zip(robot.tubes, x, strict=True)) if t.curvature_per_mm > 0}
+        n = robot.n_tubes
+        out = {f"kappa{i + 1}_change_pct": 100.0 * (float(v) / (t.curvature_per_mm * 1e3) - 1.0)
+               for i, (t, v) in enumerate(zip(robot.tubes, x[:n], strict=True)) if t.curvature_per_mm > 0}
+        out |= {f"tube{i + 1}_bend_deg": float(np.degrees(float(k) * 1e-3 * float(c)))
+                for i, (k, c) in enumerate(zip(x[:n], x[n:], strict=True))}
+        return out
 
 
 class StiffnessRatio(Effect):
@@ -100,11 +128,16 @@ class BendingStiffness(Effect):
                    "shape the robot)")
 
     def params(self, robot):
-        lo, hi = NITI_E_GPA
-        plausible = Plausible(lo / hi, hi / lo, f"{NITI_E_SOURCE}: one tube at most {hi:g}/{lo:g} times "
-                                                f"stiffer or softer than another")
-        return [Param(f"stiffness{i + 1}_rel", "1", 0.1, 0.1, 10.0, plausible)
-                for i in range(1, robot.n_tubes)]
+        first, m1 = robot.tubes[0], material_of(robot.tubes[0])
+        out = []
+        for i in range(1, robot.n_tubes):
+            t, m = robot.tubes[i], material_of(robot.tubes[i])
+            ratio = first.youngs_modulus_mpa / t.youngs_modulus_mpa     # the file's E_1 / E_i
+            low, high = m.youngs_gpa[0] / m1.youngs_gpa[1] * ratio, m.youngs_gpa[1] / m1.youngs_gpa[0] * ratio
+            plausible = Plausible(low, high, f"{m.source}: E of tube {i + 1} ({m.name}) over E of tube 1 "
+                                             f"({m1.name}) anywhere within their ranges")
+            out.append(Param(f"stiffness{i + 1}_rel", "1", 0.1, 0.1, 10.0, plausible))
+        return out
 
     def values(self, robot):
         return np.ones(robot.n_tubes - 1)
@@ -161,6 +194,7 @@ class Transmission(Effect):
 
 class JointOffset(Effect):
     name = "joint_offset"
+    between_sessions = True
     key = "joint_offset"
     description = "zero offsets of beta_i (mm) and alpha_i (rad), added to q"
     BETA_SOURCE = ("the zero of a translation (tube tip flush with the front plate) is set by eye or a "
@@ -193,17 +227,21 @@ class JointOffset(Effect):
 
 class Gravity(Effect):
     name = "gravity"
+    between_sessions = True
     key = "loads.gravity_m_s2"
     description = "gravity vector (m/s^2) with the file's density and E: only rho*g/E matters"
 
-    SOURCE = (f"only rho*g/E matters: |g| <= 9.81 m/s^2 x the file's E / the lowest E of NiTi "
-              f"({NITI_E_SOURCE})")
+    def source(self, robot: Robot) -> str:
+        m = material_of(robot.tubes[0])
+        return (f"only rho*g/E matters: |g| <= 9.81 m/s^2 x (the highest density / the lowest E of "
+                f"{m.name}) / (the file's density / E) ({m.source})")
 
     def params(self, robot):
         # hard bounds: huge loads (what a gravity fit reaches for when it tries to explain a frame offset)
         # are slow to solve
-        g = self.max_magnitude(robot)
-        return [Param(f"gravity_{a}_m_s2", "m/s^2", 5.0, -30.0, 30.0, Plausible(-g, g, self.SOURCE))
+        g, source = self.max_magnitude(robot), self.source(robot)
+        hard = max(30.0, 2.0 * g)
+        return [Param(f"gravity_{a}_m_s2", "m/s^2", 5.0, -hard, hard, Plausible(-g, g, source))
                 for a in "xyz"]
 
     def values(self, robot):
@@ -213,12 +251,13 @@ class Gravity(Effect):
         return robot.with_changes(loads=replace(robot.loads, gravity_m_s2=tuple(float(v) for v in x)))
 
     def max_magnitude(self, robot: Robot) -> float:
-        """The largest |g| a fit may need (m/s^2): 9.81 x E_file / E_true, E_true >= NiTi martensite."""
-        return STANDARD_GRAVITY * robot.tubes[0].youngs_modulus_mpa * 1e-3 / NITI_E_GPA[0]
+        """The largest |g| a fit may need (m/s^2): 9.81 x how much larger rho g / E of the tubes'
+        material can be than the file's (`materials.max_load_ratio`; the largest over the tubes)."""
+        return STANDARD_GRAVITY * max(max_load_ratio(t) for t in robot.tubes)
 
     def checks(self, robot):
         return super().checks(robot) + [Check("gravity_magnitude_m_s2", "m/s^2", _norm,
-                                              Plausible(0.0, self.max_magnitude(robot), self.SOURCE))]
+                                              Plausible(0.0, self.max_magnitude(robot), self.source(robot)))]
 
     def draw(self, robot, rng):
         # the robot lies horizontal (insertion axis level within 5 deg), rho*g/E within +-20 %
@@ -241,12 +280,26 @@ class TipForce(Effect):
     name = "tip_force"
     key = "loads.tip_force_n"
     description = "point force at the tip of tube 1 (N), robot frame"
-    MAX_N = 0.02
-    SOURCE = "a sensor cable or tether on the tip of a robot in free space pulls a few mN; 20 mN ceiling"
+    CABLE_N = 0.02
+    #: The heaviest tool a robot carries on its tip: a solid steel cylinder of the robot's largest outer
+    #: diameter and this length (mm), density (kg/m^3).
+    TOOL_LENGTH_MM, TOOL_DENSITY = 30.0, 7900.0
+    SOURCE = ("a sensor cable or tether on the tip of a robot in free space pulls a few mN (20 mN ceiling), "
+              "and a tracked tool on the tip weighs at most a solid steel cylinder of the robot's largest "
+              "outer diameter and 30 mm length: |F| <= 20 mN + that weight")
+
+    def max_force(self, robot: Robot) -> float:
+        """The largest tip force (N) a robot of this file plausibly carries: a cable's pull plus the
+        weight of the heaviest tool of its diameter (a soft robot's tool deflects it visibly)."""
+        od = max(t.outer_diameter_mm for t in robot.tubes)
+        tool_kg = self.TOOL_DENSITY * math.pi / 4 * (od * 1e-3) ** 2 * self.TOOL_LENGTH_MM * 1e-3
+        return self.CABLE_N + STANDARD_GRAVITY * tool_kg
 
     def params(self, robot):
-        plausible = Plausible(-self.MAX_N, self.MAX_N, self.SOURCE)
-        return [Param(f"tip_force_{a}_n", "N", 2e-3, -0.05, 0.05, plausible) for a in "xyz"]
+        f = self.max_force(robot)
+        hard = max(0.05, 2.0 * f)
+        return [Param(f"tip_force_{a}_n", "N", 2e-3, -hard, hard, Plausible(-f, f, self.SOURCE))
+                for a in "xyz"]
 
     def values(self, robot):
         return np.asarray(robot.loads.tip_force_n, dtype=float)
@@ -256,7 +309,7 @@ class TipForce(Effect):
 
     def checks(self, robot):
         return super().checks(robot) + [Check("tip_force_magnitude_n", "N", _norm,
-                                              Plausible(0.0, self.MAX_N, self.SOURCE))]
+                                              Plausible(0.0, self.max_force(robot), self.SOURCE))]
 
     def derived(self, robot, x):
         return {"tip_force_magnitude_mn": 1e3 * float(np.linalg.norm(x))}
