@@ -86,6 +86,22 @@ def solve_dense(robot: Robot, q: np.ndarray, points: int,
                        ends=joined("tube_ends_mm"), unsolved=q[~ok], seconds=time.perf_counter() - t0)
 
 
+def pool_joints(robot: Robot, n: int, rng: np.random.Generator, edge_share: float = 0.0) -> np.ndarray:
+    """``n`` configurations (n, 2N) for the exact pool: uniform in the domain box, except that in the
+    last ``edge_share`` of them each translation box coordinate follows the arcsine law on its
+    interval (density ``1 / sqrt(x (1 - x))``: more near both limits, where the tubes are fully
+    extended or retracted and the tail of a network's error lives)."""
+    q = robot.sample_joints(n, rng)
+    k = int(round(edge_share * n))
+    if k:
+        nt, dom = robot.n_tubes, robot.domain
+        box = dom.to_box(q[n - k:])
+        u = 0.5 * (1.0 - np.cos(np.pi * rng.uniform(size=(k, nt))))
+        box[:, :nt] = dom.box_lower[:nt] + (dom.box_upper[:nt] - dom.box_lower[:nt]) * u
+        q[n - k:] = dom.from_box(box)
+    return q
+
+
 def collocation(robot: Robot, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """``n`` collocation points: arc fractions sigma (n,) uniform in [0, 1] and joints q (n, 2N)."""
     return rng.uniform(0.0, 1.0, n), robot.sample_joints(n, rng)
@@ -117,3 +133,29 @@ def state_scales(dense: DenseStates, features: str) -> np.ndarray:
     scales[i_p:i_p + 3] = np.maximum(scales[i_p:i_p + 3], 1e-2)
     scales[i_p + 3:] = 1.0
     return scales
+
+
+#: Configurations and rotation step (rad) of `frame_tube`'s finite differences.
+FRAME_SAMPLES = 400
+FRAME_STEP_RAD = 1e-3
+
+
+def frame_tube(robot: Robot, n: int = FRAME_SAMPLES, seed: int = 0) -> int:
+    """The equivariant network's frame tube (0-based; `PinnNet`): the rotatable tube whose own
+    rotation moves the tube-1 tip most (median over ``n`` configurations of the domain, exact model,
+    finite differences). Turning all tubes together turns the tip rigidly, so with this tube as the
+    frame the network learns the smallest motion left: the others' rotations relative to it."""
+    nt = robot.n_tubes
+    rotatable = [i for i in range(nt) if not robot.domain.fixed[nt + i]]
+    if len(rotatable) < 2:
+        return rotatable[0] if rotatable else 0
+    backend = CosseratBackend(robot)
+    q = robot.sample_joints(n, np.random.default_rng([seed, 7]))
+    turned = [q.copy() for _ in rotatable]
+    for qi, i in zip(turned, rotatable, strict=True):
+        qi[:, nt + i] += FRAME_STEP_RAD
+    bb = backend.forward(np.concatenate([q, *turned]), points=2, check=False)
+    tips = bb.tips_mm[:, 0].reshape(len(rotatable) + 1, n, 3)
+    ok = bb.converged.reshape(len(rotatable) + 1, n).all(axis=0)
+    moved = np.linalg.norm(tips[1:, ok] - tips[:1, ok], axis=-1)
+    return rotatable[int(np.argmax(np.median(moved, axis=1)))] if ok.any() else 0

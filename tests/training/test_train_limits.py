@@ -14,8 +14,9 @@ from pathlib import Path
 import pytest
 
 from ctrplan.cli.app import main
-from ctrplan.training.evaluate import ACCURACY_TARGET
-from ctrplan.training.trainer import get_recipe, pool_size, train
+from ctrplan.training.target import ACCURACY_TARGET
+from ctrplan.training.recipes import get_recipe, pool_size
+from ctrplan.training.trainer import train
 from tests.cli.test_ctrl_c import interrupt
 from tests.paths import REPO
 
@@ -33,7 +34,8 @@ def quick_model(tmp_path_factory) -> tuple[Path, dict, str]:
         with pytest.MonkeyPatch.context() as mp:
             err = []
             mp.setattr("sys.stderr", _Tee(err))
-            assert main(["train", "--name", "quick", "--time-limit", "0.05", "--threads", "1"]) == 0
+            assert main(["train", "--name", "quick", "--time-limit", "0.05", "--threads", "1",
+                         "--transfer", "none"]) == 0
     finally:
         os.chdir(cwd)
     weights = folder / "models" / "quick.safetensors"
@@ -70,14 +72,17 @@ def test_the_time_limit_cuts_the_exact_data_and_the_card_records_it(quick_model)
 
 def test_a_model_below_its_target_says_so_in_its_card_and_summary(quick_model):
     _, card, err = quick_model
-    tip = card["metrics"]["tip_error_pct_length"]
+    tip = card["metrics"]["tip_error_mm"]["tube1"]
     target = card["accuracy_target"]
-    assert target["measured"] == {"tube1_tip_mean_pct_length": tip["mean"],
-                                  "tube1_tip_max_pct_length": tip["max"]}
+    assert target["measured"] == {"tube1_tip_p99_9_mm": tip["p99_9"], "tube1_tip_max_mm": tip["max"]}
     assert {k: target[k] for k in ACCURACY_TARGET} == ACCURACY_TARGET == {
-        "tube1_tip_mean_pct_length": 0.1, "tube1_tip_max_pct_length": 1.0}  # README: issue 18's target
-    assert card["meets_target"] is (tip["mean"] <= 0.1 and tip["max"] <= 1.0) is False
-    assert "this model MISSES its accuracy target" in " ".join(err.split())
+        "tube1_tip_p99_9_mm": 0.5, "tube1_tip_max_mm": 1.0}  # issue 40's target
+    assert card["meets_target"] is (tip["p99_9"] <= 0.5 and tip["max"] <= 1.0) is False
+    text = " ".join(err.split())
+    assert "this model MISSES its accuracy target" in text
+    assert "accuracy: misses the accuracy target (tube-1 tip p99.9 <= 0.5 mm, max <= 1 mm) in 0.05 min" in text
+    curve = card["time_to_target"]["curve"]
+    assert curve and curve[-1]["step"] == card["steps"] and card["time_to_target"]["reached_at_s"] is None
 
 
 @pytest.mark.parametrize("command", [["fk"], ["shape", "--points", "5"]])
