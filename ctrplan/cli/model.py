@@ -166,6 +166,7 @@ def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None
         meta = check_checkpoint(out, model_robot)
         console.print(f"resuming {name} from step {meta['step']:,} ({meta['elapsed_s'] / 60:.1f} min of "
                       f"training done; checkpoint {meta['file']})")
+        source = _resumed_transfer(meta, model_robot)
     try:
         result = _run(model_robot, rec, out, start, fewshot, budget, console,
                       dict(seed=seed, device=device, resume=resume), init=init, adapt_minutes=adapt_minutes,
@@ -225,6 +226,14 @@ def _transfer_source(choice: str, robot: Robot, recipe: Recipe, plain: bool) -> 
     shape = {"features": recipe.features, "harmonics": recipe.harmonics, "hidden": recipe.hidden,
              "layers": recipe.layers}
     return nearest_model(robot, shape)
+
+
+def _resumed_transfer(meta: dict, robot: Robot) -> Transfer | None:
+    """The transfer the checkpointed run started from (its recipe and frame tube depend on it)."""
+    from ctrplan.training.transfer import load_transfer
+
+    source = meta.get("transferred_from")
+    return load_transfer(source["file"], robot) if source else None
 
 
 def _run(robot: Robot, rec: Recipe, out: Path, start: PinnBackend | None, fewshot: FewShot | None,

@@ -87,10 +87,11 @@ def solve_dense(robot: Robot, q: np.ndarray, points: int,
 
 
 def pool_joints(robot: Robot, n: int, rng: np.random.Generator, edge_share: float = 0.0) -> np.ndarray:
-    """``n`` configurations (n, 2N) for the exact pool: uniform in the domain box, except that in the
-    last ``edge_share`` of them each translation box coordinate follows the arcsine law on its
-    interval (density ``1 / sqrt(x (1 - x))``: more near both limits, where the tubes are fully
-    extended or retracted and the tail of a network's error lives)."""
+    """``n`` configurations (n, 2N) for the exact pool: uniform in the domain box, except that in a
+    share ``edge_share`` of them, spread over the pool (a pool cut short keeps the share), each
+    translation box coordinate follows the arcsine law on its interval (density
+    ``1 / sqrt(x (1 - x))``: more near both limits, where the tubes are fully extended or retracted
+    and the tail of a network's error lives)."""
     q = robot.sample_joints(n, rng)
     k = int(round(edge_share * n))
     if k:
@@ -99,6 +100,7 @@ def pool_joints(robot: Robot, n: int, rng: np.random.Generator, edge_share: floa
         u = 0.5 * (1.0 - np.cos(np.pi * rng.uniform(size=(k, nt))))
         box[:, :nt] = dom.box_lower[:nt] + (dom.box_upper[:nt] - dom.box_lower[:nt]) * u
         q[n - k:] = dom.from_box(box)
+        q = q[rng.permutation(n)]
     return q
 
 

@@ -1,15 +1,16 @@
-"""Training loop for the PINN: recipes, on-device sampling, hard-example mining, checkpoints and
-resume (DeepXDE style: ``Trainer(robot, data, net).compile(recipe).train(out)``; data, losses,
-optimiser and schedule are separate small objects).
+"""Training loop for the PINN: on-device sampling, hard-example mining, the time-to-target monitor,
+checkpoints and resume (DeepXDE style: ``Trainer(robot, data, net).compile(recipe).train(out)``; data,
+losses, optimiser and schedule are separate small objects; recipes in `ctrplan.training.recipes`).
 
 Recipes:
 
-* ``fast`` (default) -- what a 2-core CPU can do well in half an hour: Adam on mini-batches of dense
+* ``fast`` (default) -- what a 2-core CPU can do well in 20 minutes: Adam on mini-batches of dense
   supervision from exact Cosserat states (the shooting solver gives thousands of full solutions a
-  second, so exact data is nearly free), tip rows, hard-example mining (`ctrplan.training.mining`:
-  half of every batch comes from fresh configurations where the network was worst), the ODE and
-  boundary residuals kept as physics terms, hard constraints in the output (see `PinnNet`) and a
-  cosine learning-rate schedule fitted to the time budget.
+  second, so exact data is nearly free; half of them with the translations near their limits), tip
+  rows, hard-example mining (`ctrplan.training.mining`: half of every batch comes from fresh
+  configurations where the network was worst), the ODE and boundary residuals kept as physics terms,
+  hard constraints in the output (see `PinnNet`) and a cosine learning-rate schedule fitted to the
+  time budget; `ctrplan train` starts it from the nearest trained model (`ctrplan.training.transfer`).
 * ``paper`` -- the paper's setup: fixed 20,000 collocation / 1,000 boundary / 1,000 tip-observation
   samples, L2-norm group losses, L-BFGS with strong-Wolfe line search, full batch.
 * ``polish`` -- full-batch L-BFGS on dense supervision and tip observations, after another recipe
@@ -216,6 +217,7 @@ class Trainer:
         self.robot, self.data, self.net, self.data_time_s = robot, data, net, data_time_s
         self.device = data.dense_q.device
         self.budget = budget
+        self.transferred_from: dict | None = None  # `Transfer.to_json` of the model it started from
 
     def compile(self, recipe: Recipe, *, seed: int = 0, time_limit_s: float | None = None) -> Trainer:
         """Set the recipe's losses, optimiser and learning-rate schedule; start at step 0."""
@@ -279,7 +281,7 @@ class Trainer:
                          {"step": self.step, "elapsed_s": elapsed_s, "recipe": asdict(self.recipe),
                           "seed": self.seed, "robot": self.robot.name,
                           "robot_fingerprint": self.robot.fingerprint, "time_limit_s": self.time_limit_s,
-                          "frame_tube": self.net.frame + 1,
+                          "frame_tube": self.net.frame + 1, "transferred_from": self.transferred_from,
                           "history": self.history})
 
     def _mine(self) -> dict:
@@ -382,6 +384,7 @@ class Trainer:
             "history_tail": self.history[-5:],
         }
         card |= {"mining": self._mining_record()} if self.data.hard is not None else {}
+        card |= {"transferred_from": self.transferred_from} if self.transferred_from else {}
         card |= {ERROR_BOUND_KEY: calibrate(net)} if calibrate is not None else {}
         if self.budget is not None:  # a run of `ctrplan train` (a fine-tuned model has its own table)
             card |= {"time_limit": self.budget.to_json(), **accuracy_verdict(metrics)}
@@ -423,6 +426,7 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
     ``stages``: those of the ``init_from`` model, then this one is added)."""
     dev = torch.device(device)
     torch.manual_seed(seed)
+    recipe = transfer.recipe(recipe) if transfer is not None else recipe
     t_start = time.perf_counter()
     own = budget is None  # then no deadline on the exact data: only the training loop is limited
     budget = budget or TimeBudget(time_limit_s if time_limit_s is not None
@@ -433,13 +437,12 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
     net.requires_grad_(True)
     data_time_s = time.perf_counter() - t_start
     trainer = Trainer(robot, data, net, data_time_s=data_time_s, budget=None if own else budget)
+    trainer.transferred_from = transfer.to_json() if transfer is not None else None
     trainer.compile(recipe, seed=seed).watch(monitor)  # the first optimiser loads torch's compiler: seconds
     trainer.limit(budget.training_s(data.pool.solved_per_s))
     if resume:
         trainer.resume(out)
     trainer.train(out, checkpoint_every_s=checkpoint_every_s, progress=progress, min_steps=0 if own else 1)
-    if transfer is not None:
-        extra_card = {**(extra_card or {}), "transferred_from": transfer.to_json()}
     return trainer.finish(out, evaluate=evaluate, calibrate=calibrate, extra_card=extra_card)
 
 

@@ -6,15 +6,16 @@ coordinates and its outputs are scaled by the robot's own state scales, so its h
 over to another robot of the same tube count. `nearest_model` looks at the shipped models and the
 user's ``models/`` and picks the one whose robot is nearest (`robot_distance`); `Transfer.apply`
 copies its layers into a network built for the new robot (its box, lengths and output scales; the
-source's frame tube). Issue 40 measured it: a random design robot of the skull-base study reaches in
-a few thousand steps from `pinn_nominal` what takes several times as many from scratch
-(docs/benchmarks.md).
+source's frame tube), and `Transfer.recipe` warms the learning rate up and lowers it for a near
+source. Issue 40 measured it (docs/benchmarks.md): a random design robot of the skull-base study
+halved its tip error at equal steps from `pinn_nominal`; a model of the robot itself continued at the
+full rate lost half its accuracy in the first minutes.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from safetensors.torch import load_file
@@ -24,9 +25,18 @@ from ctrplan.base.yamlio import YamlDoc
 from ctrplan.kinematics.model_file import MODELS_DIR, read_card, shipped_models_dir
 from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.model.robot import Robot, robot_from_yaml
+from ctrplan.training.recipes import Recipe
 
 #: Tube properties compared by `robot_distance`.
 TUBE_FIELDS = ("curvature_per_mm", "curved_length_mm", "straight_length_mm", "bending_stiffness_nmm2")
+#: Learning-rate warm-up (Adam steps) of a transferred start: Adam's moment estimates settle before
+#: full steps change trained layers.
+WARMUP_STEPS = 200
+#: A source robot this far (`robot_distance`) or farther is learned at the recipe's full rate; a
+#: nearer one at a rate scaled down in proportion, to `MIN_RATE` of it for the robot itself (its own
+#: model continued: the shipped nominal model's second stage ran at 0.15 of the first's rate).
+FULL_RATE_DISTANCE = 0.1
+MIN_RATE = 0.15
 #: Network fields that must agree for the layers to carry over.
 SHAPE_FIELDS = ("features", "harmonics", "absolute_angles", "hidden", "layers", "inputs", "outputs")
 
@@ -81,6 +91,12 @@ class Transfer:
         state.update({k: v.to(state[k].dtype) for k, v in layers.items()})
         net.load_state_dict(state)
         return net
+
+    def recipe(self, recipe: Recipe) -> Recipe:
+        """``recipe`` for a start from this source: a `WARMUP_STEPS` warm-up and the peak learning rate
+        scaled by the distance (`FULL_RATE_DISTANCE`, `MIN_RATE`)."""
+        rate = min(1.0, max(MIN_RATE, self.distance / FULL_RATE_DISTANCE))
+        return replace(recipe, lr=recipe.lr * rate, warmup_steps=max(recipe.warmup_steps, WARMUP_STEPS))
 
     def to_json(self) -> dict:
         return {"model": self.weights.stem, "file": str(self.weights), "robot": self.card["robot"]["name"],
