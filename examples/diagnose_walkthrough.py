@@ -25,6 +25,7 @@ from ctrplan.calibration import CAUSES, diagnose, read_measured, write_measured_
 from ctrplan.calibration.fit import Evaluator
 from ctrplan.calibration.synthetic import generate
 from ctrplan.model.robot import Robot
+from ctrplan.viz.diagnosis_plots import write_plots
 
 HERE = Path(__file__).resolve().parent
 
@@ -51,6 +52,7 @@ def main() -> None:
     measured = read_measured(data_csv)
     diag = diagnose(measured)
     write_outputs(diag, a.out)
+    write_plots(diag, a.out)
     print(diag.summary())
     print()
 

@@ -15,9 +15,9 @@ import numpy as np
 from ompl import util as ou
 
 from ctrplan.planning import plan
-from ctrplan.planning.validate import clearance_along
 from ctrplan.scene.loader import load_scene
 from ctrplan.viz import plot_plan, viewer_data, write_viewer
+from ctrplan.viz.style import CLEARANCE_CAP_MM
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -42,7 +42,7 @@ def main() -> None:
             print(f"  {stage} ...")
 
     result = plan(scene, args.backend, planner=args.planner, seed=args.seed,
-                  time_limit_s=args.time_limit, progress=progress)
+                  time_limit_s=args.time_limit, progress=progress, clearances=True)
     print(f"{scene.name}: {result.message} ({result.planner}/{result.backend}, "
           f"{result.planning_time_s:.2f} s, {result.kinematics_calls} kinematics calls)")
     if result.dense is None:
@@ -55,7 +55,7 @@ def main() -> None:
     out = Path(args.out)
     backbones = scene.to_scene(result.dense.exact.positions_mm)  # exact model, scene frame
     png = plot_plan(scene, backbones, out / "plan.png", tip_path=backbones[:, -1])
-    clearance = clearance_along(scene, result.dense.exact, 3.0)  # per capsule, mm: colours the backbone
+    clearance = np.minimum(result.dense.clearance_mm, CLEARANCE_CAP_MM)  # per capsule, mm: colours it
     html = write_viewer(out / "plan.html", viewer_data(scene, backbones, result.dense.exact.radius_mm,
                                                        {"result": result.message}, clearance),
                         title=f"ctrplan: {scene.name}")

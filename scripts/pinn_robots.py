@@ -72,7 +72,8 @@ def measure(item: str, ns: argparse.Namespace) -> dict:
     tip = metrics["tip_error_mm"]["tube1"]
     print(f"{name}: tube-1 tip mean {tip['mean']:.3f}, p99.9 {tip['p99_9']:.3f}, max {tip['max']:.3f} mm "
           f"(card: {'meets' if card.get('meets_target') else 'misses'} its target)", file=sys.stderr)
-    return {"name": name, "robot": robot, "command_s": round(command_s, 1), "wall_time_s": card["wall_time_s"],
+    return {"name": name, "robot": robot, "command_s": round(command_s, 1),
+            "wall_time_s": card["wall_time_s"],
             "data_generation_s": card["data_generation_s"], "steps": card["steps"],
             "hardware": card["hardware"], "recipe": card["recipe"]["name"], "threads": ns.threads,
             "load_average": {"before": [round(x, 2) for x in load_before],

@@ -46,7 +46,9 @@ def roadmap_record(scene: Scene, backend: str, seed: int, result: QueryResult) -
                    exact_collision_free=None if v is None else bool(v.collision_free),
                    exact_tip_in_target=None if v is None else bool(v.tip_in_target),
                    max_position_error_mm=None if v is None else _finite(v.max_position_error_mm),
-                   path_states=int(len(result.path)), message=result.message)
+                   path_states=int(len(result.path)), message=result.message,
+                   steps={k: round(v, 6) if isinstance(v, float) else v
+                          for k, v in getattr(result, "steps", {}).items()})  # (older answers had none)
 
 
 def single_record(scene: Scene, backend, target: TargetRegion, seed: int, time_limit_s: float,
@@ -60,17 +62,16 @@ def single_record(scene: Scene, backend, target: TargetRegion, seed: int, time_l
     res = plan(replace(scene, target=target), backend, planner="rrtconnect", time_limit_s=time_limit_s,
                seed=seed, exact=exact)
     v = res.validated
-    counters = res.details.get("counters", {})
+    counters, validation_s = res.work.counters, res.work.validation_time_s
     return _record(scene, target, "rrtconnect", res.backend, seed, time_limit_s,
                    planning_time_s=float(res.planning_time_s),
-                   validation_s=float(res.details.get("validation_time_s", 0.0)), solved=bool(res.solved),
+                   validation_s=float(validation_s or 0.0), solved=bool(res.solved),
                    found=v is not None, status=res.status, repaired=bool(v is not None and v.repaired),
                    exact_collision_free=None if v is None else bool(v.collision_free),
                    exact_tip_in_target=None if v is None else bool(v.tip_in_target),
                    max_position_error_mm=None if v is None else _finite(v.max_position_error_mm),
                    kinematics_calls=int(res.kinematics_calls),
-                   kinematics_s=float(counters.get("kinematics_s", 0.0)),
-                   collision_s=float(counters.get("collision_s", 0.0)),
+                   kinematics_s=float(counters.kinematics_s), collision_s=float(counters.collision_s),
                    path_states=int(len(res.path)), message=res.message)
 
 
@@ -118,6 +119,9 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
                                    for r in rs),
                      "time": _ms([r["planning_time_s"] for r in rs]),
                      "validation": _ms([r["validation_s"] for r in solved])}
+        cpu = [r["steps"]["cpu_s"] for r in rs if "cpu_s" in r.get("steps", {})]
+        if cpu:
+            out[name]["cpu_time"] = _ms(cpu)  # the roadmap query's own CPU seconds
     road = {tuple(r["target_mm"]): r["solved"] for r in records if r["planner"] == ROADMAP_PLANNER}
     single = [tuple(r["target_mm"]) for r in records if r["planner"] == "rrtconnect" and r["solved"]]
     if single:
@@ -125,20 +129,3 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
         out["roadmap_on_single_solved"] = {"single_solved": len(single), "roadmap_solved": hit,
                                            "rate": round(hit / len(single), 4)}
     return out
-
-
-def plot(records: list[dict[str, Any]], path) -> None:
-    """Box plot (log scale) of roadmap query, roadmap exact validation and single-query planning times."""
-    from ctrplan.bench.plots import timing_boxplot
-
-    road = [r for r in records if r["planner"] == ROADMAP_PLANNER]
-    single = [r for r in records if r["planner"] == "rrtconnect"]
-    validated = [r["validation_s"] for r in road if r["solved"]]
-    scene = road[0]["scene_name"]
-    series = {("roadmap query", scene): np.array([r["planning_time_s"] for r in road]) * 1e3,
-              ("roadmap exact validation", scene): np.array(validated) * 1e3}
-    if single:
-        series["single-query RRTConnect", scene] = np.array([r["planning_time_s"] for r in single]) * 1e3
-    timing_boxplot({k: v for k, v in series.items() if len(v)}, path,
-                   title=f"{len(road)} random targets in the target region (tolerance "
-                         f"{road[0]['tolerance_mm']:g} mm)", group_name="scene")

@@ -4,7 +4,8 @@ wrong, name the physical cause, extend the model, measure the gain.
 Modules: `data` (readers and writers of measured data), `split` (which rows train and which are
 held out), `fit` (batched least squares), `noise` (measurement noise from the data alone),
 `selection` (significance, stability and the named causes), `diagnosis` (the procedure and its
-report) with its knobs in `options`, `where` and `plots` (where the error grows), `synthetic`
+report) with its knobs in `options`, `where` (where the error grows; its plots are
+`ctrplan.viz.diagnosis_plots`), `synthetic`
 (generated data with a hidden cause). The library of causes, each registered by its class, is
 `ctrplan.model.causes`: part of the robot model (a robot's calibration holds its measurement-side
 causes), below this package.

@@ -20,6 +20,9 @@ Procedure (`diagnose`):
    the noise; with no cause named, ``none`` if the nominal model is, ``undetermined`` if the rows
    cannot identify a cause (`Selection.undetermined` says why; no extended robot is written), else
    ``unexplained``.
+
+Over 500 lines because it holds the procedure end to end (the steps above and the `Diagnosis` they
+fill, with its JSON and text report); each step's own work lives in its module.
 """
 
 from __future__ import annotations
@@ -501,9 +504,10 @@ def _outliers(data: MeasuredData, pred: Prediction, unsolved: np.ndarray, mads: 
 __all__ = ["Diagnosis", "diagnose", "error_stats", "write_outputs"]
 
 
-def write_outputs(diag: Diagnosis, out_dir: str | Path, plots: bool = True) -> list[Path]:
-    """Write the extended robot file, ``report.json``, ``report.txt`` and the plots into ``out_dir``
-    (created if needed). Every file is written atomically, after the diagnosis is complete."""
+def write_outputs(diag: Diagnosis, out_dir: str | Path) -> list[Path]:
+    """Write the extended robot file, ``report.json`` and ``report.txt`` into ``out_dir`` (created if
+    needed; the residual plots are `ctrplan.viz.diagnosis_plots.write_plots`). Every file is written
+    atomically, after the diagnosis is complete."""
     from ctrplan.base.dataio import atomic_write, output_dir
 
     out = output_dir(out_dir)
@@ -527,8 +531,4 @@ def write_outputs(diag: Diagnosis, out_dir: str | Path, plots: bool = True) -> l
     with atomic_write(out / "report.txt") as fh:
         fh.write(diag.summary() + "\n")
     paths.append(out / "report.txt")
-    if plots:
-        from ctrplan.calibration.plots import write_plots
-
-        paths += write_plots(diag, out)
     return paths

@@ -29,6 +29,9 @@ named.
   BIC, or the fit without the parameter penalty, within ``bic_margin`` of the lowest BIC's, or a
   preference of the training rows that the held-out rows do not repeat: `_replicates`) the one with
   the fewest parameters, then the lowest pooled held-out error. **Ties**: the others of them.
+
+Over 500 lines because the rules above are one decision: significance, growth, resampling and the
+final choice read each other's results, and reading them side by side is how they are checked.
 """
 
 from __future__ import annotations

@@ -20,7 +20,6 @@ from ctrplan.base.memory import check_backbones, check_fits
 from ctrplan.base.parallel import available_cores, check_workers
 from ctrplan.bench import kinematics as kinematics_bench
 from ctrplan.bench import planning as planning_bench
-from ctrplan.bench.plots import timing_boxplot
 from ctrplan.cli.app import HELP_SETTINGS, app
 from ctrplan.cli.options import (
     JsonSummaryOpt,
@@ -36,7 +35,7 @@ from ctrplan.cli.options import (
     workers_option,
 )
 from ctrplan.cli.progress import CountProgress
-from ctrplan.kinematics import BACKENDS, PLANNING_ORDER
+from ctrplan.kinematics import BACKEND_KINDS, BACKENDS, PLANNING_ORDER
 from ctrplan.kinematics.pinn import ROW_BLOCKS
 from ctrplan.model.robot import Robot
 from ctrplan.planning.planners import BENCHMARKED, PLANNERS, planner_spec
@@ -161,6 +160,8 @@ def kinematics(backend: KinBackendsOpt = ALL_BACKENDS, n: ConfigurationsOpt = 50
                         "batched": f"one call on {batch} configurations, "
                                    f"{kinematics_bench.BATCH_POINTS} points, all cores"},
            "results": results, "batched": batched}
+    from ctrplan.viz.bench_plots import timing_boxplot
+
     timing_boxplot({(case.label, case.points): t for case, t in times.items()},
                    out / "kinematics_times.png",
                    title=f"Single-query forward kinematics, n = {n} per box, one core")
@@ -215,12 +216,13 @@ def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
     Arena database (benchmark.db), plots and results.json.
     """
     from ctrplan.bench.plan_results import write_plan_results
+    from ctrplan.viz.bench_plots import planning_plots
 
     backends = parse_list(backend, "--backend")
     planners = parse_list(planner, "--planner")
     for name in backends:
-        if name not in BACKENDS:
-            raise InputError(f"--backend: unknown backend {name!r} (choose from {', '.join(BACKENDS)})")
+        if name not in BACKEND_KINDS:
+            raise InputError(f"--backend: unknown backend {name!r} (choose from {', '.join(BACKEND_KINDS)})")
     flags = {"planner": "--planner", "workers": "--workers", "ray": "--ray", "threads": "--threads"}
     for name in planners:
         try:
@@ -257,10 +259,11 @@ def plan(scenes: ScenesArg, backend: PlanBackendsOpt = PLAN_BACKENDS,
     out = output_dir(out)
     executor = f"ray {ray}" if ray else \
         f"{workers} local worker(s), {'one core' if threads == 1 else f'{threads} cores'} each"
-    doc, logs, plots = write_plan_results(records, out, limits, {
+    doc, logs = write_plan_results(records, out, limits, {
         "backends": backends, "planners": planners, "runs": runs, "first_seed": seed,
         "max_states": max_states, "executor": executor, "wall_time_s": round(time.perf_counter() - t0, 1)},
         rates)
+    plots = planning_plots(doc["summary"], records, out)
     if publish(doc, out, as_json):
         return
     _plan_table(doc, runs)

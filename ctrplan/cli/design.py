@@ -72,9 +72,10 @@ def design(task_file: TaskArg, trials: TrialsOpt = None, time_limit: TimeLimitOp
 
     from ctrplan.base.dataio import output_dir
     from ctrplan.base.parallel import check_workers
-    from ctrplan.design.outputs import write_outputs
+    from ctrplan.design.outputs import collect, write_summary
     from ctrplan.design.study import default_storage, open_study
     from ctrplan.design.task import load_task
+    from ctrplan.viz.design_report import write_study_figures
 
     if trials is not None and trials < 1:
         raise InputError(f"--trials: need at least 1, got {trials}")
@@ -104,8 +105,11 @@ def design(task_file: TaskArg, trials: TrialsOpt = None, time_limit: TimeLimitOp
         err.print(continue_hint(url, study or task.name, folder, out is None), soft_wrap=True)
         raise
     executor = f"ray {ray}" if ray else f"{workers} local worker(s), one core each"
-    doc = write_outputs(task, st, folder, storage=url, seed=seed, time_s=time.perf_counter() - t0,
-                        executor=executor, cut_short=cut_short)
+    outcome = collect(task, st, folder, storage=url, seed=seed, time_s=time.perf_counter() - t0,
+                      executor=executor, cut_short=cut_short)
+    write_study_figures(outcome, folder)
+    write_summary(outcome, folder)
+    doc = outcome.doc
     if as_json:
         typer.echo(json.dumps(doc, indent=2))
     else:
@@ -192,20 +196,20 @@ class _DesignProgress:
         more = max(0, int((self.limit_s - elapsed) / per_job) + 1)  # started before the limit: finish
         return min(self.total, finished + more)
 
-    def update(self, trial: int | None, record: dict, finished: int) -> None:
+    def update(self, trial: int | None, record, finished: int) -> None:
         n = len(self.task.targets)
-        reached = record["reached"]
+        reached = record.reached
         names = ", ".join(reached) or "none"
         self.jobs += 1
         if trial is None:
-            why = "" if record["feasible"] else f" (infeasible: {record['infeasible']['message']})"
+            why = "" if record.feasible else f" (infeasible: {record.infeasible.message})"
             self.console.print(f"base design: reaches {len(reached)} of {n} targets ({names}){why}")
-            if record["feasible"]:
+            if record.feasible:
                 self.best = len(reached)
-        elif record["feasible"] and len(reached) > self.best:
+        elif record.feasible and len(reached) > self.best:
             self.best = len(reached)
             self.console.print(f"trial {trial}: {len(reached)} of {n} targets ({names}) "
-                               f"in {record['time_s']:.0f} s")
+                               f"in {record.time_s:.0f} s")
         note = self._note("" if self.best < 0 else f"best {self.best}/{n} targets")
         self.bar.update(self.id, completed=finished, total=self._expected(finished), note=note)
         self.plain(f"{finished} of {self._expected(finished)} trials finished{', ' + note if note else ''}")

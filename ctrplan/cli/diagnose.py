@@ -95,7 +95,11 @@ def diagnose(data: Data, robot: RobotOpt = None, out: OutOpt = None, json_: Json
     if dropped:
         typer.echo(f"ctrplan: note: --max-rows {max_rows}: {dropped} of {diag.rows_in_file} rows dropped "
                    f"(diagnosing {len(diag.data)} rows in contiguous runs spread over the file)", err=True)
-    written = [] if out is None else write_outputs(diag, out)
+    written = []
+    if out is not None:
+        from ctrplan.viz.diagnosis_plots import write_plots
+
+        written = write_outputs(diag, out) + write_plots(diag, out)
     if json_:
         sys.stdout.write(json.dumps(diag.to_json(), indent=2, allow_nan=False) + "\n")
     else:

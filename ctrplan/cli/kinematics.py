@@ -24,6 +24,7 @@ from ctrplan.cli.app import app
 from ctrplan.cli.options import BackendOpt, ModelOpt, RobotOpt, load_backend
 from ctrplan.kinematics import Backbone
 from ctrplan.kinematics.base import DEFAULT_POINTS
+from ctrplan.kinematics.registry import EXACT_MODEL
 from ctrplan.model.robot import Robot, read_joints
 
 #: Output rows (configurations x backbone points) solved and written per chunk.
@@ -108,7 +109,7 @@ def _run(configs: Path, backend: str, robot: str | None, model: str | None, allo
 
 
 @app.command()
-def fk(configs: Configs, backend: BackendOpt = "cosserat", robot: RobotOpt = None, model: ModelOpt = None,
+def fk(configs: Configs, backend: BackendOpt = EXACT_MODEL, robot: RobotOpt = None, model: ModelOpt = None,
        output: OutputOpt = None, allow_outside_domain: OutsideOpt = False) -> None:
     """Tip positions of tubes 1-N for every configuration (measured-data CSV format).
 
@@ -129,7 +130,7 @@ def fk(configs: Configs, backend: BackendOpt = "cosserat", robot: RobotOpt = Non
 
 
 @app.command()
-def shape(configs: Configs, backend: BackendOpt = "cosserat", robot: RobotOpt = None, model: ModelOpt = None,
+def shape(configs: Configs, backend: BackendOpt = EXACT_MODEL, robot: RobotOpt = None, model: ModelOpt = None,
           points: Annotated[int, typer.Option("--points", help="Backbone points per configuration, "
                                               "from s = 0 to the tip l1.")] = DEFAULT_POINTS,
           output: OutputOpt = None, allow_outside_domain: OutsideOpt = False) -> None:

@@ -10,7 +10,7 @@ from typing import Annotated, Any
 import typer
 
 from ctrplan.base.errors import InputError
-from ctrplan.kinematics import BACKENDS, MODEL_BACKENDS, Backend, make_backend
+from ctrplan.kinematics import BACKEND_KINDS, BACKENDS, MODEL_BACKENDS, Backend, make_backend
 from ctrplan.model.robot import Robot
 
 #: Seconds per unit of a duration (`parse_duration`).
@@ -121,11 +121,11 @@ def load_backend(backend: str, robot: Robot, model: str | None) -> Backend:
 
     Raises `InputError` naming the option when it cannot be used: never a silent fallback.
     """
-    if backend not in BACKENDS:
-        raise InputError(f"--backend: unknown backend {backend!r} (available: {', '.join(BACKENDS)})")
-    if model is not None and backend not in MODEL_BACKENDS:
-        raise InputError(f"--model: only the {' and '.join(MODEL_BACKENDS)} backends use a model, "
-                         f"not {backend}")
+    if backend not in BACKEND_KINDS:
+        raise InputError(f"--backend: unknown backend {backend!r} (available: {', '.join(BACKEND_KINDS)})")
+    if model is not None and not BACKEND_KINDS[backend].uses_model:
+        users = [name for name, kind in BACKEND_KINDS.items() if kind.uses_model]
+        raise InputError(f"--model: only the {' and '.join(users)} backends use a model, not {backend}")
     try:
         return make_backend(backend, robot, model)
     except InputError as exc:

@@ -15,6 +15,7 @@ from ctrplan.cli.app import HELP_SETTINGS, app
 from ctrplan.cli.bench import bench_app, publish
 from ctrplan.cli.options import ModelOpt, as_option, load_backend, parse_duration
 from ctrplan.cli.progress import PlainProgress, StatusLine
+from ctrplan.kinematics.registry import DEFAULT_PLANNING_BACKEND, PLANNING_ORDER
 
 ROADMAP_HELP = "Multi-query roadmaps: build once per scene, then answer targets in milliseconds."
 roadmap_app = typer.Typer(help=ROADMAP_HELP, short_help=ROADMAP_HELP, no_args_is_help=True,
@@ -44,8 +45,13 @@ def build_command(
         "--ray", metavar="ADDRESS", show_default=False,
         help="Shard the build over a Ray cluster at this address ('local' starts one here).")] = None,
     backend: Annotated[str, typer.Option(
-        "--backend", metavar="NAME", help="Planning backend: pinn | cosserat | hybrid.")] = "pinn",
+        "--backend", metavar="NAME",
+        help=f"Planning backend: {' | '.join(PLANNING_ORDER)}.")] = DEFAULT_PLANNING_BACKEND,
     model: ModelOpt = None,
+    focus: Annotated[Path | None, typer.Option(
+        "--focus", metavar="TARGETS.csv", show_default=False,
+        help="Grow towards these regions too, in turn with the scene's target (header x,y,z,tolerance_mm; "
+             "scene frame, mm; as plan --targets).")] = None,
 ) -> None:
     """Build (or continue) a roadmap of valid states and edges for a scene.
 
@@ -61,6 +67,8 @@ def build_command(
     from ctrplan.scene.loader import load_scene
 
     limit_s = parse_duration(time_limit, "s")
+    rows = [] if focus is None else read_targets(focus)
+    regions = [("target", None)] + [(f"{focus.name} row {i}", r) for i, r in enumerate(rows, 2)]
     flags = {"workers": "--workers", "ray": "--ray"}
     try:
         check_workers(workers, ray)
@@ -75,30 +83,42 @@ def build_command(
     executor = f"ray {ray}" if ray else f"{workers} local worker(s)"
     with _BuildProgress(limit_s) as status:
         status("compiling kernels (first run only)")
-        ctx = planning_context(sc, be, model)
+        ctx = planning_context(sc, be)
         output_dir(out)
 
         def progress(info: dict) -> None:
             if "starting" in info:
                 status(f"starting {executor} (each loads the model and the scene)")
                 return
+            if "indexing" in info:
+                done, total = info["indexing"]
+                status(f"indexing the workspace each node and edge sweeps: {done:,}/{total:,}")
+                return
             st = info["stats"]
             status(f"{info['nodes']:,} nodes ({info['connected']:,} connected), {st.edges_valid:,} edges, "
-                   f"{st.jobs} jobs", info["elapsed_s"])
+                   f"{st.jobs} jobs; {_reach_text(st.reach)}", info["elapsed_s"])
 
         if workers > 1 or ray:  # the main process only makes jobs and adds results: one thread
             limit_threads()
         here = workers == 1 and not ray  # jobs run in this process: they use the context built above
         with open_pool(workers, ray, context=(lambda: ctx) if here else source) as pool:
             rm = build(ctx, source, out, pool, time_limit_s=limit_s, seed=seed, workers=workers,
-                       executor=executor, progress=progress)
+                       executor=executor, progress=progress,
+                       focus=[(name, region or sc.target) for name, region in regions])
     run = rm.meta["runs"][-1]
     minutes = max(run["seconds"], 1e-9) / 60.0
     added = run["nodes_after"] - run["nodes_before"]
     typer.echo(f"roadmap {out}: {rm.n_nodes:,} nodes ({int(rm.connected.sum()):,} connected to the start), "
                f"{len(rm.edges):,} edges; this run added {added:,} nodes in {run['seconds']:.0f} s "
                f"({added / minutes:,.0f} per minute, {executor}); total build time "
-               f"{rm.meta['build_s']:.0f} s")
+               f"{rm.meta['build_s']:.0f} s; {_reach_text(rm.meta['reach'])}")
+
+
+def _reach_text(reach: dict) -> str:
+    """How close the roadmap came to each focus region, in words."""
+    parts = [f"{name}: {r['inside']:,} tips inside" if r["inside"] else
+             f"{name}: NOT reached, nearest tip {r['closest_mm']:.1f} mm away" for name, r in reach.items()]
+    return "; ".join(parts) if parts else "focus not reached yet"
 
 
 class _BuildProgress:
@@ -161,7 +181,7 @@ def plan_from_roadmap(scene: Path, roadmap_dir: Path, targets: Path | None, *, b
     from rich.console import Console
 
     from ctrplan.base.dataio import check_output_dir
-    from ctrplan.planning.roadmap._adapter import planning_context
+    from ctrplan.planning.roadmap.build import planning_context
     from ctrplan.planning.roadmap.query import RoadmapPlanner
     from ctrplan.planning.roadmap.store import fingerprints, load_roadmap
     from ctrplan.scene.loader import load_scene
@@ -174,7 +194,7 @@ def plan_from_roadmap(scene: Path, roadmap_dir: Path, targets: Path | None, *, b
     rm = load_roadmap(roadmap_dir, fingerprints(sc, be))  # a foreign roadmap: one line, exit 2
     err = Console(stderr=True, highlight=False)
     with StatusLine(err, "plan --roadmap", "compiling kernels (first run only)", timed=True) as status:
-        planner = RoadmapPlanner(planning_context(sc, be, model), rm)
+        planner = RoadmapPlanner(planning_context(sc, be), rm)
         results = []
         for i, region in enumerate(regions, 1):
             status(f"target {i}/{len(regions)}")
@@ -255,7 +275,8 @@ def bench_roadmap(
         "--single-time-limit", metavar="DURATION",
         help="Time budget of the single-query RRTConnect run per target (as `plan --time-limit`); 0: "
              "skip the single-query runs.")] = "10s",
-    backend: Annotated[str, typer.Option("--backend", metavar="NAME", help="Planning backend.")] = "pinn",
+    backend: Annotated[str, typer.Option("--backend", metavar="NAME",
+                                         help="Planning backend.")] = DEFAULT_PLANNING_BACKEND,
     model: ModelOpt = None,
     out: Annotated[Path, typer.Option(
         "--out", help="Directory for results.json, the OMPL log, benchmark.db and the plot.")
@@ -271,10 +292,11 @@ def bench_roadmap(
     from ctrplan.base.machine import machine_info
     from ctrplan.bench import roadmap as roadmap_bench
     from ctrplan.bench.ompl_log import write_database, write_logs
-    from ctrplan.planning.roadmap._adapter import planning_context
+    from ctrplan.planning.roadmap.build import planning_context
     from ctrplan.planning.roadmap.query import RoadmapPlanner
     from ctrplan.planning.roadmap.store import fingerprints, load_roadmap
     from ctrplan.scene.loader import load_scene
+    from ctrplan.viz.bench_plots import roadmap_times_figure
 
     if n < 1:
         raise InputError(f"--n: need at least 1 target, got {n}")
@@ -288,7 +310,7 @@ def bench_roadmap(
     rm = load_roadmap(roadmap, fingerprints(sc, be))
     err = Console(stderr=True, highlight=False)
     with StatusLine(err, "bench roadmap", "compiling kernels (first run only)", timed=True) as status:
-        ctx = planning_context(sc, be, model)
+        ctx = planning_context(sc, be)
         planner = RoadmapPlanner(ctx, rm)
         targets = roadmap_bench.random_targets(sc.target, n, tolerance_mm, seed)
         records = roadmap_bench.run(planner, targets, backend_name=be.name, seed=seed,
@@ -304,7 +326,7 @@ def bench_roadmap(
             r["time_limit_s"] = limit or 0.0
     logs = write_logs(records, out, machine, settings)
     write_database(logs, out / "benchmark.db")
-    roadmap_bench.plot(records, out / "roadmap_times.png")
+    roadmap_times_figure(records, out / "roadmap_times.png")
     doc = {"machine": machine, "settings": settings, "summary": roadmap_bench.summarize(records),
            "runs": records}
     if publish(doc, out, as_json):

@@ -22,38 +22,51 @@ app.add_typer(scene_app, name="scene")
 
 @scene_app.command("from-labels")
 def from_labels(
-    labels: Annotated[Path, typer.Argument(metavar="LABELS.nii[.gz]|LABELS.nrrd",
-                                           help="Label volume (integer voxels, with its affine).")],
-    names: Annotated[Path, typer.Option(
-        "--names", metavar="NAMES.yaml",
-        help="Label value -> obstacle name, e.g. '3: right_internal_carotid'.")],
+    labels: Annotated[Path, typer.Argument(
+        metavar="LABELS.nii[.gz]|LABELS.nrrd|LABELS.seg.nrrd",
+        help="Label volume (integer voxels, with its affine and, for NRRD, its space).")],
     template: Annotated[Path, typer.Option(
         "--template", metavar="SCENE.yaml",
-        help="Scene whose robot, base pose, target, start and planner are kept; its frame must be the "
-             "volume's world frame (mm).")],
+        help="Scene whose robot, base pose, target, start and planner are kept; the meshes are written "
+             "in its `anatomy:` frame (RAS if it declares none), with the volume's world origin.")],
     out: Annotated[Path, typer.Option("--out", metavar="NEW.yaml",
                                       help="The new scene; its meshes go to NEW_meshes/ beside it.")],
+    names: Annotated[Path | None, typer.Option(
+        "--names", metavar="NAMES.yaml", show_default=False,
+        help="Label value (or segment name) -> obstacle name, e.g. '3: right_internal_carotid' or "
+             "'3: {name: right_internal_carotid, margin_mm: 2}'; optional for a .seg.nrrd, whose "
+             "segments are named.")] = None,
+    unnamed: Annotated[str, typer.Option(
+        "--unnamed", metavar="error|skip|keep",
+        help="A label present in the volume that nothing names: an error listing them (default), "
+             "skip (left out, with a warning listing them) or keep (named label_<value>).")] = "error",
 ) -> None:
-    """Turn a segmentation into a scene: one watertight mesh per named label, in world mm.
+    """Turn a segmentation into a scene: one watertight mesh per labelled structure, in world mm.
 
-    Each label named in NAMES.yaml becomes an obstacle mesh placed by the volume's affine (voxel
-    spacing, orientation, origin): marching cubes, light smoothing and decimation, within one voxel
-    of the segmentation. NEW.yaml is the template with its obstacles replaced by these meshes.
+    Every voxel frame is converted to RAS (NIfTI is RAS; an NRRD's `space`, e.g. Slicer's LPS, is
+    read and converted; a file whose space is unknown is refused), then to the template's
+    `anatomy:` frame. Each structure becomes an obstacle mesh: marching cubes, light smoothing,
+    decimation to 20,000 triangles, within one voxel of the segmentation. NEW.yaml is the template
+    with its obstacles replaced by these meshes.
     """
     from ctrplan.scene.labels import scene_from_labels
 
-    console = Console(stderr=True)
+    console = Console(stderr=True, soft_wrap=True, highlight=False)
     with console.status("meshing labels", spinner="dots") if console.is_terminal else nullcontext():
-        scene, volume = scene_from_labels(labels, names, template, out)
-    shape = "x".join(str(n) for n in volume.labels.shape)
+        made = scene_from_labels(labels, names, template, out, unnamed)
+    volume = made.volume
+    shape = "x".join(str(n) for n in volume.grid_shape)
     spacing = "x".join(f"{v:.3g}" for v in volume.spacing_mm)
-    console.print(f"{volume.source}: {shape} voxels of {spacing} mm -> {len(scene.obstacles)} meshes")
-    for obstacle in scene.obstacles:
+    layers = volume.labels.shape[0]
+    console.print(f"{volume.source}: {shape} voxels of {spacing} mm"
+                  + (f" in {layers} layers" if layers > 1 else "")
+                  + f", {volume.space} file -> {len(made.structures)} meshes in {made.frame} (scene frame)")
+    for structure, obstacle in zip(made.structures, made.scene.obstacles, strict=True):
         lo, hi = obstacle.bounds
-        console.print(f"  {obstacle.name}: {len(obstacle.faces)} triangles, extent "
-                      f"{' x '.join(f'{v:.1f}' for v in hi - lo)} mm")
+        console.print(f"  {obstacle.name} ({structure.segment.describe(layers)}): {len(obstacle.faces)} "
+                      f"triangles, {' x '.join(f'{v:.1f}' for v in hi - lo)} mm from "
+                      f"{np.round(lo, 1).tolist()} to {np.round(hi, 1).tolist()}")
     console.print(f"wrote {out}")
-
 
 
 @scene_app.command("check")
@@ -78,13 +91,14 @@ def check(
     """
     from ctrplan.model.robot import Robot
     from ctrplan.planning.scene_check import check_scene
+    from ctrplan.planning.start_fix import reaching_start
     from ctrplan.scene.loader import load_scene
 
     override = Robot.load(robot) if robot is not None else None
     scene = load_scene(scene_file, check_start=False, robot=override)
     console = Console(stderr=True)
     with console.status("checking the scene", spinner="dots") if console.is_terminal else nullcontext():
-        report = check_scene(scene, seed=seed)
+        report = check_scene(scene, seed=seed, start_fix=reaching_start)
     for key, fact in report.facts.items():
         typer.echo(f"{key}: {fact}")
     start = scene.start if report.usable else report.fixed_start

@@ -34,7 +34,9 @@ def stability(
     Sweeps one tube rotation at a time across its interval from N random configurations, following
     the equilibrium by continuation, and flags configurations whose equilibrium is unstable
     (conjugate-point test), where the continuation jumps (the branch folds: the robot snaps), or
-    where two equilibria exist. The verdict is in the output (JSON `snap_free`); exit 2 on bad input.
+    where two equilibria exist. The verdict is in the output (JSON `snap_free`); when it snaps, the
+    advice names the relative rotation or translation it snaps at and the robot-file limit (e.g.
+    domain: {alpha3_minus_alpha2_rad: [-2.4, 2.4]}) that keeps the safe part. Exit 2 on bad input.
     """
     from ctrplan.kinematics.stability import certify, sweep_bytes
     from ctrplan.viz.stability_plot import plot_stability
@@ -72,4 +74,6 @@ def stability(
                       f"({100 * report.unstable_fraction:.2f} % flagged: {report.counts})")
         if report.example_q is not None:
             console.print(f"example ({report.example_reason}): q = {[round(v, 4) for v in report.example_q]}")
+        if report.advice is not None:
+            console.print(f"advice: {report.advice.text}", highlight=False)
         console.print(f"wrote {folder / 'stability.json'} and {doc['plot']}")

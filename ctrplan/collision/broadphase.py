@@ -35,7 +35,7 @@ import math
 import os
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -311,24 +311,60 @@ class DistanceGrid:
                 cell_mm *= 1.02
         shape = tuple(int(s) for s in np.ceil(extent / cell_mm))
         values = np.full(shape, _LEVELS, dtype=np.uint8)
-        step = band_mm / _LEVELS
-        for o in obstacles:
-            if o.kind == "mesh":
-                _rasterise_triangles(np.ascontiguousarray(o.vertices, dtype=float),
-                                     np.ascontiguousarray(o.faces, dtype=np.int64), lo, cell_mm, band_mm,
-                                     step, values, float(o.margin_mm))
-                continue
-            b = primitive_bounds(o)
-            m = band_mm + o.margin_mm
-            i0 = np.maximum(0, np.floor((b[0] - m - lo) / cell_mm).astype(int))
-            i1 = np.minimum(np.array(shape), np.ceil((b[1] + m - lo) / cell_mm).astype(int) + 1)
-            axes = [lo[k] + (np.arange(i0[k], i1[k]) + 0.5) * cell_mm for k in range(3)]
-            centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
-            d = np.clip(_solid_distance(o, centres) - o.margin_mm, 0.0, band_mm)
-            q = np.floor(d / step).astype(np.uint8)
-            sl = tuple(slice(i0[k], i1[k]) for k in range(3))
-            values[sl] = np.minimum(values[sl], q)
+        _paint(obstacles, lo, float(cell_mm), float(band_mm), values)
         return cls(lo, float(cell_mm), float(band_mm), values)
+
+    def translated(self, shift_mm: np.ndarray) -> DistanceGrid:
+        """The grid of the same obstacles moved by ``shift_mm`` (3,) (mm): the same cells, moved (exact:
+        the distance field moves with its obstacles)."""
+        return replace(self, lo=self.lo + np.asarray(shift_mm, dtype=float))
+
+    def grown_to(self, obstacle: Obstacle) -> DistanceGrid:
+        """This grid, grown (on the same lattice) to cover every cell within the band and margin of
+        ``obstacle``: the new cells are at least the band from every obstacle the grid was built
+        from (the grid reached that far beyond them), so they hold the cap -- exact until
+        ``obstacle`` is painted in (`repainted`)."""
+        b = obstacle_bounds(obstacle)
+        reach = self.band_mm + obstacle.margin_mm + self.cell_mm
+        shape = np.array(self.values.shape)
+        below = np.maximum(0, np.ceil((self.lo - (b[0] - reach)) / self.cell_mm)).astype(int)
+        hi = self.lo + shape * self.cell_mm
+        above = np.maximum(0, np.ceil((b[1] + reach - hi) / self.cell_mm)).astype(int)
+        if not below.any() and not above.any():
+            return self
+        values = np.full(tuple(shape + below + above), _LEVELS, dtype=np.uint8)
+        values[tuple(slice(a, a + n) for a, n in zip(below, shape, strict=True))] = self.values
+        return replace(self, lo=self.lo - below * self.cell_mm, values=values)
+
+    def cells_of(self, box_mm: np.ndarray) -> tuple[slice, ...]:
+        """The index ranges of the cells within ``box_mm`` (2, 3) (scene frame, mm), clipped to the
+        grid."""
+        shape = np.array(self.values.shape)
+        i0 = np.clip(np.floor((box_mm[0] - self.lo) / self.cell_mm).astype(int), 0, shape)
+        i1 = np.clip(np.ceil((box_mm[1] - self.lo) / self.cell_mm).astype(int), 0, shape)
+        return tuple(slice(int(a), int(b)) for a, b in zip(i0, i1, strict=True))
+
+    def painted(self, obstacles: Sequence[Obstacle], cells: tuple[slice, ...]) -> np.ndarray:
+        """The values ``obstacles`` alone give the ``cells`` (`cells_of`) of this grid's lattice;
+        only the obstacles near them are rasterised."""
+        i0 = np.array([c.start for c in cells])
+        i1 = np.array([c.stop for c in cells])
+        sub = np.full(tuple(i1 - i0), _LEVELS, dtype=np.uint8)
+        lo, hi = self.lo + i0 * self.cell_mm, self.lo + i1 * self.cell_mm
+        near = [o for o in obstacles
+                if np.all(obstacle_bounds(o)[0] - self.band_mm - o.margin_mm <= hi)
+                and np.all(obstacle_bounds(o)[1] + self.band_mm + o.margin_mm >= lo)]
+        if sub.size:
+            _paint(near, lo, self.cell_mm, self.band_mm, sub)
+        return sub
+
+    def with_cells(self, cells: tuple[slice, ...], values: np.ndarray) -> DistanceGrid:
+        """A copy with ``values`` in ``cells``: the grid of a set of obstacles that differs from the
+        one this grid holds only within those cells shrunk by the band and the margins (see
+        `ctrplan.collision.world.CollisionWorld.moved`)."""
+        out = self.values.copy()
+        out[cells] = values
+        return replace(self, values=out)
 
     def segment_lower_bounds(self, points: np.ndarray, radii: np.ndarray | None = None) -> np.ndarray:
         """Lower bounds (B, N-1) of the margin-reduced distance (mm) from each segment of polylines
@@ -343,6 +379,32 @@ class DistanceGrid:
         _capsule_lower_bounds(p, r, self.lo, self.cell_mm, self.step_mm, self.band_mm, self.values,
                               self.spacing_mm, out)
         return out
+
+
+def _paint(obstacles: Sequence[Obstacle], lo: np.ndarray, cell_mm: float, band_mm: float,
+           values: np.ndarray) -> None:
+    """Lower the cells ``values`` (uint8, lower corner ``lo``) to every obstacle's rounded-down
+    margin-reduced distance (see the module docstring)."""
+    step = band_mm / _LEVELS
+    shape = np.array(values.shape)
+    for o in obstacles:
+        if o.kind == "mesh":
+            _rasterise_triangles(np.ascontiguousarray(o.vertices, dtype=float),
+                                 np.ascontiguousarray(o.faces, dtype=np.int64), lo, cell_mm, band_mm,
+                                 step, values, float(o.margin_mm))
+            continue
+        b = primitive_bounds(o)
+        m = band_mm + o.margin_mm
+        i0 = np.maximum(0, np.floor((b[0] - m - lo) / cell_mm).astype(int))
+        i1 = np.minimum(shape, np.ceil((b[1] + m - lo) / cell_mm).astype(int) + 1)
+        if np.any(i1 <= i0):
+            continue
+        axes = [lo[k] + (np.arange(i0[k], i1[k]) + 0.5) * cell_mm for k in range(3)]
+        centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
+        d = np.clip(_solid_distance(o, centres) - o.margin_mm, 0.0, band_mm)
+        q = np.floor(d / step).astype(np.uint8)
+        sl = tuple(slice(i0[k], i1[k]) for k in range(3))
+        values[sl] = np.minimum(values[sl], q)
 
 
 def geometry_key(obstacles: Sequence[Obstacle], cell_mm: float, band_mm: float) -> str:

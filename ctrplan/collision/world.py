@@ -12,6 +12,7 @@ import numpy as np
 from ctrplan.collision.broadphase import (
     DistanceGrid,
     grid_for,
+    obstacle_bounds,
     primitive_bounds,
 )
 from ctrplan.collision.capsules import _fcl_transform
@@ -37,17 +38,23 @@ def _split_mesh(V: np.ndarray, F: np.ndarray, max_faces: int) -> list[np.ndarray
     return out
 
 
+#: `CollisionWorld.moved` keeps what the other obstacles give the cells within this much (mm) of a
+#: moved structure's reach.
+OTHERS_PAD_MM = 6.0
+
+
 class CollisionWorld:
     """The scene's obstacles as FCL objects, built once, and their distance-grid broadphase.
 
     Meshes are split into spatially compact chunks (one BVH each) so that an axis-aligned
     bounding-box prefilter sends only nearby capsule/chunk pairs to FCL's narrow phase. ``max_faces``
     bounds the chunk size. With ``broadphase`` a `DistanceGrid` (from memory, the disk cache or built
-    here, see `broadphase`) first clears the capsules certainly far from every obstacle; FCL judges
-    the rest.
+    here, see `broadphase`; or ``grid``, already made for these obstacles) first clears the capsules
+    certainly far from every obstacle; FCL judges the rest.
     """
 
-    def __init__(self, obstacles: Sequence[Obstacle], max_faces: int = 256, broadphase: bool = True):
+    def __init__(self, obstacles: Sequence[Obstacle], max_faces: int = 256, broadphase: bool = True,
+                 grid: DistanceGrid | None = None):
         self.obstacles = tuple(obstacles)
         self.broadphase = bool(broadphase)
         self._objects: list[fcl.CollisionObject] = []
@@ -58,32 +65,44 @@ class CollisionWorld:
         self.margins: list[float] = []
         lo, hi = [], []
         for index, o in enumerate(self.obstacles):
-            if o.kind == "mesh":
-                V = np.ascontiguousarray(o.vertices, dtype=float)
-                F = np.ascontiguousarray(o.faces, dtype=np.int64)
-                for idx in _split_mesh(V, F, max_faces):
-                    f = F[idx]
-                    used, inv = np.unique(f.ravel(), return_inverse=True)
-                    v = np.ascontiguousarray(V[used])
-                    f = np.ascontiguousarray(inv.reshape(-1, 3), dtype=np.int64)
-                    g = fcl.BVHModel()
-                    g.beginModel(len(v), len(f))
-                    g.addSubModel(v, f)
-                    g.endModel()
-                    self._add(g, fcl.Transform(), index, v.min(axis=0), v.max(axis=0), lo, hi)
-                continue
-            if o.kind == "sphere":
-                g = fcl.Sphere(o.radius)
-            elif o.kind == "box":
-                g = fcl.Box(*o.size)
-            elif o.kind == "cylinder":
-                g = fcl.Cylinder(o.radius, o.length)
-            elif o.kind == "capsule":
-                g = fcl.Capsule(o.radius, o.length)
-            else:  # pragma: no cover - the loader only makes these kinds
-                raise ValueError(f"unknown obstacle kind {o.kind!r}")
-            b = primitive_bounds(o)
-            self._add(g, _fcl_transform(o.pose), index, b[0], b[1], lo, hi)
+            self._add_obstacle(index, o, max_faces, lo, hi)
+        self._finish(lo, hi)
+        #: the broadphase grid (None when disabled or without obstacles)
+        self.grid: DistanceGrid | None = (grid or grid_for(self.obstacles)) if self.broadphase else None
+        #: after `moved`: (its obstacle's name, a box, what the other obstacles give the box's cells)
+        self._others: tuple | None = None
+
+    def _add_obstacle(self, index: int, o: Obstacle, max_faces: int, lo: list, hi: list) -> None:
+        """FCL objects of obstacle ``index`` (chunks of a mesh, or one primitive)."""
+        if o.kind == "mesh":
+            V = np.ascontiguousarray(o.vertices, dtype=float)
+            F = np.ascontiguousarray(o.faces, dtype=np.int64)
+            for idx in _split_mesh(V, F, max_faces):
+                f = F[idx]
+                used, inv = np.unique(f.ravel(), return_inverse=True)
+                v = np.ascontiguousarray(V[used])
+                f = np.ascontiguousarray(inv.reshape(-1, 3), dtype=np.int64)
+                g = fcl.BVHModel()
+                g.beginModel(len(v), len(f))
+                g.addSubModel(v, f)
+                g.endModel()
+                self._add(g, fcl.Transform(), index, v.min(axis=0), v.max(axis=0), lo, hi)
+            return
+        if o.kind == "sphere":
+            g = fcl.Sphere(o.radius)
+        elif o.kind == "box":
+            g = fcl.Box(*o.size)
+        elif o.kind == "cylinder":
+            g = fcl.Cylinder(o.radius, o.length)
+        elif o.kind == "capsule":
+            g = fcl.Capsule(o.radius, o.length)
+        else:  # pragma: no cover - the loader only makes these kinds
+            raise ValueError(f"unknown obstacle kind {o.kind!r}")
+        b = primitive_bounds(o)
+        self._add(g, _fcl_transform(o.pose), index, b[0], b[1], lo, hi)
+
+    def _finish(self, lo: list, hi: list) -> None:
+        """The objects' bounding boxes and the collision request, once every object is added."""
         #: the objects' bounding boxes (O, 3) (scene frame, mm) and, grown by each object's margin, the
         #: boxes a capsule must reach to collide (``aabb_lo``, ``aabb_hi``)
         self.box_lo = np.array(lo).reshape(-1, 3)
@@ -92,8 +111,6 @@ class CollisionWorld:
         self.aabb_lo = self.box_lo - grow
         self.aabb_hi = self.box_hi + grow
         self._request = fcl.CollisionRequest()
-        #: the broadphase grid (None when disabled or without obstacles)
-        self.grid: DistanceGrid | None = grid_for(self.obstacles) if self.broadphase else None
 
     def _add(self, geom, tf, index: int, lo_, hi_, lo, hi) -> None:
         self._geoms.append(geom)
@@ -108,6 +125,52 @@ class CollisionWorld:
     def from_scene(cls, scene: Scene, broadphase: bool = True) -> CollisionWorld:
         return cls(scene.obstacles, broadphase=broadphase)
 
+    def moved(self, obstacle: Obstacle, max_faces: int = 256) -> CollisionWorld:
+        """This world with the obstacle of ``obstacle``'s name replaced by ``obstacle`` (a structure
+        that moved): the other obstacles' FCL objects are shared, the grid is repainted around the
+        old and the new place only (`DistanceGrid.repainted`; milliseconds where a new grid of the
+        skull base takes seconds; grown first where the new place reaches beyond it)."""
+        index = next(i for i, o in enumerate(self.obstacles) if o.name == obstacle.name)
+        new = object.__new__(CollisionWorld)
+        new.obstacles = self.obstacles[:index] + (obstacle,) + self.obstacles[index + 1:]
+        new.broadphase = self.broadphase
+        new._objects, new._geoms, new.names, new.owner, new.margins = [], [], [], [], []
+        lo, hi = [], []
+        for k, obj in enumerate(self._objects):
+            if self.owner[k] != index:
+                new._objects.append(obj)
+                new._geoms.append(self._geoms[k])
+                new.names.append(self.names[k])
+                new.owner.append(self.owner[k])
+                new.margins.append(self.margins[k])
+                lo.append(self.box_lo[k])
+                hi.append(self.box_hi[k])
+        new._add_obstacle(index, obstacle, max_faces, lo, hi)
+        new._finish(lo, hi)
+        new.grid, new._others = None, None
+        if self.grid is not None:
+            new.grid, new._others = self._repainted(index, obstacle, new.obstacles)
+        return new
+
+    def _repainted(self, index: int, obstacle: Obstacle, obstacles: tuple[Obstacle, ...]
+                   ) -> tuple[DistanceGrid, tuple | None]:
+        """The grid with obstacle ``index`` moved to ``obstacle``: the cells around its old and new
+        place painted again. What the other obstacles give the cells around it (grown by
+        `OTHERS_PAD_MM`) is kept with the result and reused when the same obstacle moves next,
+        within those cells (a structure dragged about then costs the painting of itself alone)."""
+        old = self.obstacles[index]
+        grid = self.grid.grown_to(obstacle)
+        reach = grid.band_mm + max(old.margin_mm, obstacle.margin_mm) + 2 * grid.cell_mm
+        both = np.stack([obstacle_bounds(old), obstacle_bounds(obstacle)])
+        box = np.stack([both[:, 0].min(axis=0) - reach, both[:, 1].max(axis=0) + reach])
+        kept = self._others
+        if kept is None or kept[0] != obstacle.name or grid is not self.grid \
+                or not (np.all(kept[1][0] <= box[0]) and np.all(box[1] <= kept[1][1])):
+            wide = np.stack([box[0] - OTHERS_PAD_MM, box[1] + OTHERS_PAD_MM])
+            others = [o for k, o in enumerate(obstacles) if k != index]
+            kept = (obstacle.name, wide, grid.painted(others, grid.cells_of(wide)))
+        cells = grid.cells_of(kept[1])
+        return grid.with_cells(cells, np.minimum(kept[2], grid.painted([obstacle], cells))), kept
 
     def near(self, points: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Capsules the broadphase cannot clear, (B, M) bool, and a priority (B, M) to test them in

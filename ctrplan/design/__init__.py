@@ -2,9 +2,10 @@
 collision-free.
 
 One idea per module: `task` (the task file, docs/design.md §5), `space` (study parameters <-> robot files),
-`evaluate` (feasibility and proven reach of one design), `study` (the Optuna study and its executors),
-`outputs` (best robot, per-target scenes and paths, designs.csv, design.json) and `report` (pareto.png,
-report.html).
+`evaluate` (feasibility and proven reach of one design), `record` (what an evaluation found, typed),
+`objectives` (what a design is judged by), `study` (the Optuna study and its executors), `ranking`
+(best design, Pareto front) and `outputs` (what the outputs show, with best robot, per-target scenes,
+designs.csv and design.json; its figures and report.html are `ctrplan.viz.design_report`).
 """
 
 from ctrplan.design.evaluate import DesignContext, DesignJob, evaluate, evaluate_job

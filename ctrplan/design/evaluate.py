@@ -22,7 +22,7 @@ the study seed, the design's fingerprint and the target's name, and every search
 design gives the same record on any executor and under any load, only the times differ -- unless a
 search's wall-clock guard fired, which the record names (``cut_short``).
 
-The record is a JSON-ready dict (see `evaluate`).
+The record is a `ctrplan.design.record.DesignRecord` (see `evaluate`).
 """
 
 from __future__ import annotations
@@ -30,15 +30,15 @@ from __future__ import annotations
 import hashlib
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 
 from ctrplan.base.errors import InputError
 from ctrplan.collision.world import CollisionWorld
+from ctrplan.design.record import DesignRecord, DesignTimings, Infeasible, StabilityVerdict, TargetRecord
 from ctrplan.design.space import Parameters, build_robot, max_strain, robot_dict, total_length_mm
 from ctrplan.design.task import DesignTask, NamedTarget, load_task
-from ctrplan.kinematics import CosseratBackend
+from ctrplan.kinematics import EXACT_MODEL, make_backend
 from ctrplan.kinematics.stability import certify, is_certified
 from ctrplan.model.robot import Robot
 from ctrplan.scene.objects import Scene
@@ -68,7 +68,7 @@ class DesignContext:
     def __init__(self) -> None:
         self.tasks: dict[str, DesignTask] = {}
         self.worlds: dict[str, CollisionWorld] = {}
-        self.verdicts: dict[str, dict] = {}
+        self.verdicts: dict[str, StabilityVerdict] = {}
 
     def task(self, task_file: str) -> DesignTask:
         """The task in ``task_file``, loaded on first use."""
@@ -84,7 +84,7 @@ class DesignContext:
         return self.worlds[key]
 
 
-def evaluate_job(context: DesignContext, job: DesignJob) -> dict:
+def evaluate_job(context: DesignContext, job: DesignJob) -> DesignRecord:
     """`evaluate` a `DesignJob` with the worker's ``context`` (the task is loaded once per worker)."""
     from ompl import util as ou
 
@@ -101,76 +101,57 @@ def target_seed(seed: int, fingerprint: str, target: str) -> int:
 
 
 def evaluate(task: DesignTask, parameters: Parameters, seed: int = 0, *,
-             context: DesignContext | None = None) -> dict:
-    """The record of one design; ``context``: what earlier evaluations in this worker built (none:
-    a fresh `DesignContext`).
+             context: DesignContext | None = None) -> DesignRecord:
+    """The record of one design (`DesignRecord`); ``context``: what earlier evaluations in this
+    worker built (none: a fresh `DesignContext`).
 
-    Keys: ``parameters``; ``feasible`` and, when not, ``infeasible`` ``{constraint, message}``
-    (constraint one of ``robot``, ``max_strain``, ``domain``, ``snap_free``, ``start``);
-    ``max_strain`` (fraction), ``total_length_mm``, ``robot`` (the robot file as a dict),
-    ``fingerprint``, ``stability`` ``{snap_free, source (certificate | sweep), checked, example_q,
-    example_reason}`` (with ``snap_free`` constraints), ``start`` (joints, mm and rad);
-    ``targets``: per target ``{name, reached, stage (screen | plan), message, goals, seed,
-    planning_time_s, kinematics_calls, states, cut_short, min_clearance_mm, path}`` (path: joints
-    (K, 2N) of the validated path, reached targets only; ``states``: the work its plan used;
-    ``cut_short``: a wall-clock guard stopped its plan); ``reached`` (names); ``cut_short`` (names of
-    the targets whose verdict a guard decided: empty unless the machine was far slower than the
-    reference); ``min_clearance_mm`` (smallest over the reached targets' paths, None if none);
-    ``time_s`` and ``timings`` (s).
+    The feasibility conditions are checked in order; the first that fails is recorded (``infeasible``:
+    ``robot``, ``max_strain``, ``snap_free``, ``start``) with what was learnt up to it. A feasible
+    design gets a record per target (`TargetRecord`: reached, stage, message, goals, seed, planning
+    time, kinematics calls, states, cut short, clearance, path -- the joints (K, 2N) of the validated
+    path of a reached target), the stage times (s) and its total time.
     """
     t0 = time.perf_counter()
+    context = context or DesignContext()
     data = robot_dict(task, parameters)
-    record: dict[str, Any] = {
-        "parameters": dict(parameters), "feasible": False, "infeasible": None,
-        "max_strain": max_strain(data), "total_length_mm": total_length_mm(data), "robot": data,
-        "fingerprint": None, "stability": None, "start": None, "targets": [], "reached": [],
-        "cut_short": [], "min_clearance_mm": None, "time_s": 0.0, "timings": {},
-    }
-    design = _feasible(task, record, context or DesignContext())
-    if design is not None:
-        _reach(task, *design, record, seed)
-    record["time_s"] = time.perf_counter() - t0
-    return record
+    strain = max_strain(data)
+    known: dict = {"parameters": dict(parameters), "max_strain": strain,
+                   "total_length_mm": total_length_mm(data), "robot": data}
+    timings: dict[str, float] = {}
 
+    def record(infeasible: Infeasible | None = None, **found) -> DesignRecord:
+        return DesignRecord(feasible=infeasible is None, infeasible=infeasible, **known, **found,
+                            timings=DesignTimings(**timings), time_s=time.perf_counter() - t0)
 
-def _refuse(record: dict, constraint: str, message: str) -> None:
-    record["infeasible"] = {"constraint": constraint, "message": message}
-
-
-def _feasible(task: DesignTask, record: dict, context: DesignContext):
-    """Check the feasibility conditions in order, filling ``record``; the design's scene (with its
-    start) and exact configuration checker, or None after recording the first condition that
-    fails."""
     try:
-        robot = build_robot(record["robot"], "design")
+        robot = build_robot(data, "design")
     except InputError as exc:
-        return _refuse(record, "robot", str(exc).removeprefix("design: "))
-    record["fingerprint"] = robot.fingerprint
-    if record["max_strain"] > task.max_strain:
-        return _refuse(record, "max_strain", f"pre-curvature strain {100 * record['max_strain']:.2f} % "
-                                             f"above the limit {100 * task.max_strain:.2f} %")
+        return record(Infeasible("robot", str(exc).removeprefix("design: ")))
+    known["fingerprint"] = robot.fingerprint
+    if strain > task.max_strain:
+        return record(Infeasible("max_strain", f"pre-curvature strain {100 * strain:.2f} % above the limit "
+                                               f"{100 * task.max_strain:.2f} %"))
     if task.snap_free:
         t = time.perf_counter()
-        verdict = record["stability"] = stability_verdict(robot, context)
-        record["timings"]["stability_s"] = time.perf_counter() - t
-        if not verdict["snap_free"]:
-            return _refuse(record, "snap_free", f"the joint domain is not snap-free "
-                                                f"({verdict['example_reason']} at q = "
-                                                f"{np.round(verdict['example_q'], 3).tolist()})")
+        verdict = known["stability"] = stability_verdict(robot, context)
+        timings["stability_s"] = time.perf_counter() - t
+        if not verdict.snap_free:
+            return record(Infeasible("snap_free", f"the joint domain is not snap-free "
+                                                  f"({verdict.example_reason} at q = "
+                                                  f"{np.round(verdict.example_q, 3).tolist()})"))
     from ctrplan.planning.scene_check import valid_start
 
     t = time.perf_counter()
     scene, checker = _design_scene(task, robot, context)
     start = valid_start(scene, checker)
-    record["timings"]["start_s"] = time.perf_counter() - t
+    timings["start_s"] = time.perf_counter() - t
     if start is None:
-        return _refuse(record, "start", "no collision-free stable start configuration")
-    record["start"] = start.tolist()
-    record["feasible"] = True
-    return replace(scene, start=start), checker
+        return record(Infeasible("start", "no collision-free stable start configuration"))
+    targets = _reach(task, replace(scene, start=start), checker, seed, timings)
+    return record(start=start.tolist(), targets=targets)
 
 
-def stability_verdict(robot: Robot, context: DesignContext) -> dict:
+def stability_verdict(robot: Robot, context: DesignContext) -> StabilityVerdict:
     """Whether the robot's domain is snap-free: a certificate if one exists (shipped or made here),
     else the sweep of `ctrplan stability` with its default settings, stopped at the first flagged
     sweep (a snap-free verdict is stored as a certificate); remembered in ``context`` by
@@ -179,13 +160,12 @@ def stability_verdict(robot: Robot, context: DesignContext) -> dict:
     fp = robot.fingerprint
     if fp not in verdicts:
         if is_certified(robot):
-            verdicts[fp] = {"snap_free": True, "source": "certificate", "checked": None,
-                            "example_q": None, "example_reason": None}
+            verdicts[fp] = StabilityVerdict(True, "certificate")
         else:
             report, _ = certify(robot, stop_at_first=True)
-            verdicts[fp] = {"snap_free": report.snap_free, "source": "sweep", "checked": report.checked,
-                            "example_q": report.example_q, "example_reason": report.example_reason}
-    return dict(verdicts[fp])
+            verdicts[fp] = StabilityVerdict(report.snap_free, "sweep", report.checked, report.example_q,
+                                            report.example_reason)
+    return verdicts[fp]
 
 
 def _design_scene(task: DesignTask, robot: Robot, context: DesignContext):
@@ -198,49 +178,45 @@ def _design_scene(task: DesignTask, robot: Robot, context: DesignContext):
     return scene, ConfigurationChecker(PlanningModel.of(scene, world=context.world(task)))
 
 
-def _reach(task: DesignTask, scene: Scene, checker, record: dict, seed: int) -> None:
-    """Screen every target, then plan to those with goal configurations; fill ``record``."""
+def _reach(task: DesignTask, scene: Scene, checker, seed: int, timings: dict[str, float]
+           ) -> tuple[TargetRecord, ...]:
+    """Screen every target, then plan to those with goal configurations (with the exact model, which
+    is its own exact companion); the stage times go into ``timings``."""
     from ctrplan.planning import GoalSampler, plan
 
     robot = scene.robot
-    exact = CosseratBackend(robot)
+    exact = make_backend(EXACT_MODEL, robot)
     screen_s = plan_s = 0.0
+    out = []
     for target in task.targets:
-        out: dict[str, Any] = {"name": target.name, "reached": False, "stage": "screen", "message": "",
-                               "goals": 0, "seed": target_seed(seed, robot.fingerprint, target.name),
-                               "planning_time_s": None, "kinematics_calls": None, "states": None,
-                               "cut_short": False, "min_clearance_mm": None, "path": None}
-        record["targets"].append(out)
+        plan_seed = target_seed(seed, robot.fingerprint, target.name)
         t = time.perf_counter()
-        sampler = GoalSampler(checker, target.region, np.random.default_rng(out["seed"]),
+        sampler = GoalSampler(checker, target.region, np.random.default_rng(plan_seed),
                               seeds_per_batch=max(4, 3 * scene.settings.goal_samples), start=scene.start)
         for k in range(1, SCREEN_BATCHES + 1):
             if sampler.sample_batch() or (k >= SCREEN_GIVE_UP and sampler.stats.ik_reached == 0):
                 break
         screen_s += time.perf_counter() - t
-        out["goals"] = len(sampler.goals)
         if not sampler.goals:
             st = sampler.stats
-            out["message"] = (f"no collision-free goal configuration ({st.ik_reached} of {st.seeds} IK "
-                              f"solutions reached the target, closest {st.closest_mm:.2f} mm)")
+            out.append(TargetRecord(target.name, seed=plan_seed, message=(
+                f"no collision-free goal configuration ({st.ik_reached} of {st.seeds} IK solutions reached "
+                f"the target, closest {st.closest_mm:.2f} mm)")))
             continue
         t = time.perf_counter()
-        result = plan(_target_scene(scene, target), exact, exact=exact, world=checker.world,
-                      time_limit_s=task.plan_time_s, max_states=task.plan_states, seed=out["seed"],
-                      goal_hints=np.stack(sampler.goals))
+        result = plan(_target_scene(scene, target), exact, world=checker.world,
+                      time_limit_s=task.plan_time_s, max_states=task.plan_states, seed=plan_seed,
+                      goal_hints=np.stack(sampler.goals), wall_limit=False)  # work decides a trial
         plan_s += time.perf_counter() - t
-        out.update(stage="plan", message=result.message, reached=bool(result.solved),
-                   planning_time_s=result.planning_time_s, kinematics_calls=result.kinematics_calls,
-                   states=result.details["budget"]["states"], cut_short=result.cut_short)
-        if result.solved:
-            out["min_clearance_mm"] = float(result.validated.min_clearance_mm)
-            out["path"] = np.asarray(result.path).tolist()
-    reached = [t for t in record["targets"] if t["reached"]]
-    record["reached"] = [t["name"] for t in reached]
-    record["cut_short"] = [t["name"] for t in record["targets"] if t["cut_short"]]
-    if reached:
-        record["min_clearance_mm"] = min(t["min_clearance_mm"] for t in reached)
-    record["timings"].update(screen_s=screen_s, plan_s=plan_s)
+        solved = bool(result.solved)
+        out.append(TargetRecord(
+            target.name, reached=solved, stage="plan", message=result.message, goals=len(sampler.goals),
+            seed=plan_seed, planning_time_s=result.planning_time_s,
+            kinematics_calls=result.kinematics_calls, states=result.states, cut_short=result.cut_short,
+            min_clearance_mm=float(result.validated.min_clearance_mm) if solved else None,
+            path=np.asarray(result.path).tolist() if solved else None))
+    timings.update(screen_s=screen_s, plan_s=plan_s)
+    return tuple(out)
 
 
 def _target_scene(scene: Scene, target: NamedTarget) -> Scene:

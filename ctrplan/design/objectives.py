@@ -3,7 +3,8 @@ trial record (what the study optimises and ranks), and its cell in ``designs.csv
 
 The task file, the study (directions, values told to Optuna, ranking, Pareto front), the outputs
 (``designs.csv``, ``report.json``) and the report (figure titles, tables) read `OBJECTIVES`. Adding
-an objective: one `Criterion` here, and its record key written by `ctrplan.design.evaluate`.
+an objective: one `Criterion` here, and its field of the record (`ctrplan.design.record.DesignRecord`)
+written by `ctrplan.design.evaluate`.
 """
 
 from __future__ import annotations
@@ -12,32 +13,34 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from ctrplan.design.record import DesignRecord
+
 
 @dataclass(frozen=True)
 class Criterion:
     """A registered objective: ``name`` (task files, the study, the ``designs.csv`` column),
     ``description`` (report), ``value(record)`` (a number for the study) and ``column(record)``
-    (the ``designs.csv`` cell: None stays empty)."""
+    (the ``designs.csv`` cell: None stays empty) of a `DesignRecord`."""
 
     name: str
     description: str
-    value: Callable[[dict], float]
-    column: Callable[[dict], Any]
+    value: Callable[[DesignRecord], float]
+    column: Callable[[DesignRecord], Any]
 
 
-def _count_reached(record: dict) -> int:
-    return len(record["reached"])
+def _count_reached(record: DesignRecord) -> int:
+    return len(record.reached)
 
 
-def _record_key(key: str) -> tuple[Callable[[dict], float], Callable[[dict], Any]]:
-    """(value, column) of a record key: the number (0 where the record has None: a clearance without
+def _record_field(name: str) -> tuple[Callable[[DesignRecord], float], Callable[[DesignRecord], Any]]:
+    """(value, column) of a record field: the number (0 where the record has None: a clearance without
     any reached target), and the raw entry."""
 
-    def value(record: dict) -> float:
-        v = record[key]
+    def value(record: DesignRecord) -> float:
+        v = getattr(record, name)
         return 0.0 if v is None else float(v)
 
-    return value, lambda record: record[key]
+    return value, lambda record: getattr(record, name)
 
 
 #: Every objective by name, in ``designs.csv`` column order; ``targets_reached`` always comes first
@@ -45,11 +48,11 @@ def _record_key(key: str) -> tuple[Callable[[dict], float], Callable[[dict], Any
 OBJECTIVES: dict[str, Criterion] = {c.name: c for c in (
     Criterion("targets_reached", "targets reached", lambda r: float(_count_reached(r)), _count_reached),
     Criterion("max_strain", "largest pre-curvature strain of a tube, kappa * OD / 2",
-              *_record_key("max_strain")),
-    Criterion("total_length_mm", "sum of the tube lengths (mm)", *_record_key("total_length_mm")),
+              *_record_field("max_strain")),
+    Criterion("total_length_mm", "sum of the tube lengths (mm)", *_record_field("total_length_mm")),
     Criterion("min_clearance_mm",
               "smallest clearance to the anatomy along the paths to the reached targets (mm)",
-              *_record_key("min_clearance_mm")),
+              *_record_field("min_clearance_mm")),
 )}
 
 
@@ -80,11 +83,11 @@ class Objective:
         """The name and direction, e.g. ``max_strain (minimised)``."""
         return f"{self.name} ({'max' if self.maximize else 'min'}imised)"
 
-    def value(self, record: dict) -> float:
+    def value(self, record: DesignRecord) -> float:
         """The objective's value in a trial record (what the study is told)."""
         return self.criterion.value(record)
 
-    def rank(self, record: dict) -> float:
+    def rank(self, record: DesignRecord) -> float:
         """Sort key, lower is better."""
         v = self.value(record)
         return -v if self.maximize else v

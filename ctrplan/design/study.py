@@ -41,6 +41,7 @@ from ctrplan.base.errors import InputError
 from ctrplan.base.parallel import open_pool
 from ctrplan.design.evaluate import DesignContext, DesignJob, evaluate_job
 from ctrplan.design.objectives import Objective
+from ctrplan.design.record import DesignRecord
 from ctrplan.design.space import distributions
 from ctrplan.design.task import DesignTask
 
@@ -53,10 +54,10 @@ STARTUP_TRIALS = 10
 
 #: ``report(trial, record, finished)`` after each evaluation: the Optuna trial number (None for the
 #: base design), its record and the study's finished trials so far.
-Report = Callable[[int | None, dict, int], None]
+Report = Callable[[int | None, DesignRecord, int], None]
 
 
-def _quiet(_trial: int | None, _record: dict, _finished: int) -> None:
+def _quiet(_trial: int | None, _record: DesignRecord, _finished: int) -> None:
     return None
 
 
@@ -66,11 +67,11 @@ def default_storage(out: Path) -> str:
     return f"sqlite:///{Path(out) / 'study.db'}"
 
 
-def constraint_values(task: DesignTask, record: dict) -> dict[str, float]:
+def constraint_values(task: DesignTask, record: DesignRecord) -> dict[str, float]:
     """Optuna constraints (feasible when all are <= 0): the strain excess over the limit, and 1 for
     any other unmet condition."""
-    other = not record["feasible"] and record["infeasible"]["constraint"] != "max_strain"
-    return {"max_strain": record["max_strain"] - task.max_strain, "feasible": float(other)}
+    other = not record.feasible and record.infeasible.constraint != "max_strain"
+    return {"max_strain": record.max_strain - task.max_strain, "feasible": float(other)}
 
 
 def open_study(task: DesignTask, storage: str, name: str, seed: int) -> optuna.Study:
@@ -167,7 +168,7 @@ def run_study(task: DesignTask, study: optuna.Study, *, trials: int, seed: int =
                 number, record = pool.next_done()
                 trial = running.pop(number)
                 if trial is None:
-                    study.set_user_attr(NOMINAL, record)
+                    study.set_user_attr(NOMINAL, record.to_json())
                 else:
                     _tell(study, trial, task, record)
                     finished += 1
@@ -181,19 +182,19 @@ def run_study(task: DesignTask, study: optuna.Study, *, trials: int, seed: int =
     return stopped
 
 
-def _tell(study: optuna.Study, trial: optuna.Trial, task: DesignTask, record: dict) -> None:
-    trial.set_user_attr(RECORD, record)
+def _tell(study: optuna.Study, trial: optuna.Trial, task: DesignTask, record: DesignRecord) -> None:
+    trial.set_user_attr(RECORD, record.to_json())
     for key, value in constraint_values(task, record).items():
         trial.set_constraint(key, value)
     study.tell(trial, [o.value(record) for o in task.objectives])
 
 
-def ranking_key(record: dict, objectives: tuple[Objective, ...]) -> tuple[float, ...]:
+def ranking_key(record: DesignRecord, objectives: tuple[Objective, ...]) -> tuple[float, ...]:
     """Sort key of a record, best first: the objectives in the task's order (lexicographic)."""
     return tuple(o.rank(record) for o in objectives)
 
 
-def dominates(a: dict, b: dict, objectives: tuple[Objective, ...]) -> bool:
+def dominates(a: DesignRecord, b: DesignRecord, objectives: tuple[Objective, ...]) -> bool:
     """Whether record ``a`` is at least as good as ``b`` in every objective and better in one."""
     ka, kb = ranking_key(a, objectives), ranking_key(b, objectives)
     return all(x <= y for x, y in zip(ka, kb, strict=True)) and ka != kb

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ctrplan.base.errors import InputError
 from ctrplan.kinematics.backbone import STATE_NAMES, STATE_UNITS, Backbone
 from ctrplan.kinematics.base import Backend, Body
 from ctrplan.kinematics.cosserat import CosseratBackend, SolverSettings
@@ -17,9 +16,12 @@ from ctrplan.kinematics.registry import (
     BACKEND_KINDS,
     BACKENDS,
     DEFAULT_PLANNING_BACKEND,
+    EXACT_MODEL,
     MODEL_BACKENDS,
     PLANNING_ORDER,
     BackendKind,
+    backend_kind,
+    exact_companion,
 )
 from ctrplan.model.robot import Robot
 
@@ -27,11 +29,9 @@ from ctrplan.model.robot import Robot
 def make_backend(name: str, robot: Robot | None = None, model: str | Path | None = None) -> Backend:
     """Backend by name (`BACKEND_KINDS`); ``model`` picks the PINN weights of a backend that uses one
     (default: shipped)."""
-    if name not in BACKEND_KINDS:
-        raise InputError(f"backend: unknown backend {name!r} (available: {', '.join(BACKENDS)})")
-    return BACKEND_KINDS[name].build(robot or Robot.nominal(), model)
+    return backend_kind(name).build(robot or Robot.nominal(), model)
 
 
-__all__ = ["BACKENDS", "BACKEND_KINDS", "DEFAULT_PLANNING_BACKEND", "MODEL_BACKENDS", "PLANNING_ORDER",
-           "STATE_NAMES", "STATE_UNITS", "Backbone", "Backend", "BackendKind", "Body", "CosseratBackend",
-           "SolverSettings", "make_backend"]
+__all__ = ["BACKENDS", "BACKEND_KINDS", "DEFAULT_PLANNING_BACKEND", "EXACT_MODEL", "MODEL_BACKENDS",
+           "PLANNING_ORDER", "STATE_NAMES", "STATE_UNITS", "Backbone", "Backend", "BackendKind", "Body",
+           "CosseratBackend", "SolverSettings", "backend_kind", "exact_companion", "make_backend"]

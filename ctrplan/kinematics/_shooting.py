@@ -22,6 +22,11 @@ Elastic stability (`stability_det`): the equilibrium is stable when no focal poi
 (variational) equation lies in ``(0, l1]`` -- the determinant of ``d r(s) / d x`` stays positive along
 the arc length, with ``r(s)`` the distal boundary quantities evaluated at ``s`` (Ha, Park & Dupont,
 IEEE T-RO 2015). Its value at ``s = l1`` is the shooting Jacobian's determinant.
+
+Over 500 lines because it is one compiled solver: the state layout, the right-hand side, the
+integrator, shooting, stability and output interpolation call each other inside numba and share the
+layout's offsets; split into modules, each would need the others' internals, and a change in one
+would silently stale the others' cached machine code.
 """
 
 from __future__ import annotations

@@ -77,6 +77,11 @@ class Backbone:
         return (self.state.shape[-1] - 9) // 2
 
     @property
+    def state_names(self) -> tuple[str, ...]:
+        """Names of the state components (`state_names`)."""
+        return state_names(self.n_tubes)
+
+    @property
     def positions_mm(self) -> np.ndarray:
         """Backbone points (B, P, 3), mm."""
         i = 2 * self.n_tubes + 2

@@ -104,7 +104,11 @@ class Backend(ABC):
       forward differences through `forward` (which is what callers use otherwise);
     * ``partial_backbones_cheap`` -- a backbone's cost grows with the stretch of it requested (a
       surrogate evaluated along the arc), so part of one (a distal stretch, the tip) costs less than
-      the whole; a shooting solver integrates the whole rod either way.
+      the whole; a shooting solver integrates the whole rod either way;
+
+    and, as properties, ``error_bound`` (a surrogate's calibrated error) and ``model_card`` (the
+    weights it evaluates). What a backend *kind* declares -- the ``--model`` option, its work rate,
+    its exact companion -- is registered in `ctrplan.kinematics.registry`.
 
     Implementations keep the robot (immutable model) apart from any per-call workspace.
     """
@@ -157,6 +161,13 @@ class Backend(ABC):
         where it can compute it (the exact backends); a surrogate returns itself -- its paths are
         checked by exact validation."""
         return self
+
+    @property
+    def model_card(self) -> dict | None:
+        """The model card of the weights this backend evaluates (`ctrplan.kinematics.model_file`: the
+        weights file, their SHA-256, the robot, the recipe, ...); None for a backend without weights.
+        Outputs name the weights from it, roadmaps key on their hash."""
+        return None
 
     @property
     def error_bound(self) -> dict | None:

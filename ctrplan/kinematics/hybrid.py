@@ -34,6 +34,11 @@ class HybridBackend(Backend):
     def describe(self) -> dict:
         return self.solver.describe()
 
+    @property
+    def model_card(self) -> dict | None:
+        """The card of the PINN that seeds the solver."""
+        return self.pinn.model_card
+
     def checking_stability(self) -> HybridBackend:
         checked = copy(self)
         checked.solver = self.solver.checking_stability()

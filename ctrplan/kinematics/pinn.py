@@ -132,6 +132,10 @@ class PinnBackend(Backend):
         return {"weights": self.card.get("weights_file"), "nodes": self.nodes}
 
     @property
+    def model_card(self) -> dict | None:
+        return self.card
+
+    @property
     def error_bound(self) -> dict | None:
         return self.card.get(ERROR_BOUND_KEY)
 

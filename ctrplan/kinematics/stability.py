@@ -12,7 +12,9 @@ solution), and flags a configuration when
 * the configuration is multi-valued: the cold solve (from zero torsion) reaches a different
   equilibrium than the continuation.
 
-A domain is ``snap_free`` when nothing is flagged. Two-tube check (docs/design.md §1.4): fully overlapping
+A domain is ``snap_free`` when nothing is flagged; when something is, the report carries advice
+(`ctrplan.kinematics.snap_advice`): the relative rotation or translation the snaps lie beyond and the
+robot-file limit that keeps the safe part. Two-tube check (docs/design.md §1.4): fully overlapping
 curved tubes of length L are snap-free for every rotation iff ``L sqrt((1 + nu) kappa1 kappa2) < pi/2``.
 """
 
@@ -29,6 +31,7 @@ import numpy as np
 from ctrplan.base.dataio import atomic_write
 from ctrplan.base.memory import F8, backbone_bytes
 from ctrplan.kinematics.cosserat import CosseratBackend, SolverSettings
+from ctrplan.kinematics.snap_advice import SnapAdvice, snap_advice
 from ctrplan.model.robot import Robot
 
 #: A step of the sweep moving the tip more than this many times its typical motion is a jump.
@@ -69,22 +72,30 @@ class StabilityReport:
     example_reason: str | None
     counts: dict[str, int]
     sweeps: list[Sweep] = field(repr=False)
+    advice: SnapAdvice | None = None
 
     def to_json(self) -> dict:
         return {"robot": self.robot, "snap_free": self.snap_free, "checked": self.checked,
                 "unstable_fraction": self.unstable_fraction, "example_q": self.example_q,
                 "example_reason": self.example_reason, "counts": self.counts,
-                "sweeps": len(self.sweeps)}
+                "sweeps": len(self.sweeps), "advice": None if self.advice is None else self.advice.to_json()}
 
 
 def sweep_rotation(backend: CosseratBackend, q0: np.ndarray, tube: int, steps: int) -> Sweep:
-    """Follow the equilibrium while alpha of ``tube`` (0-based) crosses its domain interval from
-    ``q0`` (2N,), in ``steps`` configurations, each warm-started from the previous solution."""
+    """Follow the equilibrium while the rotation coordinate of ``tube`` (0-based; alpha, or alpha
+    relative to another tube's, `JointDomain.relative_to`) crosses its domain interval from ``q0``
+    (2N,), the other box coordinates held, in ``steps`` configurations, each warm-started from the
+    previous solution."""
     robot = backend.robot
     n = robot.n_tubes
     lo, hi = robot.domain.bounds[n + tube]
     q = np.repeat(q0[None], steps, axis=0)
-    q[:, n + tube] = np.linspace(lo, hi, steps)
+    if robot.domain.relative_to:  # hold the other box coordinates: a relative one turns its tube along
+        box = robot.domain.to_box(q)
+        box[:, n + tube] = np.linspace(lo, hi, steps)
+        q = robot.domain.from_box(box)
+    else:
+        q[:, n + tube] = np.linspace(lo, hi, steps)
     stab = np.full(steps, np.nan)
     tips = np.full((steps, 3), np.nan)
     guess = None
@@ -148,8 +159,10 @@ def check_domain(robot: Robot, n: int = 64, steps: int = 73, seed: int = 0,
             hits = np.flatnonzero(getattr(s, name))
             if hits.size and example is None:
                 example, reason = s.q[hits[0]].tolist(), name
+    advice = snap_advice(robot, np.concatenate([s.q for s in sweeps]),
+                         np.concatenate([s.flagged for s in sweeps]), steps) if flagged else None
     return StabilityReport(robot.name, flagged == 0, checked, flagged / max(checked, 1), example, reason,
-                           counts, sweeps)
+                           counts, sweeps, advice)
 
 
 def critical_length_mm(robot: Robot) -> float:

@@ -6,6 +6,9 @@ starts live with the kinematics backends. Units at this interface: mm, rad, N, k
 Joint vector, everywhere: ``q = [beta1, beta2, beta3, alpha1, alpha2, alpha3]`` (mm, rad); tube 1 is
 the innermost (longest) tube. Tube i occupies arc length ``[beta_i, beta_i + L_i]``; ``s = 0`` is the
 front plate.
+
+Over 500 lines because it is the robot and its file format together: every physical parameter with its
+YAML key, plausibility limit and error message, so that a new parameter touches one file.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import numpy as np
 from ctrplan.base.dataio import Table, atomic_write, joint_names, plain, read_table
 from ctrplan.base.errors import DomainError, InputError
 from ctrplan.base.yamlio import YamlDoc, load_yaml
+from ctrplan.model.actuators import ACTUATORS_KEY, Actuator, actuators_from_yaml
 from ctrplan.model.measurement import CALIBRATION_KEY, Calibration
 
 BUILTIN_ROBOTS = ("nominal",)
@@ -114,21 +118,29 @@ class JointLimits:
         return speed, accel
 
 
-def box_names(n_tubes: int) -> tuple[str, ...]:
-    """Box coordinates ``(betaN, betaN - betaN-1, …, beta2 - beta1, alpha1 … alphaN)``."""
+def _refs(n_tubes: int, relative_to: tuple[int, ...] = ()) -> tuple[int, ...]:
+    return tuple(relative_to) or (-1,) * n_tubes
+
+
+def box_names(n_tubes: int, relative_to: tuple[int, ...] = ()) -> tuple[str, ...]:
+    """Box coordinates ``(betaN, betaN - betaN-1, …, beta2 - beta1, alpha1 … alphaN)``; with
+    ``relative_to`` (per tube, 0-based, -1: none) a tube's rotation coordinate is ``alphaJ - alphaI``."""
+    refs = _refs(n_tubes, relative_to)
     return ((f"beta{n_tubes}",) + tuple(f"beta{i + 1} - beta{i}" for i in range(n_tubes - 1, 0, -1))
-            + tuple(f"alpha{i}" for i in range(1, n_tubes + 1)))
+            + tuple(f"alpha{j + 1}" if r < 0 else f"alpha{j + 1} - alpha{r + 1}" for j, r in enumerate(refs)))
 
 
-def box_keys(n_tubes: int) -> tuple[str, ...]:
+def box_keys(n_tubes: int, relative_to: tuple[int, ...] = ()) -> tuple[str, ...]:
     """Robot-file keys of the box coordinates (mm, rad): ``beta3_mm``, ``beta3_minus_beta2_mm``, …,
-    then one ``alphaI_rad`` per tube (a shared ``alpha_rad`` sets them all)."""
-    return ((f"beta{n_tubes}_mm",) + tuple(f"beta{i + 1}_minus_beta{i}_mm" for i in range(n_tubes - 1, 0, -1))
-            + tuple(f"alpha{i}_rad" for i in range(1, n_tubes + 1)))
+    then one ``alphaJ_rad`` per tube (a shared ``alpha_rad`` sets them all), or ``alphaJ_minus_alphaI_rad``
+    for a relative rotation (`box_names`)."""
+    return tuple(name.replace(" - ", "_minus_") + ("_mm" if name.startswith("beta") else "_rad")
+                 for name in box_names(n_tubes, relative_to))
 
 
-def _box_matrix(n_tubes: int) -> np.ndarray:
-    """The linear map box = M q for N tubes (2N, 2N)."""
+def _box_matrix(n_tubes: int, relative_to: tuple[int, ...] = ()) -> np.ndarray:
+    """The linear map box = M q for N tubes (2N, 2N): lower triangular with a unit diagonal in the
+    rotations (a coordinate is alpha_J or alpha_J - alpha_I, I < J), so always invertible."""
     n = n_tubes
     M = np.zeros((2 * n, 2 * n))
     M[0, n - 1] = 1.0
@@ -136,8 +148,14 @@ def _box_matrix(n_tubes: int) -> np.ndarray:
         M[r, i] = 1.0
         M[r, i - 1] = -1.0
     M[n:, n:] = np.eye(n)
+    for j, ref in enumerate(_refs(n, relative_to)):
+        if ref >= 0:
+            M[n + j, n + ref] = -1.0
     return M
 
+
+#: One turn (rad): a rotation interval at least this wide wraps (`JointDomain.wraps`).
+TURN = 2.0 * math.pi
 
 #: Joint names of a three-tube robot (the CSV header of three-tube files).
 JOINT_NAMES = joint_names(3)
@@ -148,18 +166,34 @@ PAPER_BOX = ((-10.0, 0.0), (0.0, 55.0), (0.0, 15.0)) + ((-math.pi, math.pi),) * 
 
 @dataclass(frozen=True)
 class JointDomain:
-    """The actuation domain: a box in ``(betaN, betaN - betaN-1, …, beta2 - beta1, alpha1 … alphaN)``.
+    """The actuation domain: a box in ``(betaN, betaN - betaN-1, …, beta2 - beta1, alpha1 … alphaN)``;
+    with ``relative_to`` (per tube, 0-based index I < J of another tube, -1 none) tube J's rotation
+    coordinate is ``alphaJ - alphaI`` instead: a limit on a relative rotation (the part of the
+    domain where the robot does not snap) is then a box too, sampled exactly.
 
     ``bounds`` are (lower, upper) per box coordinate (mm, rad), 2N of them; a zero-width interval is a
     fixed joint. ``box_lower``/``box_upper`` are the corners (2N,). The default is the paper's box for
-    its three-tube robot.
+    its three-tube robot. A rotation whose interval spans a full turn wraps (`wraps`): any value is
+    inside, as the same angle one or more turns on; a narrower one is an actuator's limit, compared
+    as it stands.
     """
 
     bounds: tuple[tuple[float, float], ...] = PAPER_BOX
+    relative_to: tuple[int, ...] = ()
 
     @property
     def n_tubes(self) -> int:
         return len(self.bounds) // 2
+
+    @cached_property
+    def names(self) -> tuple[str, ...]:
+        """The box coordinates' names (`box_names`)."""
+        return box_names(self.n_tubes, self.relative_to)
+
+    @cached_property
+    def keys(self) -> tuple[str, ...]:
+        """The box coordinates' robot-file keys (`box_keys`)."""
+        return box_keys(self.n_tubes, self.relative_to)
 
     @cached_property
     def box_lower(self) -> np.ndarray:
@@ -170,6 +204,12 @@ class JointDomain:
         return np.array([b[1] for b in self.bounds])
 
     @cached_property
+    def wraps(self) -> np.ndarray:
+        """Which box coordinates are rotations whose interval spans a full turn (2N,) bool."""
+        rotation = np.arange(len(self.bounds)) >= self.n_tubes
+        return rotation & (self.box_upper - self.box_lower >= TURN * (1.0 - 1e-12))
+
+    @cached_property
     def fixed(self) -> np.ndarray:
         """Which box coordinates are fixed (zero-width interval), (2N,) bool."""
         return self.box_upper - self.box_lower <= 0.0
@@ -177,7 +217,7 @@ class JointDomain:
     @cached_property
     def box_from_joints(self) -> np.ndarray:
         """M (2N, 2N) with box = M q."""
-        return _box_matrix(self.n_tubes)
+        return _box_matrix(self.n_tubes, self.relative_to)
 
     @cached_property
     def joints_from_box(self) -> np.ndarray:
@@ -201,9 +241,11 @@ class JointDomain:
     def violations(self, q: np.ndarray, tol: float = 1e-9) -> list[tuple[int, str]]:
         """``(row, message)`` for the first violated inequality of every offending row of q (..., 2N)."""
         box = self.to_box(np.atleast_2d(q))
+        lo = self.box_lower[self.wraps]
+        box[:, self.wraps] = lo + np.mod(box[:, self.wraps] - lo, TURN)
         lo, hi = self.box_lower - tol, self.box_upper + tol
         bad = (box < lo) | (box > hi)
-        names = box_names(self.n_tubes)
+        names = self.names
         out = []
         for r in np.flatnonzero(bad.any(axis=1)):
             c = int(np.argmax(bad[r]))
@@ -237,12 +279,13 @@ class JointDomain:
         return None
 
     def to_dict(self) -> dict[str, list[float]]:
-        """File form: one key per box coordinate; the alphas share ``alpha_rad`` when equal."""
-        keys = box_keys(self.n_tubes)
+        """File form: one key per box coordinate; the alphas share ``alpha_rad`` when equal (and
+        absolute)."""
+        keys = self.keys
         n = self.n_tubes
         out = {k: list(b) for k, b in zip(keys[:n], self.bounds[:n], strict=True)}
         alphas = self.bounds[n:]
-        if all(a == alphas[0] for a in alphas):
+        if all(a == alphas[0] for a in alphas) and all(r < 0 for r in _refs(n, self.relative_to)):
             out["alpha_rad"] = list(alphas[0])
         else:
             out.update({k: list(b) for k, b in zip(keys[n:], alphas, strict=True)})
@@ -267,6 +310,7 @@ class Robot:
     calibration: Calibration = field(default_factory=Calibration)
     name: str = "custom"
     limits: JointLimits = field(default_factory=JointLimits)
+    actuators: tuple[Actuator, ...] = ()
 
     def __post_init__(self) -> None:
         n = len(self.tubes)
@@ -367,6 +411,9 @@ class Robot:
             out[CALIBRATION_KEY] = self.calibration.to_dict()
         if self.limits != JointLimits():
             out["limits"] = dict(vars(self.limits))
+        if self.actuators:
+            names = self.joint_names
+            out[ACTUATORS_KEY] = {names[a.joint]: a.to_dict(names) for a in self.actuators}
         return out
 
     @cached_property
@@ -380,6 +427,7 @@ class Robot:
         d = self.mechanics.to_dict()
         d.pop("name")
         d.pop("limits", None)  # how fast it is driven is not mechanics
+        d.pop(ACTUATORS_KEY, None)  # nor in which units
         text = json.dumps(_rounded(d), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest()
 
@@ -548,8 +596,16 @@ def _domain_from_yaml(doc: YamlDoc, n: int) -> JointDomain:
     raw = doc.data["domain"]
     if not isinstance(raw, dict):
         raise doc.error(("domain",), "expected a mapping")
-    keys = box_keys(n)
-    _unknown(doc, ("domain",), raw, set(keys) | {"alpha_rad"})
+    relative = {f"alpha{j + 1}_minus_alpha{i + 1}_rad": (j, i) for j in range(n) for i in range(j)}
+    _unknown(doc, ("domain",), raw, set(box_keys(n)) | {"alpha_rad"} | set(relative))
+    refs = [-1] * n
+    for key, (j, i) in relative.items():
+        if key in raw:
+            if refs[j] >= 0 or f"alpha{j + 1}_rad" in raw:
+                raise doc.error(("domain", key), f"tube {j + 1}'s rotation is limited twice (give one of "
+                                                 f"alpha{j + 1}_rad, alpha{j + 1}_minus_alphaI_rad)")
+            refs[j] = i
+    keys = box_keys(n, tuple(refs))
     bounds: list[tuple[float, float] | None] = [None] * (2 * n)
     if n == 3:
         bounds = list(PAPER_BOX)
@@ -568,13 +624,14 @@ def _domain_from_yaml(doc: YamlDoc, n: int) -> JointDomain:
             raise doc.error(("domain", key), "rotations must lie within [-2 pi, 2 pi] rad")
         if 0 < c < n and b[0] < 0:
             raise doc.error(("domain", key), "tube order needs a difference of translations >= 0")
-    return JointDomain(tuple(bounds))
+    return JointDomain(tuple(bounds), tuple(refs) if any(r >= 0 for r in refs) else ())
 
 
 def robot_from_yaml(doc: YamlDoc) -> Robot:
     """Build a validated `Robot` from a parsed robot file; errors name the key and line."""
     d = doc.data
-    _unknown(doc, (), d, {"name", "tubes", "domain", "loads", "joint_offset", "limits", CALIBRATION_KEY})
+    _unknown(doc, (), d, {"name", "tubes", "domain", "loads", "joint_offset", "limits", CALIBRATION_KEY,
+                          ACTUATORS_KEY})
     tubes_raw = d.get("tubes")
     if not isinstance(tubes_raw, list) or not 1 <= len(tubes_raw) <= MAX_TUBES:
         raise doc.error(("tubes",), f"expected a list of 1 to {MAX_TUBES} tubes (innermost first)")
@@ -591,7 +648,7 @@ def robot_from_yaml(doc: YamlDoc) -> Robot:
     domain = _domain_from_yaml(doc, n)
     bad = domain.impossible(np.array([t.length_mm for t in tubes]))
     if bad is not None:
-        raise doc.error(("domain", box_keys(n)[bad[0]]), bad[1])
+        raise doc.error(("domain", domain.keys[bad[0]]), bad[1])
 
     loads = Loads()
     if "loads" in d:
@@ -613,7 +670,8 @@ def robot_from_yaml(doc: YamlDoc) -> Robot:
     calibration = Calibration.from_doc(doc, n)
     name = d.get("name", doc.path.stem)
     robot = Robot(tubes=tuple(tubes), domain=domain, loads=loads, joint_offset=offset,
-                  calibration=calibration, name=str(name), limits=_limits_from_yaml(doc))
+                  calibration=calibration, name=str(name), limits=_limits_from_yaml(doc),
+                  actuators=actuators_from_yaml(doc, joint_names(n)))
     return robot
 
 

@@ -31,11 +31,13 @@ _MODULES = {
     "goal": ("GoalSampler", "TipGoal"),
     "ik": ("IKResult", "backend_tip_jacobian", "fd_tip_jacobian", "solve_ik"),
     "model": ("PlanningModel", "StabilityDecision", "exact_backend"),
-    "planner": ("PlanningProblem", "PlanResult", "build_problem", "compile_kernels", "plan", "problem_for",
-                "resolve_backend", "search", "seed_ompl"),
+    "planner": ("compile_kernels", "plan", "resolve_backend"),
+    "result": ("PlanResult", "PlanWork"),
+    "search": ("PlanningProblem", "build_problem", "problem_for", "search", "seed_ompl"),
     "planners": ("OMPL_NAMES", "PLANNERS", "PlannerSpec", "make_planner"),
     "space": ("BoxSpace",),
-    "validate": ("ValidatedPath", "Validation", "repair_path", "validate_planned_path", "validate_path"),
+    "validate": ("FailingState", "ValidatedPath", "Validation", "measure_clearance", "repair_path",
+                 "validate_planned_path", "validate_path"),
     "validity": ("BatchMotionValidator", "ConfigurationChecker", "Counters", "ValidityChecker"),
 }
 _WHERE = {name: module for module, names in _MODULES.items() for name in names}

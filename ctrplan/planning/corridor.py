@@ -12,8 +12,9 @@ region of the domain reachable (the noise covers the whole box too). Extensions 
 states in another, at the motion validator's resolution -- the same checks as RRT-Connect's, batched.
 
 The trees, nearest-neighbour search and steering are numpy (states in the `BoxSpace` coordinates OMPL
-uses); the planner is an ``ob.Planner``, so the wiring (problem definition, termination condition,
-solution path, goal sampling through `TipGoal`) is OMPL's.
+uses; a rotation whose interval is a full turn wraps: neighbours, steps and edges go the short way
+round, `BoxSpace.difference`); the planner is an ``ob.Planner``, so the wiring (problem definition,
+termination condition, solution path, goal sampling through `TipGoal`) is OMPL's.
 """
 
 from __future__ import annotations
@@ -70,15 +71,18 @@ class CorridorSampler:
         if len(goals):
             near = self._near[rows]
             g = goals[(self._which[rows][near] * len(goals)).astype(int)]
-            y[near] = self.space.clip(start + self._t[rows][near] * (g - start) + self._noise[rows][near])
+            step = self.space.difference(start, g)  # the short way round a wrapping rotation
+            y[near] = self.space.clip(start + self._t[rows][near] * step + self._noise[rows][near])
         return y
 
 
 class _Tree:
-    """States (K, D) in box coordinates and each one's parent (-1: a root)."""
+    """States (K, D) in box coordinates and each one's parent (-1: a root); nearest in the planning
+    metric of ``space`` (wrapping rotations the short way)."""
 
-    def __init__(self, dimension: int):
-        self.y = np.empty((64, dimension))
+    def __init__(self, space: BoxSpace):
+        self.space = space
+        self.y = np.empty((64, space.dimension))
         self.parent = np.empty(64, dtype=np.int64)
         self.size = 0
 
@@ -100,6 +104,9 @@ class _Tree:
     def nearest(self, y: np.ndarray) -> np.ndarray:
         """Index of the nearest state to each row of y (k, D)."""
         nodes = self.y[:self.size]
+        if self.space.wraps.any():
+            step = self.space.difference(y[:, None, :], nodes[None, :, :])
+            return np.argmin(np.einsum("knd,knd->kn", step, step), axis=1)
         d2 = np.einsum("nd,nd->n", nodes, nodes)[None, :] - 2.0 * y @ nodes.T
         return np.argmin(d2, axis=1)
 
@@ -153,11 +160,12 @@ class CorridorRRTConnect(ob.Planner):
     def _motions_valid(self, y1: np.ndarray, y2: np.ndarray) -> np.ndarray:
         """Whether each edge y1[k] -> y2[k] is valid inside (its ends are checked already): its
         interior states at ``resolution_mm``, all edges in one backend call."""
-        pieces = np.maximum(1, np.ceil(np.linalg.norm(y2 - y1, axis=1) / self.resolution_mm)).astype(int)
+        step = self.space.difference(y1, y2)
+        pieces = np.maximum(1, np.ceil(np.linalg.norm(step, axis=1) / self.resolution_mm)).astype(int)
         segment, t = split_segments(pieces)
         if not len(segment):
             return np.ones(len(y1), dtype=bool)
-        valid, _ = self.checker.validate(self.space.to_joints(y1[segment] + t[:, None] * (y2 - y1)[segment]))
+        valid, _ = self.checker.validate(self.space.to_joints(y1[segment] + t[:, None] * step[segment]))
         return np.bincount(segment[~valid], minlength=len(y1)) == 0
 
     def _edges_valid(self, y1: np.ndarray, y2: np.ndarray) -> np.ndarray:
@@ -175,9 +183,9 @@ class CorridorRRTConnect(ob.Planner):
         batch = min(self.max_batch, math.ceil(self._tries / self._successes))
         sample = self.sampler.sample(batch, self._start_y, goals.roots)
         near = tree.nearest(sample)
-        step = sample - tree.y[near]
+        step = self.space.difference(tree.y[near], sample)
         d = np.linalg.norm(step, axis=1, keepdims=True)
-        new = tree.y[near] + np.minimum(1.0, self.range_mm / np.maximum(d, 1e-300)) * step
+        new = self.space.clip(tree.y[near] + np.minimum(1.0, self.range_mm / np.maximum(d, 1e-300)) * step)
         ok = self._edges_valid(tree.y[near], new)
         self._tries += batch
         self._successes += int(ok.sum())
@@ -189,11 +197,12 @@ class CorridorRRTConnect(ob.Planner):
         reached; returns (reached, index of the last state added or of the nearest)."""
         last = int(tree.nearest(target[None])[0])
         origin = tree.y[last].copy()
-        d = float(np.linalg.norm(target - origin))
+        step = self.space.difference(origin, target)
+        d = float(np.linalg.norm(step))
         steps = max(1, math.ceil(d / self.range_mm))
         frac = np.minimum(1.0, np.arange(1, steps + 1) * self.range_mm / max(d, 1e-300))
         frac[-1] = 1.0
-        line = origin + frac[:, None] * (target - origin)
+        line = self.space.clip(origin + frac[:, None] * step)
         k, chunk = 0, 1
         while k < steps:
             stop = min(steps, k + chunk)
@@ -236,7 +245,7 @@ class CorridorRRTConnect(ob.Planner):
         self._start_y = self.space.clip(self.space.to_coords(self.start))
         self._tries, self._successes = 1, 1  # extension attempts and successes (a prior of one each)
         self._drawn = 0  # goal samples drawn
-        starts, goals = _Tree(self.space.dimension), _Tree(self.space.dimension)
+        starts, goals = _Tree(self.space), _Tree(self.space)
         if not self._valid(self._start_y[None])[0]:
             return ob.PlannerStatus(ob.PlannerStatus.INVALID_START)
         starts.add(self._start_y[None], np.array([-1]))

@@ -18,12 +18,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ctrplan.collision.checker import RobotCollisionChecker
 from ctrplan.collision.world import CollisionWorld
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Body, arc_fractions
-from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.error_bound import region_bounds_mm, region_margins_mm
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY
+from ctrplan.kinematics.registry import EXACT_MODEL, backend_kind, exact_companion
 from ctrplan.kinematics.stability import is_certified
 from ctrplan.model.robot import Robot
 from ctrplan.planning.space import BoxSpace
@@ -66,8 +67,9 @@ class StabilityDecision:
 
 
 def exact_backend(robot: Robot) -> Backend:
-    """The exact model of ``robot`` as planning uses it (`StabilityDecision.apply`)."""
-    return StabilityDecision.for_robot(robot).apply(CosseratBackend(robot))
+    """The exact model of ``robot`` (`ctrplan.kinematics.registry.EXACT_MODEL`) as planning uses it
+    (`StabilityDecision.apply`)."""
+    return StabilityDecision.for_robot(robot).apply(backend_kind(EXACT_MODEL).build(robot, None))
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,6 +88,8 @@ class PlanningModel:
         margin_source: where the search's margin comes from (`planning_backend`).
         points: backbone points per configuration.
         space: the joint space (box coordinates, planning metric).
+
+    Its one collision checker of exact backbones (`collision_checker`) is built on first use.
     """
 
     scene: Scene
@@ -97,16 +101,17 @@ class PlanningModel:
     points: int
     space: BoxSpace
     margin_source: dict = field(default_factory=dict)
+    _checkers: dict[float, RobotCollisionChecker] = field(default_factory=dict, init=False, repr=False)
 
     @classmethod
     def build(cls, scene: Scene, backend: Backend, exact: Backend | None = None,
               world: CollisionWorld | None = None) -> PlanningModel:
         """The model of a plan: the stability decision made and applied to ``backend`` and ``exact``
-        (default: the Cosserat model, or ``backend`` if it is exact), the planning margins, and the
-        scene's collision world (``world`` if already built for these obstacles)."""
+        (default: the backend's exact companion, `ctrplan.kinematics.registry.exact_companion`), the
+        planning margins, and the scene's collision world (``world`` if already built for these
+        obstacles)."""
         decision = StabilityDecision.for_robot(scene.robot)
-        exact = exact or (backend if backend.exact and backend.robot is scene.robot
-                          else CosseratBackend(scene.robot))
+        exact = exact or exact_companion(backend, scene.robot)
         planning, margin, source = planning_backend(scene, decision.apply(backend))
         world = world or CollisionWorld.from_scene(scene)
         return cls(scene, planning, decision.apply(exact), decision, world,
@@ -117,15 +122,29 @@ class PlanningModel:
            margin_mm: float | None = None, points: int | None = None,
            world: CollisionWorld | None = None) -> PlanningModel:
         """A model that searches with ``backend`` as it is (no margins added; default: the exact
-        backend), the stability decision applied to the exact backend (default: Cosserat), with
-        ``margin_mm`` and ``points`` (default: the scene's) and a prebuilt ``world``: for user code,
-        tests, scene checks and design screens."""
+        backend), the stability decision applied to the exact backend (default: the backend's exact
+        companion, or the exact model), with ``margin_mm`` and ``points`` (default: the scene's) and a
+        prebuilt ``world``: for user code, tests, scene checks and design screens."""
         s = scene.settings
         decision = StabilityDecision.for_robot(scene.robot)
-        exact = decision.apply(exact or CosseratBackend(scene.robot))
+        if exact is None:
+            exact = (exact_companion(backend, scene.robot) if backend is not None
+                     else backend_kind(EXACT_MODEL).build(scene.robot, None))
+        exact = decision.apply(exact)
         return cls(scene, backend or exact, exact, decision, world or CollisionWorld.from_scene(scene),
                    s.margin_mm if margin_mm is None else float(margin_mm),
                    int(points or s.points), BoxSpace.for_scene(scene))
+
+    def collision_checker(self, margin_mm: float | None = None) -> RobotCollisionChecker:
+        """The collision checker of the exact backbones of this model's paths (validation, clearance
+        measurement), capsules grown by ``margin_mm`` (default: the scene's): one per model and
+        margin, built on first use. A search keeps its own (`ConfigurationChecker`: its margin, its
+        counters)."""
+        margin = self.scene.settings.margin_mm if margin_mm is None else float(margin_mm)
+        if margin not in self._checkers:
+            self._checkers[margin] = RobotCollisionChecker(self.world, self.scene.base_pose, self.points,
+                                                           margin)
+        return self._checkers[margin]
 
     def exact_search(self) -> PlanningModel:
         """This model searching with the exact backend and the scene's margin (repair)."""

@@ -1,402 +1,64 @@
-"""Planning pipeline: scene + backend -> planning model -> OMPL problem -> path -> exact validation
-(-> repair).
+"""Planning pipeline: scene + backend -> planning model -> search -> exact goal -> exact validation
+(-> repair) -> one `PlanResult`.
 
 `plan` builds one frozen `PlanningModel` (`ctrplan.planning.model`) and hands it to every step; each
-search keeps its caches and counters in a `ConfigurationChecker`. Wiring follows OMPL's
-``demos/OptimalPlanning.py``: a `BoxSpace` state space, a `ValidityChecker`, a
-`BatchMotionValidator`, a `TipGoal` (IK-sampled goal region), a planner from the table of
-`ctrplan.planning.planners`, a solve budgeted in work (`ctrplan.planning.budget`), path
-simplification; then `validate_planned_path` with the model's exact backend. All OMPL objects
-live inside function scope (docs/design.md §4: module-level OMPL
-objects leak at exit).
+search (`ctrplan.planning.search`) keeps its caches and counters in a `ConfigurationChecker`. The path
+is then checked by `validate_planned_path` with the model's exact backend, repaired where it fails,
+and -- when the caller renders it -- its clearances measured once (`measure_clearance`). Each step
+returns a typed record; the result is built from them when the plan ends (`ctrplan.planning.result`).
 """
 
 from __future__ import annotations
 
-import gc
 import math
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from copy import copy
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from ompl import base as ob
-from ompl import util as ou
 
 from ctrplan.base.errors import InputError
-from ctrplan.base.machine import numba_threads_at_most
 from ctrplan.collision.world import CollisionWorld
-from ctrplan.kinematics import make_backend
+from ctrplan.kinematics import DEFAULT_PLANNING_BACKEND, make_backend
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
-from ctrplan.kinematics.blas import single_threaded_blas
-from ctrplan.kinematics.pinn import ROW_BLOCKS
-from ctrplan.planning.budget import GUARD_FACTOR, SearchBudget, check_max_states, states_for
-from ctrplan.planning.goal import ANGLE_WEIGHT_MM_PER_RAD, GoalSampler, TipGoal, tip_tangents
+from ctrplan.planning.budget import (
+    GUARD_FACTOR,
+    PlanClock,
+    check_max_states,
+    clock_message,
+    clock_record,
+    states_for,
+)
+from ctrplan.planning.goal import ANGLE_WEIGHT_MM_PER_RAD, tip_tangents
 from ctrplan.planning.ik import backend_tip_jacobian, compile_ik, solve_ik
 from ctrplan.planning.model import PlanningModel
-from ctrplan.planning.planners import PlannerSpec, scene_planner
+from ctrplan.planning.planners import scene_planner
+from ctrplan.planning.result import ExactGoal, PlanResult, PlanWork, RepairRecord
 from ctrplan.planning.scene_check import check_scene
-from ctrplan.planning.shortcut import shortcut_path
-from ctrplan.planning.validate import ValidatedPath, Validation, repair_path, validate_planned_path
-from ctrplan.planning.validity import BatchMotionValidator, ConfigurationChecker, ValidityChecker
+from ctrplan.planning.search import Progress, no_progress, search
+from ctrplan.planning.validate import (
+    ValidatedPath,
+    Validation,
+    measure_clearance,
+    repair_path,
+    validate_planned_path,
+)
+from ctrplan.planning.validity import ConfigurationChecker
 from ctrplan.scene.objects import Scene
 
-#: Share of a search's work budget between two goal-sampling batches once goals are known.
-REFILL_SHARE = 0.05
 #: How close (mm) `exact_goal` brings the exact tip to the surrogate's.
 EXACT_GOAL_TOL_MM = 0.05
 
-Progress = Callable[..., None]
-
-
-def _quiet(*_args: Any, **_kw: Any) -> None:
-    return None
-
 
 def resolve_backend(name: str | Backend | None, robot) -> Backend:
-    """A backend instance: given, or by name (default ``pinn``). One that cannot be built raises
-    (`InputError` naming why): never a silent fallback to another backend."""
+    """A backend instance: given, or by name (default: `DEFAULT_PLANNING_BACKEND`). One that cannot be
+    built raises (`InputError` naming why): never a silent fallback to another backend."""
     if isinstance(name, Backend):
         return name
-    return make_backend(name or "pinn", robot)
-
-
-def seed_ompl(seed: int | None) -> None:
-    """Seed OMPL's random number generators for the planners and samplers created from now on.
-
-    OMPL hands every new ``RNG`` a seed drawn from one process-wide seed generator. Re-seeding that
-    generator after the first draw works (the same seed gives the same runs again, in any process)
-    but makes OMPL print an error meant for code that re-seeds mid-run; it is silenced here.
-    """
-    if seed is None:
-        return
-    level = ou.getLogLevel()
-    ou.setLogLevel(ou.LOG_NONE)
-    try:
-        ou.RNG.setSeed(int(seed) + 1)  # OMPL refuses 0
-    finally:
-        ou.setLogLevel(level)
-
-
-@dataclass
-class SearchOutcome:
-    """Raw result of one OMPL search."""
-
-    path_q: np.ndarray | None
-    status: str
-    exact: bool
-    time_s: float
-    goal_stats: dict
-    message: str = ""
-    goals: list[np.ndarray] = field(default_factory=list)  # goal configurations the search found
-    budget: dict = field(default_factory=dict)  # `SearchBudget.to_json`: work used, guard, cut short
-
-
-@dataclass
-class PlanningProblem:
-    """The OMPL objects of one planning problem, for use with any planner from user code.
-
-    Build with `build_problem`; then e.g. ``planner = og.PRMstar(problem.si)`` (single goal state
-    planners only with PRM: see docs/design.md §4), ``planner.setProblemDefinition(problem.pdef)``,
-    ``planner.solve(5.0)`` and `PlanningProblem.solution` for the joint path.
-    """
-
-    scene: Scene
-    checker: ConfigurationChecker
-    space: Any
-    si: Any
-    pdef: Any
-    goal: Any
-    sampler: GoalSampler
-    validity: ValidityChecker
-    motion_validator: BatchMotionValidator
-    start: np.ndarray | None = None  # joints (2N,) mm, rad
-    box: Any = field(init=False)
-
-    def __post_init__(self) -> None:
-        self.box = self.checker.space
-
-    def solution(self) -> np.ndarray | None:
-        """The current solution path as joints (K, 2N), or None."""
-        if not self.pdef.hasSolution():
-            return None
-        path = self.pdef.getSolutionPath()
-        return np.stack([self.box.state_to_q(path.getState(i)) for i in range(path.getStateCount())])
-
-
-def build_problem(scene: Scene, backend: Backend, *, start: np.ndarray | None = None,
-                  rng: np.random.Generator | None = None, goal_q: np.ndarray | None = None,
-                  goal_hints: np.ndarray | None = None) -> PlanningProblem:
-    """The OMPL objects of planning on ``scene`` with ``backend`` as it is (`PlanningModel.of`): see
-    `problem_for`."""
-    return problem_for(ConfigurationChecker(PlanningModel.of(scene, backend)), start=start, rng=rng,
-                       goal_q=goal_q, goal_hints=goal_hints)
-
-
-def problem_for(checker: ConfigurationChecker, *, start: np.ndarray | None = None,
-                rng: np.random.Generator | None = None, goal_q: np.ndarray | None = None,
-                goal_hints: np.ndarray | None = None) -> PlanningProblem:
-    """State space, validity checker, motion validator, start and goal wired into OMPL objects, checking
-    with ``checker`` (a search's data of a planning model).
-
-    The goal is the scene's target region (a `TipGoal` sampled by IK, its first batches from
-    ``goal_hints`` if given), or the single configuration ``goal_q`` (an ``ob.GoalState``, e.g. to
-    reconnect two states of a path)."""
-    scene = checker.scene
-    box = checker.space
-    start = scene.start if start is None else start
-    space = box.make_ompl_space()
-    si = ob.SpaceInformation(space)
-    validity = ValidityChecker(si, checker)
-    si.setStateValidityChecker(validity)
-    mv = BatchMotionValidator(si, checker)
-    si.setMotionValidator(mv)
-    si.setup()
-    pdef = ob.ProblemDefinition(si)
-    st = si.allocState()
-    box.set_state(st, start)
-    pdef.addStartState(st)
-    sampler = GoalSampler(checker, scene.target, rng or np.random.default_rng(),
-                          seeds_per_batch=max(4, 3 * scene.settings.goal_samples), start=start,
-                          hints=goal_hints)
-    if goal_q is None:
-        goal = TipGoal(si, sampler)
-    else:
-        goal = ob.GoalState(si)
-        gs = si.allocState()
-        box.set_state(gs, goal_q)
-        goal.setState(gs)
-        goal.setThreshold(1e-6)
-    pdef.setGoal(goal)
-    return PlanningProblem(scene, checker, space, si, pdef, goal, sampler, validity, mv,
-                           np.asarray(start, dtype=float))
-
-
-def _path_q(problem: PlanningProblem, path) -> np.ndarray:
-    return np.stack([problem.box.state_to_q(path.getState(i)) for i in range(path.getStateCount())])
-
-
-def _progress_hook(problem: PlanningProblem, budget: SearchBudget, progress: Progress) -> Callable[[], None]:
-    """A checker hook that reports the search's progress at most every 0.1 s."""
-    last = [0.0]
-    counters = problem.checker.counters
-
-    def hook() -> None:
-        now = time.perf_counter()
-        if now - last[0] > 0.1:
-            last[0] = now
-            progress("search", elapsed=budget.elapsed(), states=budget.used(), max_states=budget.max_states,
-                     kinematics_calls=counters.kinematics_calls, goals=len(problem.sampler.goals))
-
-    return hook
-
-
-@contextmanager
-def gc_paused() -> Iterator[None]:
-    """Python's cyclic garbage collector off inside: a search creates hundreds of thousands of small
-    acyclic objects (cache entries, arrays), and every full collection would rescan the whole state
-    cache."""
-    enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if enabled:
-            gc.enable()
-
-
-@contextmanager
-def _hooked(checker: ConfigurationChecker, hook: Callable[[], None]) -> Iterator[None]:
-    """``checker`` calls ``hook`` after every kinematics call inside (progress reports)."""
-    checker.hook = hook
-    try:
-        yield
-    finally:
-        checker.hook = None
-
-
-def _sample_goals(goal: TipGoal, budget: SearchBudget) -> None:
-    """Goal configurations first: they tell early whether the target is reachable at all."""
-    sampler = goal.sampler
-    for _ in range(6):
-        if sampler.goals or budget.exhausted():
-            break
-        goal.sample_batch()
-        if sampler.stats.batches >= 2 and sampler.stats.ik_reached == 0 and not sampler.goals:
-            break
-
-
-def _fix_goal_set(problem: PlanningProblem, budget: SearchBudget) -> None:
-    """For planners that drain every goal sample when they (re)start a batch and restart on new
-    goals (BIT*): a fixed set of goal configurations, sampled now with at most half the budget."""
-    sampler = problem.sampler
-    while (len(sampler.goals) < 8 and budget.share_used() < 0.5 and not budget.exhausted()
-           and sampler.stats.batches < 12):
-        problem.goal.sample_batch()
-    problem.goal.max_batches = sampler.stats.batches
-
-
-def _setup_planner(spec: PlannerSpec, problem: PlanningProblem, range_mm: float | None) -> Any:
-    """The OMPL planner of ``spec`` on ``problem``: its range, and a path-length objective if it
-    optimises."""
-    pl = spec.make(problem.si, range_mm, problem)
-    if spec.optimizing:
-        problem.pdef.setOptimizationObjective(ob.PathLengthOptimizationObjective(problem.si))
-    pl.setProblemDefinition(problem.pdef)
-    pl.setup()
-    return pl
-
-
-def _simplified_path(problem: PlanningProblem, simplify: bool, timings: dict) -> np.ndarray:
-    """The solution as joints (K, 2N), shortcut first if ``simplify`` (`shortcut_path`: batched,
-    lazy checks at the motion validator's resolution)."""
-    path_q = _path_q(problem, problem.pdef.getSolutionPath())
-    if not simplify:
-        return path_q
-    t_simp = time.perf_counter()
-    box, checker = problem.box, problem.checker
-    cut = shortcut_path(box.to_coords(path_q), lambda y: checker.validate(box.to_joints(y))[0],
-                        problem.motion_validator.resolution)
-    timings["simplify_s"] = time.perf_counter() - t_simp
-    timings["simplify_states"] = cut.states
-    return path_q[cut.vertices]
-
-
-def _failure_message(problem: PlanningProblem, budget: SearchBudget, to_configuration: bool) -> str:
-    sampler = problem.sampler
-    within = f"within {budget.describe()}"
-    if to_configuration:
-        return f"no path to the given configuration {within}"
-    if not sampler.goals:
-        st = sampler.stats
-        turned = f", {st.wrong_direction} of them not along the approach direction" \
-            if st.wrong_direction else ""
-        return (f"no collision-free goal configuration found ({st.ik_reached} IK solutions reached "
-                f"the target{turned}, all {problem.checker.model.stability.invalid}; {budget.describe()})")
-    return f"no path found {within} ({len(sampler.goals)} goal configurations)"
-
-
-def search(checker: ConfigurationChecker, *, start: np.ndarray | None = None, planner: str | None = None,
-           time_limit_s: float | None = None, max_states: int | None = None, seed: int | None = None,
-           progress: Progress = _quiet, simplify: bool | None = None, goal_q: np.ndarray | None = None,
-           goal_hints: np.ndarray | None = None) -> SearchOutcome:
-    """One OMPL search from ``start`` (default: the scene's) to the target region (or to the
-    configuration ``goal_q``) with the planning model of ``checker``, whose counters and cache it
-    extends; ``goal_hints`` (K, 2N): where goal sampling starts (see `GoalSampler`).
-
-    Budget (`ctrplan.planning.budget`): ``max_states`` states evaluated (goal sampling included;
-    default: the scene's ``max_states``, else what ``time_limit_s`` buys with this backend on the
-    reference machine), under a
-    wall-clock guard of `GUARD_FACTOR` x ``time_limit_s`` (default: the scene's). The outcome's
-    ``budget`` says how much was used and whether the guard cut the search short.
-
-    Steps: build the problem, sample goal configurations, set up the planner, solve, simplify."""
-    model = checker.model
-    s = model.scene.settings
-    planner, spec = scene_planner(model.scene, planner)
-    simplify = s.simplify if simplify is None else simplify
-    limit_s = time_limit_s if time_limit_s is not None else s.time_limit_s
-    seed_ompl(seed)
-    problem = problem_for(checker, start=start, rng=np.random.default_rng(seed), goal_q=goal_q,
-                          goal_hints=goal_hints)
-    sampler = problem.sampler
-    budget = SearchBudget.start(max_states or s.max_states or states_for(model.backend.name, limit_s),
-                                GUARD_FACTOR * limit_s,
-                                lambda: checker.counters.kinematics_calls)
-    with single_threaded_blas(), numba_threads_at_most(ROW_BLOCKS), gc_paused(), \
-            _hooked(checker, _progress_hook(problem, budget, progress)):
-        region_goal = isinstance(problem.goal, TipGoal)
-        if region_goal:
-            problem.goal.budget = budget
-            problem.goal.refill_states = max(1, round(REFILL_SHARE * budget.max_states))
-            progress("goal", elapsed=0.0, states=0, max_states=budget.max_states)
-            _sample_goals(problem.goal, budget)
-        timings = {"goal_sampling_s": budget.elapsed()}
-
-        def outcome(path_q: np.ndarray | None, status: str, exact: bool, message: str) -> SearchOutcome:
-            return SearchOutcome(path_q, status, exact, budget.elapsed(),
-                                 {**vars(sampler.stats), **timings}, message, list(sampler.goals),
-                                 budget.to_json())
-
-        if region_goal and not sampler.goals and sampler.stats.ik_reached == 0 and not budget.exhausted():
-            return outcome(None, "INVALID_GOAL", False,
-                           f"target unreachable: inverse kinematics got the tip no closer than "
-                           f"{sampler.stats.closest_mm:.1f} mm to the target region after "
-                           f"{sampler.stats.seeds} seeds")
-        if budget.exhausted():
-            reached = sampler.stats.ik_reached
-            why = f": {reached} IK solutions reached the target, all {model.stability.invalid}" \
-                if reached and not sampler.goals else ""
-            return outcome(None, "TIMEOUT", False,
-                           f"budget used up while sampling goal configurations ({len(sampler.goals)} "
-                           f"found{why}; {budget.describe()})")
-        if spec.fixed_goal_set and region_goal:
-            _fix_goal_set(problem, budget)
-        pl = _setup_planner(spec, problem, s.range_mm)
-        progress("search", elapsed=budget.elapsed(), states=budget.used(), max_states=budget.max_states,
-                 kinematics_calls=checker.counters.kinematics_calls, goals=len(sampler.goals))
-        t_solve = time.perf_counter()
-        status = pl.solve(budget.termination_condition())
-        timings["search_s"] = time.perf_counter() - t_solve
-        status_name = status.asString() if hasattr(status, "asString") else str(status)
-        if not problem.pdef.hasExactSolution():
-            return outcome(None, status_name, False,
-                           _failure_message(problem, budget, goal_q is not None))
-        if simplify:
-            progress("simplify", elapsed=budget.elapsed())
-        return outcome(_simplified_path(problem, simplify, timings), status_name, True, "")
-
-
-@dataclass
-class PlanResult:
-    """Everything `plan` found out; `to_json` gives the CLI document (docs/design.md §3)."""
-
-    solved: bool
-    planner: str
-    backend: str
-    planning_time_s: float
-    kinematics_calls: int
-    path: np.ndarray
-    target_mm: np.ndarray
-    goal_tolerance_mm: float
-    base_pose: np.ndarray
-    tip_mm: np.ndarray | None = None
-    validated: Validation | None = None
-    message: str = ""
-    status: str = ""
-    seed: int | None = None
-    time_limit_s: float = 0.0
-    scene: str = ""
-    details: dict = field(default_factory=dict)
-    dense: ValidatedPath | None = None
-    max_states: int = 0
-    cut_short: bool = False
-
-    def to_json(self) -> dict:
-        return {
-            "solved": bool(self.solved),
-            "planner": self.planner,
-            "backend": self.backend,
-            "planning_time_s": round(float(self.planning_time_s), 4),
-            "kinematics_calls": int(self.kinematics_calls),
-            "path": np.asarray(self.path, dtype=float).tolist(),
-            "tip_mm": None if self.tip_mm is None else np.asarray(self.tip_mm, dtype=float).tolist(),
-            "target_mm": np.asarray(self.target_mm, dtype=float).tolist(),
-            "goal_tolerance_mm": float(self.goal_tolerance_mm),
-            "base_pose": np.asarray(self.base_pose, dtype=float).tolist(),
-            "validated": None if self.validated is None else self.validated.to_json(),
-            "status": self.status,
-            "message": self.message,
-            "seed": self.seed,
-            "time_limit_s": self.time_limit_s,
-            "max_states": int(self.max_states),
-            "cut_short": bool(self.cut_short),
-            "scene": self.scene,
-            "details": self.details,
-        }
+    return make_backend(name or DEFAULT_PLANNING_BACKEND, robot)
 
 
 def check_start(model: PlanningModel, start_backbone: Backbone | None = None) -> None:
@@ -409,7 +71,7 @@ def check_start(model: PlanningModel, start_backbone: Backbone | None = None) ->
         raise InputError("; ".join(p.message for p in report.problems))
 
 
-def compile_kernels(model: PlanningModel, progress: Progress = _quiet) -> Backbone:
+def compile_kernels(model: PlanningModel, progress: Progress = no_progress) -> Backbone:
     """Run the model's backends on the start and on it twice, and the IK kernels on a dummy seed, so
     that numba compiles (first run only) or loads from its cache every kernel a plan uses before the
     planning clock starts. Returns the exact backbone of the start (the start check uses it: the
@@ -472,66 +134,69 @@ def exact_goal(path_q: np.ndarray, checker: ConfigurationChecker) -> np.ndarray:
     return np.vstack([path_q, ik.q]) if ik.success[0] else path_q
 
 
+
 def _replanner(checker: ConfigurationChecker, seed: int | None, hints: np.ndarray,
-               time_s: float) -> tuple[Callable[..., np.ndarray | None], dict]:
+               time_s: float, wall_end: float | None = None) -> tuple[Callable[..., np.ndarray | None], dict]:
     """``replan(start_q, goal_q)`` for `repair_path`: RRTConnect searches with ``checker`` (of the
     exact model), not shortcut (a shortcut hugs the obstacles: with the exact model's bare margin,
     one checked at the planner's resolution can fail the finer exact validation), sharing one work
     budget (what ``time_s`` buys with the exact model; each search gets what is left, at least a
-    tenth) and one wall-clock guard; and the budget's record (``max_states``, ``states``,
+    tenth) and one wall-clock guard, or the plan's time limit (``wall_end``, perf_counter: every
+    search stops by then); and the budget's running count (``max_states``, ``states``,
     ``cut_short``), updated by every search."""
     total = states_for(checker.backend.name, time_s)
     guard_end = time.perf_counter() + GUARD_FACTOR * time_s
-    record = {"max_states": total, "states": 0, "cut_short": False}
+    used = {"max_states": total, "states": 0, "cut_short": False}
 
     def replan(start_q: np.ndarray, goal_q: np.ndarray | None) -> np.ndarray | None:
-        left = max(total - record["states"], total // 10)
+        left = max(total - used["states"], total // 10)
         limit = max(guard_end - time.perf_counter(), 0.5 * GUARD_FACTOR) / GUARD_FACTOR
+        wall = None if wall_end is None else max(0.0, wall_end - time.perf_counter())
         out = search(checker, start=start_q, goal_q=goal_q, planner="rrtconnect", time_limit_s=limit,
                      max_states=left, seed=seed, goal_hints=hints if goal_q is None else None,
-                     simplify=False)
-        record["states"] += out.budget["states"]
-        record["cut_short"] = record["cut_short"] or out.budget["cut_short"]
+                     simplify=False, wall_s=wall)
+        used["states"] += out.budget.states
+        used["cut_short"] = used["cut_short"] or out.budget.cut_short
         return out.path_q
 
-    return replan, record
+    return replan, used
 
 
-def _validate_and_repair(model: PlanningModel, path_q: np.ndarray, result: PlanResult, repair: bool,
-                         progress: Progress, goals: list[np.ndarray]) -> tuple[ValidatedPath, np.ndarray]:
-    """Exact validation of a planned path; if it fails and ``repair``, the failing stretches are
-    re-planned with the exact model and the repaired path is validated again -- an end re-planned
-    to the target samples its exact goals from the path's last state and the search's ``goals``
-    first (exact inverse kinematics from scratch costs most of a repair). Records repair time and
-    calls in ``result``; returns the validated path and its joints."""
-    progress("validate")
-    vp = validate_planned_path(model, path_q)
-    result.details["validation_time_s"] = vp.report.time_s
-    if vp.report.ok or not repair:
-        return vp, path_q
-    progress("repair")
+def _repair(model: PlanningModel, first: ValidatedPath, path_q: np.ndarray, seed: int | None,
+            time_limit_s: float, progress: Progress, goals: list[np.ndarray], clock: PlanClock | None
+            ) -> tuple[ValidatedPath, np.ndarray, RepairRecord]:
+    """Re-plan the stretches of a path that failed exact validation (``first``) with the exact model
+    and validate the repaired path again -- an end re-planned to the target samples its exact goals
+    from the path's last state and the search's ``goals`` first (exact inverse kinematics from scratch
+    costs most of a repair). Returns the validated path (the repaired one if it passes, else
+    ``first``), its joints, and the repair's record. With the plan's ``clock`` (a time limit) the
+    repair's searches stop in time to validate the repaired path before it runs out."""
     t_rep = time.perf_counter()
     rep_checker = ConfigurationChecker(model.exact_search())
-    rep_seed = None if result.seed is None else result.seed + 1
+    wall_end = None if clock is None else t_rep + clock.left() - 1.5 * first.report.time_s
     hints = np.stack([path_q[-1], *goals])
-    replan, budget = _replanner(rep_checker, rep_seed, hints, max(5.0, result.time_limit_s))
-    fixed = repair_path(vp, replan)
-    result.details["repair_budget"] = budget
-    result.cut_short = result.cut_short or budget["cut_short"]
+    replan, used = _replanner(rep_checker, None if seed is None else seed + 1, hints, max(5.0, time_limit_s),
+                              wall_end)
+    if wall_end is not None and wall_end <= t_rep:
+        used["cut_short"] = True
+        fixed, failure = None, "not tried: no time left within the time limit"
+    else:
+        progress("repair")
+        fixed, failure = repair_path(first, replan), "re-planning with the exact model failed"
     rep_time = time.perf_counter() - t_rep
-    result.details["repair_time_s"] = rep_time
-    result.planning_time_s += rep_time
-    result.kinematics_calls += rep_checker.counters.kinematics_calls
-    result.details["first_validation"] = vp.report.to_json()
+
+    def record(failure: str | None) -> RepairRecord:
+        return RepairRecord(used["max_states"], used["states"], used["cut_short"], rep_time,
+                            rep_checker.counters.kinematics_calls, first.report, failure)
+
     if fixed is None:
-        result.details["repair"] = "re-planning with the exact model failed"
-        return vp, path_q
-    vp2 = validate_planned_path(model, fixed)
-    vp2.report.repaired = True
-    if vp2.report.ok:
-        return vp2, fixed
-    result.details["repair"] = "the repaired path failed exact validation"
-    return vp, path_q
+        return first, path_q, record(failure)
+    fixed = model.space.unwrap(fixed)
+    second = validate_planned_path(model, fixed)
+    second.report.repaired = True
+    if second.report.ok:
+        return second, fixed, record(None)
+    return first, path_q, record("the repaired path failed exact validation")
 
 
 def _verdict(report: Validation, repair: bool) -> str:
@@ -540,9 +205,10 @@ def _verdict(report: Validation, repair: bool) -> str:
         return "solved" + (" (repaired with the exact model)" if report.repaired else "")
     why = []
     if not report.collision_free:
-        fc = report.first_collision or {}
+        fc = report.first_collision
+        names = ", ".join([] if fc is None else fc.labels)
         why.append(f"the exact robot collides along the path ({len(report.colliding_states)} of "
-                   f"{report.states} states; first with {', '.join(fc.get('obstacles', []))})")
+                   f"{report.states} states; first with {names})")
     if not report.tip_in_target:
         why.append("the exact tip misses the target")
     if not report.stable:
@@ -550,19 +216,21 @@ def _verdict(report: Validation, repair: bool) -> str:
     return "not solved: " + "; ".join(why) + ("" if repair else " (repair disabled)")
 
 
-def _report_guard(result: PlanResult) -> None:
-    """Say so when a wall-clock guard cut a search of the plan short: then, and only then, the
-    verdict depends on the machine's speed and load."""
-    if result.cut_short and "wall-clock guard" not in result.message:
-        result.message += (" (a search was cut short by its wall-clock guard: this verdict depends on the "
-                           "machine's speed and load)")
+def _guard_note(message: str, cut_short: bool, clock: PlanClock | None, max_states: int) -> str:
+    """``message``, saying so when the clock cut a search of the plan short (then, and only then, the
+    verdict depends on the machine's speed and load), and, for a time limit, how to make it
+    reproducible."""
+    if cut_short and "wall-clock guard" not in message and "--max-states" not in message:
+        return message + clock_message(clock, max_states)
+    return message
 
 
 def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | None = None,
          time_limit_s: float | None = None, max_states: int | None = None, seed: int | None = None,
-         progress: Progress = _quiet,
+         progress: Progress = no_progress,
          exact: Backend | None = None, repair: bool | None = None,
-         goal_hints: np.ndarray | None = None, world: CollisionWorld | None = None) -> PlanResult:
+         goal_hints: np.ndarray | None = None, world: CollisionWorld | None = None,
+         clearances: bool = False, wall_limit: bool | None = None) -> PlanResult:
     """Plan a collision-free motion from the scene's start to its target, then validate it exactly.
 
     With an approximate backend (the PINN) the capsules get extra radius while planning: its
@@ -570,17 +238,26 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     scene's ``surrogate_margin_mm`` (see `ctrplan.planning.model.planning_backend`). The planning
     model (`PlanningModel.build`: backends, margins, collision world, the stability decision) is
     built once here and handed to the search, validation and repair. Every path is re-validated with the
-    exact model at the planner's resolution (refined where the backbone moves more than a capsule
-    radius); a path that fails there is repaired (colliding stretches re-planned with the exact
-    model) or reported as not solved. ``solved`` is True only if the exact model confirms a
-    collision-free path that ends with the tip in the target. Kernels are compiled before the clock
-    starts; a plan that takes longer than ``time_limit_s`` says so. Bad input (an unknown planner,
-    a start in collision) raises `InputError` naming the parameter. ``goal_hints`` (K, 2N): goal
-    configurations known already (e.g. from a reachability screen), where goal sampling starts.
-    ``world``: the scene's collision world if already built (a design study plans many targets in
-    one anatomy); by default it is built here.
+    exact model -- ``exact``, by default the backend's exact companion
+    (`ctrplan.kinematics.registry.exact_companion`) -- at the planner's resolution (refined where
+    the backbone moves more than a capsule radius); a path that fails there is repaired (colliding
+    stretches re-planned with the exact model) or reported as not solved. ``solved`` is True only if
+    the exact model confirms a collision-free path that ends with the tip in the target. Kernels are
+    compiled before the clock starts; a plan that takes longer than ``time_limit_s`` says so. Bad
+    input (an unknown planner, a start in collision) raises `InputError` naming the parameter.
+    ``goal_hints`` (K, 2N): goal configurations known already (e.g. from a reachability screen),
+    where goal sampling starts. ``world``: the scene's collision world if already built (a design
+    study plans many targets in one anatomy); by default it is built here. ``clearances``: also
+    measure the validated path's clearances for the outputs (`measure_clearance`; after the clock).
+
+    The clock (`ctrplan.planning.budget`): with ``wall_limit`` (default: when no work budget is given,
+    neither ``max_states`` nor the scene's) ``time_limit_s`` is a time limit -- everything after
+    kernel compilation ends within `WALL_FACTOR` x it; otherwise the work budget decides and the
+    clock only guards.
     """
+    t_entry = time.perf_counter()
     s = scene.settings
+    wall_limit = (max_states is None and s.max_states is None) if wall_limit is None else wall_limit
     planner, _ = scene_planner(scene, planner)
     time_limit_s = _time_limit(scene, time_limit_s)
     max_states = check_max_states(max_states) or s.max_states
@@ -592,47 +269,52 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     model = PlanningModel.build(scene, resolve_backend(backend, scene.robot), exact, world)
     start_bb = compile_kernels(model, progress)
     compile_s = time.perf_counter() - t_compile
+    clock = PlanClock(time_limit_s, t_entry + compile_s) if wall_limit else None
     progress("start")  # the collision world: its distance grid and kernels on first use
     check_start(model, start_bb)  # the start under the exact model, solved once
     checker = ConfigurationChecker(model)
-    result = PlanResult(False, planner, model.backend.name, 0.0, 0, np.zeros((0, len(scene.start))),
-                        scene.target.center, scene.target.tolerance_mm, scene.base_pose, seed=seed,
-                        time_limit_s=time_limit_s, scene=scene.name,
-                        max_states=max_states or states_for(model.backend.name, time_limit_s))
-    result.details = {"planning_margin_mm": model.margin_mm, "surrogate_margin": model.margin_source,
-                      "compile_s": compile_s}
+    max_states = max_states or states_for(model.backend.name, time_limit_s)
+
+    def result(status: str, message: str, work: PlanWork, **found: Any) -> PlanResult:
+        return PlanResult(planner=planner, backend=model.backend.name, scene=scene.name,
+                          target_mm=scene.target.center, goal_tolerance_mm=scene.target.tolerance_mm,
+                          base_pose=scene.base_pose, status=status, seed=seed, time_limit_s=time_limit_s,
+                          max_states=max_states, start=start_bb,
+                          work=replace(work, clock=clock_record(clock, time_limit_s, model.backend.name)),
+                          message=_guard_note(message, found.get("cut_short", False), clock, max_states),
+                          **{"solved": False, "path": np.zeros((0, len(scene.start))), **found})
+
     if not checker.is_valid(scene.start):  # under the planning backend: cached for the search
         # valid for the exact model (checked above), not for the planning backend + its margin
-        result.status = "INVALID_START"
-        result.message = (f"the start configuration collides under the {model.backend.name} backend with "
-                          f"its planning margin ({model.margin_source['source']}) but not under the exact "
-                          f"model with {s.margin_mm:g} mm")
-        result.details["counters"] = vars(checker.counters).copy()
-        return result
-    outcome = search(checker, planner=planner, time_limit_s=time_limit_s, max_states=result.max_states,
-                     seed=seed, progress=progress, goal_hints=goal_hints)
-    _record_search(result, outcome, checker)
-    if outcome.path_q is not None:
-        t_goal = time.perf_counter()
-        path_q = exact_goal(outcome.path_q, checker)
-        result.details["exact_goal"] = {"appended": len(path_q) > len(outcome.path_q),
-                                        "time_s": time.perf_counter() - t_goal}
-        result.planning_time_s += result.details["exact_goal"]["time_s"]
-        vp, result.path = _validate_and_repair(model, path_q, result, repair, progress, outcome.goals)
-        result.validated, result.dense = vp.report, vp
-        result.tip_mm = np.asarray(vp.report.tip_mm)
-        result.solved = vp.report.ok
-        result.message = _verdict(vp.report, repair)
-    _report_guard(result)
-    return result
-
-
-def _record_search(result: PlanResult, outcome: SearchOutcome, checker: ConfigurationChecker) -> None:
-    """The search's outcome, work and budget in ``result``."""
-    result.planning_time_s = outcome.time_s
-    result.kinematics_calls = checker.counters.kinematics_calls
-    result.status, result.message = outcome.status, outcome.message
-    result.details["counters"] = vars(checker.counters).copy()
-    result.details["goal_sampling"] = outcome.goal_stats
-    result.details["budget"] = outcome.budget
-    result.cut_short = outcome.budget["cut_short"]
+        return result("INVALID_START",
+                      f"the start configuration collides under the {model.backend.name} backend with its "
+                      f"planning margin ({model.margin_source['source']}) but not under the exact model "
+                      f"with {s.margin_mm:g} mm",
+                      PlanWork(model.margin_mm, model.margin_source, compile_s, copy(checker.counters)))
+    outcome = search(checker, planner=planner, time_limit_s=time_limit_s, max_states=max_states,
+                     seed=seed, progress=progress, goal_hints=goal_hints,
+                     wall_s=None if clock is None else clock.search_left())
+    work = PlanWork(model.margin_mm, model.margin_source, compile_s, copy(checker.counters), outcome.record)
+    searched = {"planning_time_s": outcome.time_s, "kinematics_calls": checker.counters.kinematics_calls,
+                "cut_short": outcome.budget.cut_short}
+    if outcome.path_q is None:
+        return result(outcome.status, outcome.message, work, **searched)
+    t_goal = time.perf_counter()
+    path_q = model.space.unwrap(exact_goal(outcome.path_q, checker))
+    goal = ExactGoal(len(path_q) > len(outcome.path_q), time.perf_counter() - t_goal)
+    progress("validate")
+    vp = validate_planned_path(model, path_q)
+    work = replace(work, exact_goal=goal, validation_time_s=vp.report.time_s)
+    planning_time_s = searched["planning_time_s"] + goal.time_s
+    if not vp.report.ok and repair:
+        vp, path_q, fixed = _repair(model, vp, path_q, seed, time_limit_s, progress, outcome.goals, clock)
+        work = replace(work, repair=fixed)
+        planning_time_s += fixed.time_s
+        searched.update(kinematics_calls=searched["kinematics_calls"] + fixed.kinematics_calls,
+                        cut_short=searched["cut_short"] or fixed.cut_short)
+    if clearances:
+        progress("clearance")
+        vp = measure_clearance(model, vp)
+    return result(outcome.status, _verdict(vp.report, repair), work,
+                  **{**searched, "planning_time_s": planning_time_s, "solved": vp.report.ok, "path": path_q,
+                     "dense": vp})

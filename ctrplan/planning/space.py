@@ -8,6 +8,16 @@ length in mm in which turning a tube by 1 rad costs as much as translating it by
 Everything stays in C++ (sampling, nearest neighbours, interpolation): no Python in the hot loops.
 
 Use `BoxSpace` to go between joints ``q`` (mm, rad) and OMPL states.
+
+**Rotations wrap where the interval is a full turn.** A tube rotation whose interval spans a full
+turn (the paper's [-pi, pi]) is an angle: configurations one turn apart are the same robot. Between
+two configurations such a coordinate turns the short way (less than half a turn: `difference`); the
+planning metric (`distance`), interpolation (`interpolate`, `along`, `densify`), the path shortcut
+and ctrplan's own planner (`ctrplan.planning.corridor`) measure and move that way, and a path is
+continuous (`unwrap`: each state within half a turn of the one before, so trajectories never jump by
+a turn). OMPL's own planners keep the flat box (their edges are shorter than half a turn, where both
+agree); OMPL states hold the representative in the box (`clip` wraps). A narrower interval is an
+actuator's limit and stays flat.
 """
 
 from __future__ import annotations
@@ -17,7 +27,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ctrplan.model.robot import JointDomain, Robot, box_names
+from ctrplan.model.robot import TURN, JointDomain, Robot
 
 
 @dataclass(frozen=True)
@@ -73,8 +83,8 @@ class BoxSpace:
     def names(self) -> tuple[str, ...]:
         """Names of the searched coordinates (OMPL dimension names)."""
         n = self.domain.n_tubes
-        full = [name.replace(" - ", "_minus_") for name in box_names(n)[:n]]
-        full += [f"alpha{i}_mm" for i in range(1, n + 1)]
+        full = [name.replace(" - ", "_minus_") for name in self.domain.names]
+        full = full[:n] + [f"{name}_mm" for name in full[n:]]
         return tuple(name for name, f in zip(full, self.free, strict=True) if f)
 
     @property
@@ -115,33 +125,83 @@ class BoxSpace:
         full[..., self.free] = y
         return self.domain.from_box(full / self.full_scale)
 
+    @cached_property
+    def _full_period(self) -> np.ndarray:
+        """One turn (2 pi mm_per_rad) for box coordinates that wrap (rotations whose interval spans
+        a full turn), inf for the others (2N,)."""
+        full = (np.arange(2 * self.domain.n_tubes) >= self.domain.n_tubes) & \
+            (self._full_upper - self._full_lower >= TURN * self.mm_per_rad * (1.0 - 1e-12))
+        return np.where(full, TURN * self.mm_per_rad, np.inf)
+
+    @property
+    def period(self) -> np.ndarray:
+        """Period (D,) of each searched coordinate (mm of the metric): one turn, or inf."""
+        return self._full_period[self.free]
+
+    @cached_property
+    def wraps(self) -> np.ndarray:
+        """Which searched coordinates wrap (D,) bool."""
+        return np.isfinite(self.period)
+
+    def difference(self, y1: np.ndarray, y2: np.ndarray) -> np.ndarray:
+        """The coordinate step (..., D) from y1 to y2, wrapping coordinates the short way."""
+        d = np.asarray(y2, dtype=float) - np.asarray(y1, dtype=float)
+        if self.wraps.any():
+            p = self.period[self.wraps]
+            d[..., self.wraps] -= p * np.round(d[..., self.wraps] / p)
+        return d
+
     def clip(self, y: np.ndarray) -> np.ndarray:
-        return np.clip(y, self.lower, self.upper)
+        """Coordinates (..., D) into the box: clipped, wrapping ones taken to their representative
+        in [lower, lower + one turn)."""
+        y = np.clip(y, np.where(self.wraps, -np.inf, self.lower), np.where(self.wraps, np.inf, self.upper))
+        if self.wraps.any():
+            lo = self.lower[self.wraps]
+            y[..., self.wraps] = lo + np.mod(y[..., self.wraps] - lo, self.period[self.wraps])
+        return y
 
     def contains(self, q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
         y = (self.domain.to_box(q) * self.full_scale)
+        wrap = np.isfinite(self._full_period)
+        y[..., wrap] = self._full_lower[wrap] + np.mod(y[..., wrap] - self._full_lower[wrap],
+                                                        self._full_period[wrap])
         return np.all((y >= self._full_lower - tol) & (y <= self._full_upper + tol), axis=-1)
 
     def distance(self, q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
-        """The planning metric between joint vectors (mm)."""
-        return np.linalg.norm(self.to_coords(q1) - self.to_coords(q2), axis=-1)
+        """The planning metric between joint vectors (mm), wrapping rotations the short way."""
+        return np.linalg.norm(self.difference(self.to_coords(q1), self.to_coords(q2)), axis=-1)
+
+    def unwrap(self, path_q: np.ndarray) -> np.ndarray:
+        """The path (K, 2N) continuous: each state's wrapping coordinates within half a turn of the
+        previous state's (the same configurations, and the same moves)."""
+        path_q = np.atleast_2d(np.asarray(path_q, dtype=float))
+        if not self.wraps.any() or len(path_q) < 2:
+            return path_q
+        return self.to_joints(self._unwrapped(self.to_coords(path_q)))
+
+    def _unwrapped(self, y: np.ndarray) -> np.ndarray:
+        if not self.wraps.any():
+            return y
+        return np.concatenate([y[:1], y[:1] + np.cumsum(self.difference(y[:-1], y[1:]), axis=0)])
 
     def interpolate(self, q1: np.ndarray, q2: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """Joints at fractions t (K,) of the straight coordinate line from q1 to q2: (K, 2N)."""
+        """Joints at fractions t (K,) of the coordinate line from q1 to q2 (the short way): (K, 2N)."""
         t = np.asarray(t, dtype=float)
         return self.along(np.stack([q1, q2]), np.zeros(len(t), dtype=int), t)
 
     def densify(self, path_q: np.ndarray, resolution: float) -> np.ndarray:
-        """Path (K, 2N) with extra states so consecutive states are <= ``resolution`` apart."""
-        path_q = np.atleast_2d(np.asarray(path_q, dtype=float))
+        """Path (K, 2N) with extra states so consecutive states are <= ``resolution`` apart; the
+        result is continuous (`unwrap`)."""
+        path_q = self.unwrap(path_q)
         y = self.to_coords(path_q)
         n = np.maximum(1, np.ceil(np.linalg.norm(np.diff(y, axis=0), axis=1) / resolution)).astype(int)
         return np.concatenate([path_q[:1], self.along(path_q, *split_segments(n, ends=True))])
 
     def along(self, path_q: np.ndarray, segment: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """Joints (M, 2N) at fractions ``t`` (M,) of the straight coordinate lines of the segments
-        ``segment`` (M,) (index k: from row k to row k + 1) of a path (K, 2N)."""
-        y = self.to_coords(path_q)
+        """Joints (M, 2N) at fractions ``t`` (M,) of the coordinate lines (the short way) of the
+        segments ``segment`` (M,) (index k: from row k to row k + 1) of a path (K, 2N), continuous
+        from its first state."""
+        y = self._unwrapped(self.to_coords(np.atleast_2d(path_q)))
         return self.to_joints(y[segment] + t[:, None] * (y[segment + 1] - y[segment]))
 
     # ---- OMPL ----------------------------------------------------------------------------------

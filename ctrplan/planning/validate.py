@@ -8,24 +8,66 @@ exact model along the whole backbone, whether the exact robot is collision-free 
 margin as in planning), its clearance, and whether its tip ends in the target. `repair_path` keeps the
 exact-valid prefix of a path that fails and re-plans the rest with the exact model; a path that still
 fails is never reported as solved.
+
+The report is typed and complete, so that outputs only render it: the failing state and why
+(`FailingState`), and, measured once on request (`measure_clearance`), the clearance along the path
+per capsule and state and to every named structure (`PathClearance`).
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-from ctrplan.collision.checker import RobotCollisionChecker
+from ctrplan.collision.checker import RobotCollisionChecker, StructureClearance
 from ctrplan.collision.world import CollisionWorld
 from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
+from ctrplan.kinematics.registry import EXACT_MODEL
 from ctrplan.planning.goal import tip_tangents
 from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.space import BoxSpace, split_segments
 from ctrplan.scene.objects import Scene
+
+#: Clearances along a path are measured up to this (mm; `measure_clearance`): larger ones are
+#: reported as this.
+CLEARANCE_CAP_MM = 50.0
+
+
+@dataclass(frozen=True)
+class FailingState:
+    """The first checked state of a path that fails exact validation, and why: the exact model did
+    not converge there, or the robot touches ``obstacles`` (with the margins), or its equilibrium is
+    unstable (it would snap)."""
+
+    state: int
+    obstacles: tuple[str, ...]
+    converged: bool = True
+    stable: bool = True
+
+    @property
+    def labels(self) -> list[str]:
+        """The obstacles it touches, with the reasons that are not a contact in parentheses (the
+        ``obstacles`` of the JSON document)."""
+        if not self.converged:
+            return ["(exact model did not converge)"]
+        return [*self.obstacles, *([] if self.stable else ["(unstable equilibrium: the robot snaps)"])]
+
+    @property
+    def why(self) -> str:
+        """Why the state fails, in words."""
+        reasons = [] if self.converged else ["the exact model did not converge"]
+        if self.obstacles:
+            reasons.append(f"the robot touches {', '.join(self.obstacles)}")
+        if self.converged and not self.stable:
+            reasons.append("its equilibrium is unstable (the robot would snap)")
+        return "; ".join(reasons)
+
+    def to_json(self) -> dict:
+        return {"state": self.state, "obstacles": self.labels}
 
 
 @dataclass
@@ -38,10 +80,12 @@ class Validation:
     ``max_step_mm`` the largest displacement of any exact backbone point between two consecutive
     checked states, ``step_bound_mm`` the bound it was refined to (the thinnest capsule radius);
     ``tip_angle_deg`` the angle between the final tip tangent and the target's approach direction
-    (0 without one), which ``tip_in_target`` requires within the target's tolerance.
+    (0 without one), which ``tip_in_target`` requires within the target's tolerance;
+    ``first_collision`` the first failing state and why; ``structures`` the clearance to every named
+    structure along the path (`StructureClearance`, None until measured: `measure_clearance`).
     """
 
-    backend: str = "cosserat"
+    backend: str = EXACT_MODEL
     collision_free: bool = False
     min_clearance_mm: float = 0.0
     max_position_error_mm: float = 0.0
@@ -52,23 +96,28 @@ class Validation:
     stable: bool = True
     states: int = 0
     colliding_states: list[int] = field(default_factory=list)
-    first_collision: dict | None = None
+    first_collision: FailingState | None = None
     nearest_obstacle: str = ""
     tip_mm: list[float] = field(default_factory=list)
     repaired: bool = False
     max_step_mm: float = 0.0
     step_bound_mm: float = 0.0
     time_s: float = 0.0
+    structures: tuple[StructureClearance, ...] | None = None
 
     @property
     def ok(self) -> bool:
         return self.collision_free and self.tip_in_target and self.converged and self.stable
 
     def to_json(self) -> dict:
-        d = asdict(self)
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "structures"}
         d["colliding_states"] = len(self.colliding_states)
+        d["first_collision"] = None if self.first_collision is None else self.first_collision.to_json()
+        d["tip_mm"] = list(self.tip_mm)
         for k in ("min_clearance_mm", "max_position_error_mm", "max_tip_error_mm", "max_step_mm"):
             d[k] = _finite(d[k])
+        if self.structures is not None:
+            d["structures"] = [c.to_json() for c in self.structures]
         return d
 
 
@@ -78,31 +127,35 @@ def _finite(x: float):
 
 @dataclass
 class ValidatedPath:
-    """A dense path (K, 2N) with its exact and planning-backend backbones and the report; ``world``:
-    the collision world it was checked in (the writers' clearances reuse it)."""
+    """A dense path (K, 2N) with its exact and planning-backend backbones and the report;
+    ``clearance_mm`` (K, P-1): the clearance of every capsule of every exact backbone (mm, surface to
+    the nearest obstacle, 0 in contact, at most `CLEARANCE_CAP_MM`, NaN where the exact model did not
+    converge), None until measured (`measure_clearance`)."""
 
     dense_q: np.ndarray
     exact: Backbone
     planned: Backbone | None
     report: Validation
-    world: CollisionWorld | None = None
+    clearance_mm: np.ndarray | None = None
 
 
 def validate_path(scene: Scene, path_q: np.ndarray, planning_backend: Backend | None = None, *,
                   exact: Backend | None = None, resolution: float | None = None,
                   points: int | None = None, margin_mm: float | None = None,
-                  world: CollisionWorld | None = None, clearance_stride: int = 1) -> ValidatedPath:
+                  world: CollisionWorld | None = None, clearance_stride: int = 1,
+                  measure: bool = False) -> ValidatedPath:
     """`validate_planned_path` on the planning model of ``scene`` with ``planning_backend`` (if given and not
-    exact itself: evaluated on the same states for the position error), ``exact`` (default:
-    Cosserat; testing stability unless the robot is certified), ``points`` and a prebuilt ``world``
-    (`PlanningModel.of`)."""
+    exact itself: evaluated on the same states for the position error), ``exact`` (default: the
+    planning backend's exact companion, or the exact model; testing stability unless the robot is
+    certified), ``points`` and a prebuilt ``world`` (`PlanningModel.of`)."""
     model = PlanningModel.of(scene, planning_backend, exact=exact, points=points, world=world)
     return validate_planned_path(model, path_q, resolution=resolution, margin_mm=margin_mm,
-                                 clearance_stride=clearance_stride)
+                                 clearance_stride=clearance_stride, measure=measure)
 
 
 def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolution: float | None = None,
-                          margin_mm: float | None = None, clearance_stride: int = 1) -> ValidatedPath:
+                          margin_mm: float | None = None, clearance_stride: int = 1,
+                          measure: bool = False) -> ValidatedPath:
     """Re-validate ``path_q`` (K, 2N) with the model's exact backend at ``resolution`` (planning
     metric, mm; default: the scene's) and capsule margin ``margin_mm`` (default: the scene's, not the
     search's).
@@ -114,7 +167,7 @@ def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolutio
     backend computes elastic stability unless the robot is certified (`StabilityDecision`): an
     unstable state fails like a colliding one. On a certified robot the exact states are solved by
     continuation along the path (`Backend.forward_path`); on any other each starts cold
-    (`StabilityDecision.continuation`).
+    (`StabilityDecision.continuation`). With ``measure``, the clearances of `measure_clearance` too.
     """
     t0 = time.perf_counter()
     scene = model.scene
@@ -136,8 +189,7 @@ def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolutio
     report.stable = bool(ebb.stable.all())
     if pbb is not None:
         _position_errors(report, pbb, ebb)
-    checker = RobotCollisionChecker(model.world, scene.base_pose, model.points, margin)
-    _collisions_and_clearance(report, checker, ebb, clearance_stride)
+    _collisions_and_clearance(report, model.collision_checker(margin), ebb, clearance_stride)
     tip = scene.to_scene(ebb.tip_mm[-1])
     report.tip_mm = tip.tolist()
     angle = float(scene.target.angle_rad(tip_tangents(scene, ebb)[-1]))
@@ -145,7 +197,22 @@ def validate_planned_path(model: PlanningModel, path_q: np.ndarray, *, resolutio
     report.tip_in_target = bool(ebb.converged[-1] and scene.target.contains(tip)
                                 and angle <= scene.target.angle_tolerance_rad + 1e-12)
     report.time_s = time.perf_counter() - t0
-    return ValidatedPath(dense, ebb, pbb, report, model.world)
+    validated = ValidatedPath(dense, ebb, pbb, report)
+    return measure_clearance(model, validated) if measure else validated
+
+
+def measure_clearance(model: PlanningModel, validated: ValidatedPath) -> ValidatedPath:
+    """``validated`` with its clearances measured (`PathClearance` of the outputs): every capsule of
+    every exact backbone against the nearest obstacle (``clearance_mm``, capped at `CLEARANCE_CAP_MM`),
+    and every named structure's nearest approach along the path with where it happens
+    (``report.structures``, against the scene's margin plus the structure's own). FCL distances, 1-2
+    ms each: what a plan's outputs show, measured once, by the model's collision checker."""
+    checker = model.collision_checker()
+    ebb = validated.exact
+    along = np.array([checker.clearances(p, r, CLEARANCE_CAP_MM)
+                      for p, r in zip(ebb.positions_mm, ebb.radius_mm, strict=True)])
+    structures = tuple(checker.structure_clearances(ebb.positions_mm, ebb.radius_mm, ebb.s_mm))
+    return replace(validated, report=replace(validated.report, structures=structures), clearance_mm=along)
 
 
 def _initial_states(bb: Backbone) -> np.ndarray:
@@ -198,24 +265,12 @@ def _collisions_and_clearance(report: Validation, checker: RobotCollisionChecker
     report.collision_free = not bad and report.converged
     if bad:
         i = bad[0]
+        converged = bool(ebb.converged[i])
         names = sorted({n for _, n in checker.contacts(ebb.positions_mm[i], ebb.radius_mm[i])}) \
-            if ebb.converged[i] else ["(exact model did not converge)"]
-        if ebb.converged[i] and not ebb.stable[i]:
-            names.append("(unstable equilibrium: the robot snaps)")
-        report.first_collision = {"state": i, "obstacles": names}
+            if converged else []
+        report.first_collision = FailingState(i, tuple(names), converged, bool(ebb.stable[i]))
     report.min_clearance_mm = float(best) if np.isfinite(best) else float("inf")
     report.nearest_obstacle = nearest
-
-
-def clearance_along(scene: Scene, bb: Backbone, cap_mm: float,
-                    world: CollisionWorld | None = None) -> np.ndarray:
-    """The clearance along a path: distance (mm) from the surface of each capsule (K, N-1) of the
-    backbones ``bb`` (robot frame) to the nearest obstacle of ``scene``, 0 in contact, capped at
-    ``cap_mm``; NaN for a backbone that did not converge."""
-    checker = RobotCollisionChecker(world or CollisionWorld.from_scene(scene), scene.base_pose,
-                                    bb.positions_mm.shape[1])
-    return np.array([checker.clearances(p, r, cap_mm) for p, r in zip(bb.positions_mm, bb.radius_mm,
-                                                                          strict=True)])
 
 
 def backbone_steps(bb: Backbone) -> np.ndarray:

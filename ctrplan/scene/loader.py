@@ -13,7 +13,10 @@ file, the key and the line (`ctrplan.base.yamlio`). Layout::
                                           #    {z_axis: [...], y_axis: [...]} (y projected)
     obstacles:
       - {name: septum, mesh: meshes/septum.stl}             # STL/OBJ/PLY, path relative to the scene;
-                                                           # optional position/rotation/scale
+                                                           # optional position/rotation/scale; a file
+                                                           # that declares its frame (SPACE=LPS, as 3D
+                                                           # Slicer writes) is converted to the
+                                                           # scene's `anatomy` frame
       - {name: ball, sphere: {center: [...], radius: r}}
       - {name: wall, box: {center: [...], size: [a, b, c], rotation: {...}}}
       - {name: rod, cylinder: {center: [...], radius: r, length: l, axis: [...]}}
@@ -54,6 +57,9 @@ A target further from the base than the robot can ever reach is bad input (the l
 a start in collision is reported by the planner, naming the obstacles. Cylinders and capsules are
 given by their centre, radius, length (of the straight part for capsules) and either an ``axis``
 direction or a ``rotation`` (local z = axis).
+
+Over 500 lines because it is the scene file format: every key with its check, default and error
+message in one place, so that a new key touches one file.
 """
 
 from __future__ import annotations
@@ -69,9 +75,10 @@ import numpy as np
 
 from ctrplan.base.errors import InputError
 from ctrplan.base.yamlio import YamlDoc, load_yaml
-from ctrplan.model.robot import Robot, box_keys
+from ctrplan.model.robot import JointDomain, Robot
 from ctrplan.scene.geometry import ANATOMY_PAIRS, frame_from_z, make_pose, rpy_matrix
 from ctrplan.scene.objects import Obstacle, PlannerSettings, Scene, TargetRegion
+from ctrplan.scene.orientation import anatomy_code, code_matrix, declared_space
 
 PRIMITIVES = ("sphere", "box", "cylinder", "capsule")
 
@@ -80,10 +87,10 @@ MESH_SUFFIXES = (".stl", ".obj", ".ply")
 # ---- loading ---------------------------------------------------------------------------------------
 _TOP_KEYS = {"name", "description", "robot", "base_pose", "obstacles", "target", "start", "planner",
              "joint_limits", "anatomy"}
-def joint_limit_keys(n_tubes: int) -> tuple[str, ...]:
+def joint_limit_keys(domain: JointDomain) -> tuple[str, ...]:
     """Keys of a scene's ``joint_limits`` (box coordinates; translations in mm, rotations in deg):
     the robot file's domain keys with ``alphaI_deg`` for the rotations."""
-    return tuple(k.replace("_rad", "_deg") for k in box_keys(n_tubes))
+    return tuple(k.replace("_rad", "_deg") for k in domain.keys)
 
 
 
@@ -194,7 +201,10 @@ def _pose(doc: YamlDoc, keys: tuple, value: Any) -> np.ndarray:
     return make_pose(R, pos)
 
 
-def _load_mesh(doc: YamlDoc, keys: tuple, rel: Any):
+def _load_mesh(doc: YamlDoc, keys: tuple, rel: Any, frame: str | None):
+    """Vertices (scene frame: converted from the frame the file declares, `declared_space`, to
+    ``frame``, the scene's anatomy code, when both are known), faces, the file and its declared
+    frame."""
     import trimesh
 
     if not isinstance(rel, str) or not rel:
@@ -216,17 +226,22 @@ def _load_mesh(doc: YamlDoc, keys: tuple, rel: Any):
         raise doc.error(keys, f"mesh {path} has no triangles")
     if not np.all(np.isfinite(verts)):
         raise doc.error(keys, f"mesh {path} has non-finite vertices")
-    return verts, faces, str(path)
+    space = declared_space(path)
+    if space is not None and frame is not None:
+        verts = verts @ code_matrix(space, frame).T
+        if np.linalg.det(code_matrix(space, frame)) < 0:  # a reflection turns the faces inside out
+            faces = faces[:, ::-1]
+    return verts, faces, str(path), space
 
 
-def _obstacle(doc: YamlDoc, keys: tuple, raw: Any, index: int) -> Obstacle:
+def _obstacle(doc: YamlDoc, keys: tuple, raw: Any, index: int, frame: str | None) -> Obstacle:
     allowed = {"name", "mesh", "position", "rotation", "scale", "margin_mm"} | set(PRIMITIVES)
     raw = _mapping(doc, keys, raw, allowed)
-    return replace(_obstacle_shape(doc, keys, raw, index), margin_mm=_num(
+    return replace(_obstacle_shape(doc, keys, raw, index, frame), margin_mm=_num(
         doc, keys + ("margin_mm",), raw["margin_mm"], nonneg=True) if "margin_mm" in raw else 0.0)
 
 
-def _obstacle_shape(doc: YamlDoc, keys: tuple, raw: dict, index: int) -> Obstacle:
+def _obstacle_shape(doc: YamlDoc, keys: tuple, raw: dict, index: int, frame: str | None) -> Obstacle:
     kinds = [k for k in ("mesh", *PRIMITIVES) if k in raw]
     if len(kinds) != 1:
         raise doc.error(keys, f"give exactly one of mesh, {', '.join(PRIMITIVES)}")
@@ -235,12 +250,12 @@ def _obstacle_shape(doc: YamlDoc, keys: tuple, raw: dict, index: int) -> Obstacl
     if not isinstance(name, str) or not name:
         raise doc.error(keys + ("name",), f"expected a non-empty string, got {name!r}")
     if kind == "mesh":
-        verts, faces, src = _load_mesh(doc, keys + ("mesh",), raw["mesh"])
+        verts, faces, src, space = _load_mesh(doc, keys + ("mesh",), raw["mesh"], frame)
         scale = _num(doc, keys + ("scale",), raw["scale"], positive=True) if "scale" in raw else 1.0
         pos = _vec(doc, keys + ("position",), raw["position"], 3) if "position" in raw else np.zeros(3)
         R = _rotation(doc, keys + ("rotation",), raw["rotation"]) if "rotation" in raw else np.eye(3)
         verts = (verts * scale) @ R.T + pos
-        return Obstacle(name=name, kind="mesh", vertices=verts, faces=faces, source=src)
+        return Obstacle(name=name, kind="mesh", vertices=verts, faces=faces, source=src, space=space)
     for k in ("position", "rotation", "scale"):
         if k in raw:
             raise doc.error(keys + (k,), f"{k!r} belongs inside the {kind} mapping (or use a mesh)")
@@ -371,7 +386,7 @@ def _anatomy(doc: YamlDoc, raw: Any) -> dict[str, str]:
 
 def _joint_limits(doc: YamlDoc, raw: Any, robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     keys = ("joint_limits",)
-    names = joint_limit_keys(robot.n_tubes)
+    names = joint_limit_keys(robot.domain)
     spec = _mapping(doc, keys, raw, set(names))
     lo, hi = robot.domain.box_lower.copy(), robot.domain.box_upper.copy()
     for i, name in enumerate(names):
@@ -408,13 +423,15 @@ def scene_from_yaml(doc: YamlDoc, *, check_start: bool = True, robot: Robot | No
     robot = robot or _robot(doc, d["robot"])
 
     base_pose = _pose(doc, ("base_pose",), d["base_pose"])
+    anatomy = _anatomy(doc, d["anatomy"]) if "anatomy" in d else None
+    frame = None if anatomy is None else anatomy_code(anatomy)
 
     raw_obs = d.get("obstacles", [])
     if raw_obs is None:
         raw_obs = []
     if not isinstance(raw_obs, list):
         raise doc.error(("obstacles",), "expected a list of obstacles")
-    obstacles = tuple(_obstacle(doc, ("obstacles", i), o, i) for i, o in enumerate(raw_obs))
+    obstacles = tuple(_obstacle(doc, ("obstacles", i), o, i, frame) for i, o in enumerate(raw_obs))
     seen: dict[str, int] = {}
     for i, o in enumerate(obstacles):
         if o.name in seen:
@@ -442,7 +459,7 @@ def scene_from_yaml(doc: YamlDoc, *, check_start: bool = True, robot: Robot | No
         out = np.flatnonzero((box < limits[0] - 1e-9) | (box > limits[1] + 1e-9))
         if out.size and check_start:
             i = int(out[0])
-            names = joint_limit_keys(robot.n_tubes)
+            names = joint_limit_keys(robot.domain)
             raise doc.error(("start",), f"outside the scene's joint_limits: {names[i]}")
 
     name = d.get("name", doc.path.stem)
@@ -451,7 +468,6 @@ def scene_from_yaml(doc: YamlDoc, *, check_start: bool = True, robot: Robot | No
         raise doc.error(("name",), f"expected a string, got {name!r}")
     if not isinstance(desc, str):
         raise doc.error(("description",), f"expected a string, got {desc!r}")
-    anatomy = _anatomy(doc, d["anatomy"]) if "anatomy" in d else None
     return Scene(name=name, robot=robot, base_pose=base_pose, obstacles=obstacles, target=target,
                  start=start, settings=settings, description=desc.strip(), path=doc.path,
                  joint_limits=limits, anatomy=anatomy,

@@ -25,6 +25,8 @@ class Obstacle:
     primitive: ``sphere`` (radius), ``box`` (size (3,)), ``cylinder``/``capsule`` (radius, length along
     the local z axis), placed by ``pose`` (4x4, local -> scene). ``margin_mm``: the structure's own
     no-go margin, added to the collision distance for it in every check (`ctrplan.collision`).
+    ``space``: the frame a mesh file declares (`ctrplan.scene.orientation.declared_space`; its
+    vertices are converted to the scene's anatomy frame where that is declared), or None.
     """
 
     name: str
@@ -37,6 +39,7 @@ class Obstacle:
     faces: np.ndarray | None = None
     source: str | None = None
     margin_mm: float = 0.0
+    space: str | None = None
 
     def to_trimesh(self):
         """Triangle mesh of the obstacle in the scene frame (primitives tessellated)."""
@@ -56,6 +59,15 @@ class Obstacle:
             raise ValueError(self.kind)
         m.apply_transform(self.pose)
         return m
+
+    def translated(self, shift_mm) -> Obstacle:
+        """The obstacle moved by ``shift_mm`` (3,) (mm, scene frame): tissue that shifted."""
+        shift = np.asarray(shift_mm, dtype=float)
+        if self.kind == "mesh":
+            return replace(self, vertices=np.asarray(self.vertices, dtype=float) + shift)
+        pose = np.array(self.pose, dtype=float)
+        pose[:3, 3] += shift
+        return replace(self, pose=pose)
 
     @property
     def bounds(self) -> np.ndarray:

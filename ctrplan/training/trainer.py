@@ -18,6 +18,9 @@ Recipes:
 * ``finetune`` -- the paper's stage (b): continues a trained model on measured tube tips
   (`train(observations=...)`) with the ODE and boundary residuals kept on a fixed collocation set, so
   the model stays physical.
+
+Over 500 lines because the loop, its checkpoints and resume share one state (step, optimiser,
+schedule, samplers, budget): split apart, a resumed run could restore part of it.
 """
 
 from __future__ import annotations
@@ -65,6 +68,7 @@ class Sampler:
     def __init__(self, robot: Robot, seed: int, device: torch.device):
         self.lo = torch.tensor(robot.domain.box_lower, dtype=torch.float32, device=device)
         self.hi = torch.tensor(robot.domain.box_upper, dtype=torch.float32, device=device)
+        self.joints_from_box = torch.tensor(robot.domain.joints_from_box, dtype=torch.float32, device=device)
         self.seed, self.device, self.n_tubes = seed, device, robot.n_tubes
 
     def generator(self, step: int, stream: int) -> torch.Generator:
@@ -73,13 +77,9 @@ class Sampler:
         return g
 
     def joints(self, n: int, g: torch.Generator) -> torch.Tensor:
-        """``n`` joints (n, 2N) uniform in the domain box (`JointDomain`)."""
-        nt = self.n_tubes
-        x = self.lo + (self.hi - self.lo) * torch.rand(n, 2 * nt, generator=g, device=self.device)
-        beta = [x[:, 0]]  # beta_N, then beta_i = beta_{i+1} - (beta_{i+1} - beta_i)
-        for r in range(1, nt):
-            beta.append(beta[-1] - x[:, r])
-        return torch.cat([torch.stack(beta[::-1], -1), x[:, nt:]], -1)
+        """``n`` joints (n, 2N) uniform in the domain box (`JointDomain`: relative rotations too)."""
+        x = self.lo + (self.hi - self.lo) * torch.rand(n, 2 * self.n_tubes, generator=g, device=self.device)
+        return x @ self.joints_from_box.T
 
     def collocation(self, n: int, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         return torch.rand(n, generator=g, device=self.device), self.joints(n, g)

@@ -4,20 +4,19 @@ states along arc length for one configuration (Fig. 6), each PINN against the ex
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from ctrplan.viz.style import pyplot, write_png
 
-from ctrplan.base.dataio import save_figure
-from ctrplan.kinematics.backbone import state_names  # noqa: E402
-from ctrplan.training.evaluate import Comparison  # noqa: E402
+if TYPE_CHECKING:
+    from ctrplan.training.evaluate import Comparison
 
 
 def shapes_figure(cmp: Comparison, path: Path, count: int = 12) -> Path:
     """3-D backbones of ``count`` configurations: exact (solid) vs PINN (dashed), mm."""
+    plt = pyplot()
     fig = plt.figure(figsize=(7, 7))
     ax = fig.add_subplot(projection="3d")
     colors = plt.cm.tab20(np.linspace(0, 1, count))
@@ -30,8 +29,7 @@ def shapes_figure(cmp: Comparison, path: Path, count: int = 12) -> Path:
     ax.set_zlabel("z [mm]")
     ax.set_title("Cosserat (solid) vs PINN (dashed), unseen configurations")
     fig.tight_layout()
-    save_figure(fig, path, dpi=130)
-    plt.close(fig)
+    write_png(fig, path, dpi=130)
     return path
 
 
@@ -40,7 +38,7 @@ def error_band_figure(cmp: Comparison, path: Path) -> Path:
     e = cmp.normalised_error_pct
     x = (cmp.exact.s_mm[:, 1:] / cmp.exact.s_mm[:, -1:]).mean(0)
     mean, std = e.mean(0), e.std(0)
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = pyplot().subplots(figsize=(7, 4))
     ax.fill_between(x, e.min(0), e.max(0), color="tab:blue", alpha=0.15, label="min-max")
     ax.fill_between(x, np.maximum(mean - std, 0), mean + std, color="tab:blue", alpha=0.35, label="±1 std")
     ax.plot(x, mean, color="tab:blue", lw=2, label="mean")
@@ -51,8 +49,7 @@ def error_band_figure(cmp: Comparison, path: Path) -> Path:
     ax.legend()
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    save_figure(fig, path, dpi=130)
-    plt.close(fig)
+    write_png(fig, path, dpi=130)
     return path
 
 
@@ -63,13 +60,13 @@ def states_figure(cmp: Comparison, path: Path) -> Path:
     s = cmp.exact.s_mm[index]
     ex, pr = cmp.exact.state[index], cmp.predicted.state[index]
     n = cmp.exact.n_tubes
-    names = state_names(n)
+    names = cmp.exact.state_names
     groups = [("bending moment m_b [N mm]", range(0, 2), 1.0),
               ("torsional curvature u_z [1/m]", range(2, 2 + n), 1e3),
               ("twist theta [rad]", range(2 + n, 2 + 2 * n), 1.0),
               ("position p [mm]", range(2 + 2 * n, 5 + 2 * n), 1.0),
               ("orientation h", range(5 + 2 * n, 9 + 2 * n), 1.0)]
-    fig, axes = plt.subplots(len(groups), 1, figsize=(7, 11), sharex=True)
+    fig, axes = pyplot().subplots(len(groups), 1, figsize=(7, 11), sharex=True)
     for ax, (title, idx, scale) in zip(axes, groups, strict=True):
         for k, i in enumerate(idx):
             color = f"C{k}"
@@ -83,6 +80,5 @@ def states_figure(cmp: Comparison, path: Path) -> Path:
     fig.suptitle("States: Cosserat (solid) vs PINN (dashed), q = "
                  + np.array2string(q, precision=2, separator=", "), fontsize=9)
     fig.tight_layout()
-    save_figure(fig, path, dpi=130)
-    plt.close(fig)
+    write_png(fig, path, dpi=130)
     return path

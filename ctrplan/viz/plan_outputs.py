@@ -1,53 +1,42 @@
 """What ``ctrplan plan --out`` writes for a plan (docs/design.md §3): ``path.json``, ``obstacles.ply``,
 ``plan.png``, ``plan.html`` and, for a solved plan, ``trajectory.csv`` -- for the command and for
-the design study's best paths (`ctrplan.design.outputs`)."""
+the design study's best paths (`ctrplan.design.outputs`).
+
+The writers render a `ctrplan.planning.PlanResult` whose clearances were measured by its exact
+validation (``plan(..., clearances=True)``, `ctrplan.planning.validate.measure_clearance`): they
+compute nothing of their own -- no collision checks, no kinematics.
+"""
 
 from __future__ import annotations
 
 import json
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ctrplan.base.dataio import atomic_write, format_csv, output_dir
-from ctrplan.collision.checker import RobotCollisionChecker, StructureClearance
-from ctrplan.collision.world import CollisionWorld
-from ctrplan.kinematics import CosseratBackend
-from ctrplan.planning.trajectory import segment_positions, time_parametrise
-from ctrplan.planning.validate import clearance_along
 from ctrplan.viz.plan_plot import plot_plan
 from ctrplan.viz.style import CLEARANCE_CAP_MM
 from ctrplan.viz.viewer import viewer_data, write_viewer
 
-#: trajectory.csv reports clearances up to this (mm); larger ones as this.
-TRAJECTORY_CLEARANCE_CAP_MM = 50.0
+if TYPE_CHECKING:
+    from ctrplan.planning.execution import TrajectoryTable
+    from ctrplan.planning.result import PlanResult
 
 
-def plan_document(result, sc, scene_file: Path, model: str | None,
-                  world: CollisionWorld | None = None) -> dict:
+def plan_document(result: PlanResult, sc, scene_file: Path, model: str | None) -> dict:
     """The JSON document of a plan (docs/design.md §3): the result, its scene file and PINN weights file
-    (or None), the target region and, for a path the exact model checked, ``validated.structures``:
-    the exact model's clearance to every named structure along it (`structure_clearances`).
-    ``world``: the scene's collision world, if built already."""
+    (or None), the target region and, for a path the exact model checked and measured,
+    ``validated.structures``: the exact model's clearance to every named structure along it."""
     doc = result.to_json()
     doc["scene"] = str(scene_file)
     doc["model"] = model
     doc["target"] = sc.target.to_dict()
     if np.ptp(sc.target.semi_axes) > 0:  # one tolerance describes only a sphere; see doc["target"]
         doc["goal_tolerance_mm"] = None
-    if result.dense is not None and doc["validated"] is not None:
-        doc["validated"]["structures"] = [c.to_json() for c in structure_clearances(sc, result.dense.exact,
-                                                                                     world)]
     return doc
-
-
-def structure_clearances(sc, exact, world: CollisionWorld | None = None) -> list[StructureClearance]:
-    """`ctrplan.collision.checker.StructureClearance` of every obstacle of ``sc`` along the exact backbones
-    ``exact`` (robot frame) of a path, with the scene's margin and each obstacle's own."""
-    checker = RobotCollisionChecker(world or CollisionWorld.from_scene(sc), sc.base_pose,
-                                    exact.positions_mm.shape[1], sc.settings.margin_mm)
-    return checker.structure_clearances(exact.positions_mm, exact.radius_mm, exact.s_mm)
 
 
 def listed_structures(doc: dict) -> list[dict]:
@@ -69,26 +58,31 @@ def structure_line(c: dict, rich: bool = False) -> str:
             + (f" {flag}" if flag else ""))
 
 
-def write_plan_outputs(out: Path, sc, result, doc: dict, world: CollisionWorld | None = None) -> None:
-    """path.json, obstacles.ply, plan.png, plan.html and, for a solved plan, trajectory.csv; each file
-    is written completely or not at all. ``world``: the scene's collision world, if built already."""
+def write_plan_outputs(out: Path, sc, result: PlanResult, doc: dict,
+                       trajectory: TrajectoryTable | None = None) -> None:
+    """path.json, obstacles.ply, plan.png, plan.html and, for a solved plan, trajectory.csv (its
+    ``trajectory``, `ctrplan.planning.execution.trajectory_table`); each file is written completely
+    or not at all. A validated path must carry its measured clearances."""
     output_dir(out)
     full = dict(doc)
     clearance = None
     if result.dense is not None:
-        exact = result.dense.exact
+        exact, clearance = result.dense.exact, result.dense.clearance_mm
+        if clearance is None:
+            raise ValueError("write_plan_outputs: the path's clearances were not measured "
+                             "(plan(..., clearances=True) or measure_clearance)")
         bbs, radii = sc.to_scene(exact.positions_mm), exact.radius_mm
-        clearance = clearance_along(sc, exact, TRAJECTORY_CLEARANCE_CAP_MM, world)
         full["dense_path"] = result.dense.dense_q.tolist()
         full["backbones_mm"] = np.round(np.where(np.isfinite(bbs), bbs, np.nan), 4).tolist()
         full["backbone_radius_mm"] = np.round(radii, 4).tolist()
-        full["backbones_backend"] = "cosserat"
+        full["backbones_backend"] = result.dense.report.backend
         full["frame"] = "scene (mm)"
         if result.solved:
-            write_trajectory(out / "trajectory.csv", sc, result, bbs[:, -1, :], np.nanmin(clearance, axis=1))
+            if trajectory is None:
+                raise ValueError("write_plan_outputs: a solved plan needs its trajectory (trajectory_table)")
+            write_trajectory(out / "trajectory.csv", trajectory)
     else:  # nothing planned: show the start
-        b = CosseratBackend(sc.robot).forward(sc.start, points=sc.settings.points, check=False)
-        bbs, radii = sc.to_scene(b.positions_mm), b.radius_mm
+        bbs, radii = sc.to_scene(result.start.positions_mm), result.start.radius_mm
     with atomic_write(out / "path.json") as fh:
         fh.write(json.dumps(_nan_to_none(full)))
     mesh = sc.merged_obstacles()
@@ -107,20 +101,15 @@ def write_plan_outputs(out: Path, sc, result, doc: dict, world: CollisionWorld |
     tmp_html.replace(out / "plan.html")
 
 
-def write_trajectory(path: Path, sc, result, tips_mm: np.ndarray, clearance_mm: np.ndarray) -> None:
-    """trajectory.csv: the validated path timed within the robot's joint limits (`ctrplan.planning.
-    trajectory`), one row per exactly validated state: time_s, joints (mm, rad), the tip (scene frame,
-    mm) and the exact model's clearance (mm; `TRAJECTORY_CLEARANCE_CAP_MM` where it is larger)."""
-    dense = result.dense.dense_q
-    trajectory = time_parametrise(result.path, sc.robot.limits)
-    times = trajectory.time_of(*segment_positions(np.asarray(result.path), dense))
-    header = ["time_s", *sc.robot.joint_names, "tip_x", "tip_y", "tip_z", "clearance_mm"]
-    rows = np.column_stack([times, dense, tips_mm, clearance_mm])
+def write_trajectory(path: Path, table: TrajectoryTable) -> None:
+    """trajectory.csv: the rows of ``table`` (`ctrplan.planning.execution`: time, joints, their
+    velocities, actuator units, the exact tip and clearance at a fixed rate)."""
+    header, rows = table.header, table.rows
     with atomic_write(path) as fh:
         fh.write(format_csv(header, rows, ["%.6f"] * rows.shape[1]))
 
 
-def _figure_notes(result, doc: dict) -> list[tuple[str, bool]]:
+def _figure_notes(result: PlanResult, doc: dict) -> list[tuple[str, bool]]:
     """plan.png's notes (text, warn): the result or why it failed, the exact model's clearance and
     the clearance to each structure, nearest first, those below their margin as warnings."""
     why = result.message if result.message.startswith("not solved") else f"not solved: {result.message}"
@@ -144,12 +133,12 @@ def _figure_notes(result, doc: dict) -> list[tuple[str, bool]]:
     return notes
 
 
-def _viewer_info(sc, result, doc: dict) -> dict[str, str]:
+def _viewer_info(sc, result: PlanResult, doc: dict) -> dict[str, str]:
     """The result as labelled lines for plan.html."""
     info = {"result": "solved" if result.solved else result.message,
             "planner / backend": f"{result.planner} / {result.backend}",
             "planning time": f"{result.planning_time_s:.2f} s (time budget {result.time_limit_s:g} s)",
-            "work": f"{result.details.get('budget', {}).get('states', 0):,} of {result.max_states:,} states"
+            "work": f"{result.states:,} of {result.max_states:,} states"
                     + (" (cut short by the wall-clock guard)" if result.cut_short else "")}
     v = result.validated
     if v is not None:

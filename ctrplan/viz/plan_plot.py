@@ -10,10 +10,9 @@ from typing import Any
 
 import numpy as np
 
-from ctrplan.base.dataio import save_figure
 from ctrplan.scene.objects import Scene
 from ctrplan.viz.framing import corridor_bounds, corridor_direction, section
-from ctrplan.viz.style import TARGET_COLOR, axis_labels, scene_colors, view_name
+from ctrplan.viz.style import TARGET_COLOR, axis_labels, pyplot, scene_colors, view_name, write_png
 
 #: A projection shows the obstacles within this distance (mm) of the path in its hidden axis.
 SECTION_MM = 4.0
@@ -47,15 +46,11 @@ def plot_plan(scene: Scene, backbones_scene: np.ndarray, path: str | Path, *, ti
               tip_path: np.ndarray | None = None, max_backbones: int = 12,
               notes: Sequence[tuple[str, bool]] = ()) -> Path:
     """Write a PNG of `plan_figure` (arguments as there)."""
-    import matplotlib.pyplot as plt
-
     path = Path(path)
     fig = plan_figure(scene, backbones_scene, title=title, tip_path=tip_path, max_backbones=max_backbones,
                       notes=notes)
     path.parent.mkdir(parents=True, exist_ok=True)
-    save_figure(fig, path)
-    plt.close(fig)
-    return path
+    return write_png(fig, path, dpi=100)
 
 
 @dataclass(frozen=True)
@@ -103,11 +98,7 @@ def plan_figure(scene: Scene, backbones_scene: np.ndarray, *, title: str = "",
     ``backbones_scene`` (K, N, 3): backbones along the path in the scene frame (mm); ``tip_path``
     (M, 3): the tip along the path (mm).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     bbs = np.asarray(backbones_scene, dtype=float)
     k = bbs.shape[0]
     pick = np.unique(np.linspace(0, k - 1, min(k, max_backbones)).round().astype(int))
@@ -198,9 +189,9 @@ def _notes(ax, notes: Sequence[tuple[str, bool]], width: int = 52) -> None:
 
 
 def _legend(fig, d: _Drawing, names: list[str], ncol: int) -> None:
-    import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
 
+    plt = pyplot()
     handles = [Patch(color=d.colour[n], alpha=0.6) for n in names]
     handles += [Patch(facecolor=TARGET_COLOR, edgecolor="k", alpha=0.8),
                 plt.Line2D([], [], color="k", lw=0.8), plt.Line2D([], [], color=d.cmap(0.0), lw=2.5),

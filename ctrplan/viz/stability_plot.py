@@ -1,13 +1,16 @@
-"""The stability verdict as a picture a designer can read (matplotlib, Agg)."""
+"""The stability verdict as a picture a designer can read (PNG)."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ctrplan.base.dataio import save_figure
-from ctrplan.kinematics.stability import StabilityReport
+from ctrplan.viz.style import pyplot, write_png
+
+if TYPE_CHECKING:
+    from ctrplan.kinematics.stability import StabilityReport
 
 
 def _relative_rotation_deg(sweep) -> np.ndarray:
@@ -23,11 +26,7 @@ def plot_stability(report: StabilityReport, path: Path) -> Path:
     """Two panels over the relative rotation of the swept tube: the stability measure along every
     sweep (it must stay above 0; x marks flagged configurations), and the share of configurations
     flagged per 10 deg -- where the robot snaps. Writes ``path`` (PNG) and returns it."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     seen: set[int] = set()
@@ -65,6 +64,5 @@ def plot_stability(report: StabilityReport, path: Path) -> Path:
     pct = 100 * report.unstable_fraction
     verdict = "snap-free" if report.snap_free else f"NOT snap-free ({pct:.1f} % flagged)"
     ax2.set_title(f"{report.robot}: {verdict}\n({report.checked} configurations checked)")
-    save_figure(fig, path, dpi=110)
-    plt.close(fig)
+    write_png(fig, path, dpi=110)
     return path

@@ -1,22 +1,36 @@
-"""Colours and orientation labels shared by plan.png and plan.html.
+"""The one style of ctrplan's figures: how every PNG is drawn and written, and the colours they share.
 
-Obstacles are coloured by what their name says they are, as an anatomy atlas would: vessels red,
-nerves yellow, mucosa pinks, bone ivory to brown, skin faint; within a class each obstacle gets its
-own shade, so the legend still tells them apart, and given which obstacles touch (`neighbours`), each
-takes the shade of its class that differs most from its neighbours' colours. Other names take
-distinct hues (no greys). The target
-has a colour no obstacle gets, and the clearance along the backbone runs from red (touching) through
-orange and yellow to green (`CLEARANCE_CAP_MM` and more).
+Every figure is drawn with matplotlib on the Agg backend (`pyplot`: files only, no display) and
+written atomically (`write_png`). Colours of the models compared (`MODEL_COLORS`: the nominal model
+grey, the extended or surrogate one blue) and of the tubes (`TUBE_COLORS`) are the same in every
+figure.
+
+Plan pictures (plan.png and plan.html): obstacles are coloured by what their name says they are, as
+an anatomy atlas would: vessels red, nerves yellow, mucosa pinks, bone ivory to brown, skin faint;
+within a class each obstacle gets its own shade, so the legend still tells them apart, and given which
+obstacles touch (`neighbours`), each takes the shade of its class that differs most from its
+neighbours' colours. Other names take distinct hues (no greys). The target has a colour no obstacle
+gets, and the clearance along the backbone runs from red (touching) through orange and yellow to
+green (`CLEARANCE_CAP_MM` and more).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from ctrplan.base.dataio import save_figure
 from ctrplan.scene.geometry import opposite
 from ctrplan.scene.objects import Obstacle
+
+#: A model as it was (nominal) and as it was extended or replaced (extended robot, surrogate).
+NOMINAL_COLOR = "#b0b0b0"
+EXTENDED_COLOR = "#1f77b4"
+#: Tubes 1 (innermost) to 4.
+TUBE_COLORS = ("#d62728", "#2ca02c", "#1f77b4", "#9467bd")
 
 #: The target region: a colour no obstacle gets.
 TARGET_COLOR = "#00b4f0"
@@ -38,6 +52,25 @@ ANATOMY_CLASSES = (
 #: Hues for obstacles no class names (distinct, no greys, none near the target's).
 OTHER_COLORS = ("#4e79a7", "#f28e2b", "#59a14f", "#e15759", "#b07aa1", "#edc948", "#9c755f",
                 "#ff9da7", "#8cd17d", "#d37295")
+
+
+def pyplot() -> Any:
+    """matplotlib's pyplot on the Agg backend (figures go to files; no display is needed), imported on
+    first use."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def write_png(fig: Any, path: str | Path, dpi: int = 100, **kwargs: Any) -> Path:
+    """Write the figure ``fig`` to ``path`` (PNG unless the suffix says otherwise) completely or not at
+    all (`ctrplan.base.dataio.save_figure`), close it, and return ``path``."""
+    path = save_figure(fig, path, dpi=dpi, **kwargs)
+    pyplot().close(fig)
+    return Path(path)
 
 
 def _rgb(colour: str) -> np.ndarray:

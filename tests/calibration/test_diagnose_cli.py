@@ -85,7 +85,7 @@ def test_fk_with_the_extended_robot_reproduces_diagnose(tmp_path, capsys):
     data = read_measured(path)
     diag = diagnose(data, options=DiagnoseOptions(
         candidates=("registration+sensor_offset+backlash",), pairs=0, resamples=0))
-    write_outputs(diag, tmp_path / "diag", plots=False)
+    write_outputs(diag, tmp_path / "diag")
     cal = Robot.load(tmp_path / "diag" / "extended_robot.yaml").calibration
     assert [name for name, _ in cal.terms] == ["backlash", "sensor_offset", "registration"], diag.summary()
     configs = tmp_path / "configs.csv"

@@ -44,8 +44,6 @@ CONFIG_CASES = {
                  ["configs.csv: row 3", "alpha3", "not a finite number"]),
     "outside domain": (f"{HEADER}\n{GOOD_ROW}\n{GOOD_ROW}\n-40,-20,-5,0,0,0\n", None, [],
                        ["configs.csv: row 4", "snap-free domain", "0 <= beta2 - beta1 <= 15 violated"]),
-    "alpha outside domain": (f"{HEADER}\n-20,-10,-5,0,4,0\n", None, [],
-                             ["configs.csv: row 2", "alpha2 <= 3.14159 violated"]),
     "tube order": (f"{HEADER}\n{GOOD_ROW}\n-5,-10,-5,0,0,0\n", None, ["--allow-outside-domain"],
                    ["configs.csv: row 3", "tube order violated: need beta1 <= beta2"]),
     "robot unknown key": (f"{HEADER}\n{GOOD_ROW}\n", broken_robot("name: nominal", "name: x\ncolour: red"),

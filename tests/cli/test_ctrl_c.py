@@ -109,7 +109,7 @@ def test_ctrl_c_inside_a_kernel_called_from_ompl_solve(tmp_path):
     """The issue's other case: `plan --planner rrtstar` with the exact model in the validity checker,
     interrupted in a kernel called back from OMPL's C++ search."""
     out = tmp_path / "plan"
-    result = interrupt(["kernel", "solve_one", "20", "planning/planner.py", "pl.solve("],
+    result = interrupt(["kernel", "solve_one", "20", "planning/search.py", "pl.solve("],
                        ["plan", str(REPO / "scenes" / "open.yaml"), "--backend", "cosserat",
                         "--planner", "rrtstar", "--time-limit", "20", "--out", str(out)], tmp_path)
     assert_aborted(result)
@@ -118,7 +118,7 @@ def test_ctrl_c_inside_a_kernel_called_from_ompl_solve(tmp_path):
 
 def test_ctrl_c_inside_ompl_solve(tmp_path):
     out = tmp_path / "plan"
-    result = interrupt(["inside", "planning/planner.py", "pl.solve("],
+    result = interrupt(["inside", "planning/search.py", "pl.solve("],
                        ["plan", str(REPO / "scenes" / "skullbase.yaml"), "--planner", "rrtstar",
                         "--seed", "1", "--out", str(out)], tmp_path)
     assert_aborted(result)

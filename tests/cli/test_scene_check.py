@@ -108,7 +108,7 @@ def test_a_start_outside_the_domain_gets_the_nearest_valid_one(tmp_path, capsys)
     path = scene_file(tmp_path, OPEN.replace(START, "start: [-80.0, -65.0, -12.0, 0.0, 0.0, 0.0]"))
     code, err, _ = check(path, capsys)
     assert code == 2 and len(err) == 1 and "beta3" in err[0] and "nearest valid start" in err[0], err
-    found = np.array([float(v) for v in err[0].split("nearest valid start: [")[1].rstrip("]").split(",")])
+    found = np.array([float(v) for v in err[0].split("nearest valid start: [")[1].split("]")[0].split(",")])
     scene = load_scene(path, check_start=False)
     scene.robot.check_joints(found)  # inside the domain
     assert found[2] == pytest.approx(-10.0)  # the nearest: beta3 clipped onto its bound
@@ -121,3 +121,28 @@ def test_plan_refuses_a_target_inside_an_obstacle_at_once(tmp_path, capsys):
     code = main(["plan", str(scene_file(tmp_path, text)), "--backend", "cosserat", "--time-limit", "60"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "inside the obstacle 'tumour_capsule'" in err[0], err
+
+
+def test_fix_never_writes_a_start_from_which_the_target_cannot_be_reached(tmp_path, capsys, monkeypatch):
+    """The target sits in a closed cage (a hollow shell: the sampled reach, which ignores obstacles,
+    finds it; no robot gets in), and the start collides: collision-free starts exist, but from none
+    does the exact model reach the target, so --fix says there is no fix and writes nothing."""
+    import ctrplan.planning.start_fix as start_fix
+
+    monkeypatch.setattr(start_fix, "FIX_SEARCH_STATES", 1500)  # the verdict holds for any budget
+    monkeypatch.setattr(start_fix, "FIX_CANDIDATES", 2)
+    scene = load_scene(scene_file(tmp_path, OPEN))
+    outer = trimesh.creation.icosphere(subdivisions=2, radius=14.0)
+    inner = trimesh.creation.icosphere(subdivisions=2, radius=10.0)
+    inner.invert()
+    cage = trimesh.util.concatenate([outer, inner])
+    cage.apply_translation(scene.target.center)
+    cage.export(tmp_path / "cage.stl")
+    centre = CosseratBackend(scene.robot).forward(scene.start, points=11).positions_mm[0, 4]
+    blocker = f"{{name: blocker, sphere: {{center: {np.round(centre, 3).tolist()}, radius: 3.0}}}}"
+    text = OPEN.replace("obstacles:\n", f"obstacles:\n- {{name: cage, mesh: cage.stl}}\n- {blocker}\n")
+    code, err, _ = check(scene_file(tmp_path, text), capsys, "--fix", str(tmp_path / "fixed.yaml"))
+    assert code == 2 and len(err) == 1, err
+    assert "in collision with blocker" in err[0]
+    assert "no fix: from none of the 2 nearest valid starts" in err[0]
+    assert not (tmp_path / "fixed.yaml").exists()

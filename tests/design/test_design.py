@@ -21,6 +21,7 @@ from scipy.optimize import brentq
 from ctrplan.base.parallel import run_jobs
 from ctrplan.cli.app import main
 from ctrplan.design.evaluate import DesignContext, DesignJob, evaluate, evaluate_job
+from ctrplan.design.record import DesignRecord
 from ctrplan.design.task import load_task
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.kinematics.cosserat import SolverSettings
@@ -264,9 +265,9 @@ def test_without_the_snap_free_constraint_paths_stay_stable(tmp_path):
     task_file, _ = write_pair_task(tmp_path, tuple(float(v) for v in tip), 3.0,
                                    "constraints: {snap_free: false}\n")
     record = evaluate(load_task(task_file), {"tube1.curvature_1_per_m": 1.5 * critical})
-    assert record["feasible"] and record["stability"] is None and record["reached"] == ["ahead"]
+    assert record.feasible and record.stability is None and record.reached == ["ahead"]
     assert not is_certified(robot)
-    path = np.asarray(record["targets"][0]["path"])
+    path = np.asarray(record.targets[0].path)
     dense = BoxSpace.for_robot(robot).densify(path, 0.5)
     checking = CosseratBackend(robot, SolverSettings(stability=True))
     bb = checking.forward(dense, points=2, check=False)
@@ -277,8 +278,8 @@ def test_without_the_snap_free_constraint_paths_stay_stable(tmp_path):
     task_file, _ = write_pair_task(tmp_path, tuple(float(v) for v in tip), 1.0,
                                    "constraints: {snap_free: false}\n")
     record = evaluate(load_task(task_file), {"tube1.curvature_1_per_m": 1.5 * critical})
-    assert record["feasible"] and record["reached"] == []
-    assert re.match(r"no collision-free goal configuration \([1-9]\d* of", record["targets"][0]["message"])
+    assert record.feasible and record.reached == []
+    assert re.match(r"no collision-free goal configuration \([1-9]\d* of", record.targets[0].message)
 
 
 @pytest.fixture(scope="module")
@@ -321,12 +322,13 @@ def test_storage_resume_continues_the_study(two_trials, tmp_path, capsys):
         assert len(err.splitlines()) == 1
 
 
-def content(record: dict) -> dict:
-    """What a trial's evaluation decides (all but the times)."""
+def content(record: DesignRecord | dict) -> dict:
+    """What a trial's evaluation decides (all but the times), of a record or the study's copy."""
+    doc = record.to_json() if isinstance(record, DesignRecord) else record
     keep = ("parameters", "feasible", "infeasible", "max_strain", "total_length_mm", "fingerprint", "start",
             "reached", "min_clearance_mm")
-    targets = [{k: v for k, v in t.items() if k != "planning_time_s"} for t in record["targets"]]
-    return {**{k: record[k] for k in keep}, "targets": targets}
+    targets = [{k: v for k, v in t.items() if k != "planning_time_s"} for t in doc["targets"]]
+    return {**{k: doc[k] for k in keep}, "targets": targets}
 
 
 def test_evaluation_is_deterministic_on_every_executor(two_trials, tmp_path):
@@ -337,7 +339,8 @@ def test_evaluation_is_deterministic_on_every_executor(two_trials, tmp_path):
     specs.append(DesignJob(str(task.resolve()), {"tube1.curvature_1_per_m": KAPPA_ARC}, 0))  # reaches
     here = [evaluate(load_task(task), s.parameters, s.seed) for s in specs]
     assert [content(r) for r in here[:2]] == [content(r) for r in records]
-    assert here[2]["reached"] == ["arc"] and here[2]["targets"][1]["stage"] == "screen"
+    assert here[2].reached == ["arc"] and here[2].targets[1].stage == "screen"
+    assert all(DesignRecord.from_json(r.to_json()) == r for r in here)  # the study's copy reads back
     pool = run_jobs(evaluate_job, specs, workers=2, context=DesignContext)
     ray = run_jobs(evaluate_job, specs, ray_address="local", workers=2, context=DesignContext)
     assert [content(r) for r in here] == [content(r) for r in pool] == [content(r) for r in ray]

@@ -79,8 +79,8 @@ def test_a_design_does_not_start_where_the_scenes_start_collides(tmp_path):
     assert clearance_mm(START, ball) < 0
     task = write_task(tmp_path, ball, [("behind", np.array([0.0, 0.0, -30.0]), 1.0)])
     record = evaluate(load_task(task), {})
-    assert record["feasible"], record["infeasible"]
-    start = record["start"]
+    assert record.feasible, record.infeasible
+    start = record.start
     assert start != list(START)
     assert clearance_mm(start, ball) > 0.2
     assert start[0] == pytest.approx(START[0]) and abs(start[1]) == pytest.approx(math.pi / 4)
@@ -97,15 +97,14 @@ def test_a_designs_clearance_is_its_worst_targets(tmp_path):
     near = tip_mm(-7.0, 0.3)
     task = write_task(tmp_path, ball, [("near", near, 2.0), ("tight", tight, 2.0)])
     record = evaluate(load_task(task), {})
-    assert record["reached"] == ["near", "tight"], [t["message"] for t in record["targets"]]
-    by_name = {t["name"]: t for t in record["targets"]}
-    end_tight = by_name["tight"]["path"][-1]
+    assert record.reached == ["near", "tight"], [t.message for t in record.targets]
+    end_tight = record.target("tight").path[-1]
     assert np.linalg.norm(tip_mm(*end_tight) - tight) <= 2.0 + 1e-3
     worst = clearance_mm(end_tight, ball)
     assert 0.2 - 1e-3 <= worst <= 3.7 + 1e-3
-    near_path = np.asarray(by_name["near"]["path"])
+    near_path = np.asarray(record.target("near").path)
     dense = [a + f * (b - a) for a, b in zip(near_path[:-1], near_path[1:], strict=True)
              for f in np.linspace(0.0, 1.0, 50)]
     assert min(clearance_mm(q, ball) for q in dense) > worst + 5.0  # min and max differ: a mix-up shows
-    assert record["min_clearance_mm"] <= worst + 0.05
-    assert record["min_clearance_mm"] == pytest.approx(min(t["min_clearance_mm"] for t in record["targets"]))
+    assert record.min_clearance_mm <= worst + 0.05
+    assert record.min_clearance_mm == pytest.approx(min(t.min_clearance_mm for t in record.targets))

@@ -96,8 +96,8 @@ def test_ellipsoid_target():
     (lambda s: s.replace("radius: 5}", "radius: -5}"), ":7: obstacles[0].sphere.radius: must be > 0"),
     (lambda s: s.replace("start: [-80, -65, -10, 0, 0, 0]", "start: [-80, -65, -10, 0, 0]"),
      ":12: start: expected a list of 6 numbers"),
-    (lambda s: s.replace("start: [-80, -65, -10, 0, 0, 0]", "start: [-80, -65, -10, 4, 0, 0]"),
-     ":12: start: outside the snap-free domain"),
+    (lambda s: s.replace("start: [-80, -65, -10, 0, 0, 0]", "start: [-80, -65, -12, 4, 0, 0]"),
+     ":12: start: outside the snap-free domain"),  # alpha1 = 4 rad is inside: a full turn wraps
     (lambda s: s.replace("tolerance_mm: 3}", "tolerance: 3}"), ":11: target.tolerance: unknown key"),
     (lambda s: s.replace("{rpy_deg: [0, 0, 0]}", "{matrix: [[1, 0, 0], [0, 2, 0], [0, 0, 1]]}"),
      ":5: base_pose.rotation.matrix: not a rotation matrix"),

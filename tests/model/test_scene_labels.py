@@ -65,12 +65,17 @@ def label_volume() -> np.ndarray:
     return labels.reshape(SHAPE)
 
 
+def save_nifti(path: Path, labels: np.ndarray, affine: np.ndarray) -> None:
+    """A label map as a segmentation tool saves it: NIfTI, world RAS mm."""
+    image = nib.Nifti1Image(labels, affine)
+    image.header.set_xyzt_units("mm")
+    nib.save(image, path)
+
+
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory) -> dict[str, Path]:
     folder = tmp_path_factory.mktemp("labels")
-    image = nib.Nifti1Image(label_volume(), affine())
-    image.header.set_xyzt_units("mm")
-    nib.save(image, folder / "labels.nii.gz")
+    save_nifti(folder / "labels.nii.gz", label_volume(), affine())
     (folder / "names.yaml").write_text("3: pituitary_phantom\n5: {name: carotid_phantom, margin_mm: 1.5}\n")
     template = folder / "template.yaml"
     template.write_text(
@@ -174,7 +179,7 @@ def test_bad_input_is_one_line_and_writes_nothing(inputs, tmp_path, capsys, case
         expect = "file not found"
     elif case == "bad_names":
         names = tmp_path / "names.yaml"
-        names.write_text("three: carotid\n")
+        names.write_text("0: carotid\n")
         expect = "positive integer label"
     else:
         names = tmp_path / "names.yaml"

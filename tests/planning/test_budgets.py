@@ -16,6 +16,7 @@ import pytest
 
 from ctrplan.cli.app import main
 from ctrplan.design.ranking import Design, best_design
+from ctrplan.design.record import DesignRecord, TargetRecord
 from ctrplan.design.task import Objective
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend
 from ctrplan.model.robot import Robot
@@ -62,18 +63,35 @@ class Sleepy(Backend):
 
 
 def test_a_seeded_plan_is_the_same_path_on_a_slowed_machine(open_scene, pinn):
-    """The slowed run sleeps 2 s in all -- twice its 1 s time budget (a time-limited search would
-    stop early) but within the guard -- and finds the very same path with the same work."""
-    fast = plan(open_scene, pinn, seed=7, time_limit_s=1.0)
+    """Given a work budget (what 1 s buys) and no time limit, the slowed run sleeps 2 s in all --
+    twice that second (a time-limited plan would stop early) but within the guard -- and finds the
+    very same path with the same work."""
+    work = states_for("pinn", 1.0)
+    fast = plan(open_scene, pinn, seed=7, max_states=work)
     assert fast.solved, fast.message
-    calls = fast.details["counters"]["kinematics_batches"] + 4  # + compiling and the start check
-    slow = plan(open_scene, Sleepy(pinn, 2.0 / calls), seed=7, time_limit_s=1.0)
+    calls = fast.work.counters.kinematics_batches + 4  # + compiling and the start check
+    slow = plan(open_scene, Sleepy(pinn, 2.0 / calls), seed=7, max_states=work)
     assert slow.solved, slow.message
-    assert slow.details["budget"]["elapsed_s"] > 1.0  # really slowed past the time budget
+    assert slow.work.search.budget.elapsed_s > 1.0  # really slowed past the time budget
     assert np.array_equal(slow.path, fast.path)
-    assert slow.details["budget"]["states"] == fast.details["budget"]["states"]
-    assert slow.max_states == fast.max_states == states_for("pinn", 1.0)
+    assert slow.states == fast.states
+    assert slow.max_states == fast.max_states == work
     assert not slow.cut_short and not fast.cut_short
+    assert slow.work.clock["mode"] == "guard"
+
+
+def test_a_time_limit_is_a_time_limit(open_scene, pinn):
+    """A time limit on a machine too slow for the work budget: the clock stops the search by
+    1.25 x the limit (the validation fits in the rest of 1.5 x), and the result says so and how to
+    make it reproducible."""
+    res = plan(open_scene, Sleepy(pinn, 0.3), seed=7, time_limit_s=1.0)
+    budget, clock = res.work.search.budget, res.work.clock
+    assert clock["mode"] == "time limit" and clock["wall_limit_s"] == pytest.approx(1.5)
+    assert budget.clock == "time limit" and budget.guard_s <= 1.25
+    assert res.cut_short and budget.states < res.max_states
+    assert "time limit reached while sampling goal configurations" in res.message
+    assert "the time limit of 1 s stopped a search" in res.message
+    assert f"--max-states {states_for('pinn', 1.0)} without --time-limit" in res.message
 
 
 def test_the_wall_clock_guard_fires_and_says_so(open_scene, pinn):
@@ -81,10 +99,10 @@ def test_the_wall_clock_guard_fires_and_says_so(open_scene, pinn):
     GUARD_FACTOR x 0.02 s: a few calls; the search needs dozens) and a work budget it cannot use up.
     The search stops at the guard and the result says so."""
     res = plan(open_scene, Sleepy(pinn, 0.1), seed=7, time_limit_s=0.02, max_states=10**7)
-    budget = res.details["budget"]
-    assert budget["guard_s"] == pytest.approx(GUARD_FACTOR * 0.02)
-    assert res.cut_short and budget["cut_short"] and budget["states"] < 10**7
-    assert budget["elapsed_s"] >= budget["guard_s"]
+    budget = res.work.search.budget
+    assert budget.guard_s == pytest.approx(GUARD_FACTOR * 0.02)
+    assert res.cut_short and budget.cut_short and budget.states < 10**7
+    assert budget.elapsed_s >= budget.guard_s
     assert not res.solved and "wall-clock guard" in res.message
     doc = res.to_json()
     assert doc["cut_short"] is True and doc["max_states"] == 10**7
@@ -103,8 +121,9 @@ def test_cli_max_states(tmp_path, capsys):
     assert rc == 2 and err.count("\n") == 1 and "--max-states" in err
 
 
-def _record(reached: list[str], strain: float, feasible: bool = True) -> dict:
-    return {"feasible": feasible, "reached": reached, "max_strain": strain}
+def _record(reached: list[str], strain: float, feasible: bool = True) -> DesignRecord:
+    return DesignRecord({}, feasible, strain, 0.0, {}, targets=tuple(
+        TargetRecord(name, reached=True, stage="plan", min_clearance_mm=1.0) for name in reached))
 
 
 def test_best_design_never_falls_below_the_base_design():

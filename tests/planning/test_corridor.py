@@ -9,7 +9,7 @@ import pytest
 from ctrplan.model.robot import Robot
 from ctrplan.planning import ConfigurationChecker, PlanningModel, plan, resolve_backend
 from ctrplan.planning.corridor import CorridorSampler
-from ctrplan.planning.planner import search
+from ctrplan.planning.search import search
 from ctrplan.planning.space import BoxSpace
 from ctrplan.scene.loader import load_scene
 from tests.paths import SCENES
@@ -56,7 +56,7 @@ def test_corridor_plans_the_strict_skull_base_safely_and_repeatably(strict):
     assert first.planner == "corridor" and first.validated.repaired is False
     checker = ConfigurationChecker(PlanningModel.build(strict, backend, None, None))
     res = strict.settings.resolution_mm
-    planned = first.path[:-1] if first.details["exact_goal"]["appended"] else first.path
+    planned = first.path[:-1] if first.work.exact_goal.appended else first.path
     assert all(checker.check_motion(a, b, res) for a, b in zip(planned[:-1], planned[1:], strict=True))
     again = plan(strict, backend, seed=5)
     np.testing.assert_array_equal(again.path, first.path)

@@ -36,7 +36,7 @@ from ctrplan.planning.validity import bisection_order
 from ctrplan.scene.loader import load_scene
 from tests.independent.cosserat import Tubes, solve
 from tests.independent.geometry import axis_angle, box_gap, sphere_gap
-from tests.paths import SCENES
+from tests.paths import REPO, SCENES
 
 
 def test_box_space_round_trip_and_metric():
@@ -174,7 +174,7 @@ def test_straight_line_through_the_ball_collides_under_exact_validation(open_sce
     vp = validate_path(open_scene, np.stack([open_scene.start, goal]), exact)
     rep = vp.report
     assert not rep.collision_free and rep.colliding_states
-    assert rep.first_collision["obstacles"] == ["ball"]
+    assert rep.first_collision.obstacles == ("ball",) and rep.first_collision.why == "the robot touches ball"
     assert rep.min_clearance_mm == 0.0
     assert rep.max_position_error_mm < 1e-6  # planning backend = exact model (to solver tolerance)
 
@@ -207,7 +207,7 @@ def test_plan_with_repair_is_never_unsafe(open_scene):
     open.yaml's 3 mm of its target, and every checked state clears the ball and the block by the
     0.2 mm margin (distances computed here)."""
     res = plan(open_scene, WrongBackend(), seed=1, time_limit_s=5.0)
-    assert res.details["first_validation"]["tip_in_target"] is False  # the wrong model's own path
+    assert res.work.repair.first_validation.tip_in_target is False  # the wrong model's own path
     assert res.solved and res.validated.repaired, res.message
     tip = solve(res.path[-1][None], Tubes.paper())["tips_mm"][0, 0]
     assert np.linalg.norm(tip - [37.2, -27.2, 181.6]) <= 3.0
@@ -263,10 +263,19 @@ def run_cli(args, capsys):
     return rc, out.out, out.err
 
 
+ACTUATORS = """actuators:
+  beta1: {counts_per_mm: 1000, offset: 80000, sign: -1, name: stage1}
+  alpha3: {counts_per_rad: 651.9, offset: 12}
+"""
+
+
 def test_cli_plan_end_to_end(tmp_path, capsys):
     out_dir = tmp_path / "out"
+    robot = tmp_path / "driven.yaml"  # the nominal robot with actuators: same mechanics
+    robot.write_text((REPO / "ctrplan" / "data" / "nominal.yaml").read_text() + ACTUATORS)
     rc, out, err = run_cli(["plan", str(SCENES / "open.yaml"), "--backend", "cosserat", "--seed", "0",
-                            "--time-limit", "8", "--out", str(out_dir), "--json"], capsys)
+                            "--time-limit", "8", "--out", str(out_dir), "--json", "--robot", str(robot),
+                            "--rate", "20"], capsys)
     assert rc == 0, err
     doc = json.loads(out)
     for key in ("solved", "planner", "backend", "planning_time_s", "kinematics_calls", "path", "tip_mm",
@@ -320,20 +329,32 @@ def assert_structure_clearances(listed: list[dict], full: dict) -> None:
 
 
 def assert_trajectory_within_limits(path, full: dict, scene) -> None:
-    """trajectory.csv: every validated state once, in order, from rest at the start to the goal; the
-    mean joint speed between rows (the distance over the time, computed here) within the robot's
-    limits; tips and clearances those of the exact validation."""
+    """trajectory.csv at 20 Hz: rows 0.05 s apart from rest at the start to rest at the goal; the
+    velocity columns the finite differences of the joints, within the robot's speed limits, their
+    changes within its acceleration limits (all computed here); the actuator columns the robot
+    file's map; tips of the exact model (recomputed here); no row in contact."""
     lines = path.read_text().splitlines()
-    assert lines[0] == "time_s,beta1,beta2,beta3,alpha1,alpha2,alpha3,tip_x,tip_y,tip_z,clearance_mm"
+    assert lines[0] == ("time_s,beta1,beta2,beta3,alpha1,alpha2,alpha3,beta1_mm_per_s,beta2_mm_per_s,"
+                        "beta3_mm_per_s,alpha1_rad_per_s,alpha2_rad_per_s,alpha3_rad_per_s,stage1,"
+                        "alpha3_counts,stage1_per_s,alpha3_counts_per_s,tip_x,tip_y,tip_z,clearance_mm")
     rows = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
-    t, q, tip, clearance = rows[:, 0], rows[:, 1:7], rows[:, 7:10], rows[:, 10]
-    np.testing.assert_allclose(q, full["dense_path"], atol=1e-5)
-    np.testing.assert_allclose(tip, np.array(full["backbones_mm"])[:, -1], atol=1e-4)  # path.json: 4 decimals
-    assert t[0] == 0.0 and np.all(np.diff(t) > 0)
-    speed, _ = scene.robot.limits.per_joint(3)
-    mean_speed = np.abs(np.diff(q, axis=0)) / np.diff(t)[:, None]
-    assert np.all(mean_speed <= speed * (1 + 1e-3) + 1e-6)
-    assert clearance.min() == pytest.approx(full["validated"]["min_clearance_mm"], abs=1e-3)
+    t, q, qd, act, tip, clearance = (rows[:, 0], rows[:, 1:7], rows[:, 7:13], rows[:, 13:17], rows[:, 17:20],
+                                     rows[:, 20])
+    np.testing.assert_allclose(np.diff(t)[:-1], 0.05, atol=1e-6)  # the last row is the end itself
+    np.testing.assert_allclose(q[[0, -1]], np.array(full["path"])[[0, -1]], atol=1e-5)
+    np.testing.assert_allclose(qd[[0, -1]], 0.0, atol=1e-9)
+    speed, accel = scene.robot.limits.per_joint(3)
+    assert np.all(np.abs(qd) <= speed * (1 + 1e-6))
+    assert np.all(np.abs(np.diff(qd, axis=0)) / np.diff(t)[:, None] <= accel * (1 + 1e-3))
+    mid = 0.5 * (qd[1:] + qd[:-1])  # trapezoid rule: exact for linear velocity, off by a dt^2 / 4 at a kink
+    err = np.abs(np.diff(q, axis=0) - mid * np.diff(t)[:, None])
+    assert np.all(err <= accel * 0.05**2 / 4 + 1e-6)
+    np.testing.assert_allclose(act[:, 0], -1000 * q[:, 0] + 80000, atol=1e-3)
+    np.testing.assert_allclose(act[:, 1], 651.9 * q[:, 5] + 12, atol=1e-3)
+    np.testing.assert_allclose(act[:, 2], -1000 * qd[:, 0], atol=1e-3)
+    exact = CosseratBackend(scene.robot).forward(q[::10], points=2).tip_mm
+    np.testing.assert_allclose(tip[::10], exact, atol=1e-3)
+    assert clearance.min() > 0.0
 
 
 MINI = """\
@@ -415,18 +436,18 @@ def test_compilation_is_outside_the_time_limit(open_scene):
     cold = SlowFirstCall(resolve_backend("pinn", open_scene.robot))
     res = plan(open_scene, cold, seed=0, time_limit_s=1.5)
     assert res.solved, res.message
-    assert res.details["compile_s"] >= 4.0
+    assert res.work.compile_s >= 4.0
     assert res.planning_time_s < 4.0 and not res.cut_short  # the 4 s of compiling are not in it
 
 
 def test_a_tiny_budget_ends_the_search_by_work_not_by_the_clock(open_scene, exact):
-    """A 1 ms time budget buys 5 exact states: the first goal-sampling batch (hundreds of states) uses
-    them up. The work budget decides (the 5 ms guard has passed too, but work is checked first), so
-    the verdict does not depend on the machine."""
-    res = plan(open_scene, exact, seed=0, time_limit_s=0.001)
+    """A work budget of 5 exact states (what 1 ms buys), no time limit: the first goal-sampling batch
+    (hundreds of states) uses them up. The work budget decides (the 30 ms guard has passed too, but
+    work is checked first), so the verdict does not depend on the machine."""
+    res = plan(open_scene, exact, seed=0, time_limit_s=0.001, max_states=5)
     assert not res.solved and res.status == "TIMEOUT"
     assert res.max_states == 5 and "budget used up while sampling goal configurations" in res.message
-    assert res.details["budget"]["states"] >= 5 and not res.cut_short
+    assert res.states >= 5 and not res.cut_short
 
 
 def test_library_resolve_backend_does_not_fall_back(tmp_path):

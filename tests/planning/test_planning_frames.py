@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from ctrplan.planning import plan, validate_path
-from ctrplan.planning.validate import clearance_along
+from ctrplan.planning.validate import CLEARANCE_CAP_MM
 from ctrplan.scene.loader import load_scene
 from tests.independent.cosserat import Tubes, solve
 from tests.independent.geometry import axis_angle, box_gap, sphere_gap
@@ -85,7 +85,7 @@ def test_validation_checks_the_robot_where_the_base_pose_puts_it(tmp_path):
     goal = scene.robot.domain.from_box(np.array([0, 10, 5, 0.5, 3.0, 0.3]))  # through the ball
     vp = validate_path(scene, np.stack([scene.start, goal]))
     rep = vp.report
-    assert not rep.collision_free and rep.first_collision["obstacles"] == ["ball"]
+    assert not rep.collision_free and rep.first_collision.obstacles == ("ball",)
     np.testing.assert_allclose(rep.tip_mm, to_scene(tip_mm(goal)[0]), atol=1e-3)
     i = rep.colliding_states[0]
     hit = surface_distance(to_scene(vp.exact.positions_mm[i]), vp.exact.radius_mm[i])
@@ -116,13 +116,15 @@ def test_validation_keeps_the_margin_and_measures_the_clearance(tmp_path):
     center = np.array([0.0, 0.75 + radius + gap, 2.5])
     ball = f"\n- {{name: ball, sphere: {{center: {vec(to_scene(center))}, radius: {radius}}}}}"
     scene = load_scene(write_scene(tmp_path, ball, tip_mm(q)[0], name="beside"))
-    vp = validate_path(scene, q[None])
+    vp = validate_path(scene, q[None], measure=True)
     rep = vp.report
-    assert not rep.collision_free and rep.first_collision["obstacles"] == ["ball"]
+    assert not rep.collision_free and rep.first_collision.obstacles == ("ball",)
     assert rep.min_clearance_mm == pytest.approx(gap, abs=0.01)
-    along = clearance_along(scene, vp.exact, 3.0)[0]  # per capsule, as plan.html colours the backbone
+    along = vp.clearance_mm[0]  # per capsule, as plan.html colours the backbone
     assert along[0] == pytest.approx(gap, abs=0.01) and along.min() == pytest.approx(gap, abs=0.01)
-    assert along[-1] == 3.0  # the distal capsules are far from the ball: capped
+    assert along[-1] == CLEARANCE_CAP_MM  # the distal capsules are far from the ball: capped
+    (ball_clearance,) = rep.structures  # the one structure, measured at the state and capsule nearest it
+    assert ball_clearance.distance_mm == pytest.approx(gap, abs=0.01) and ball_clearance.below_margin
     free = validate_path(scene, q[None], margin_mm=0.0).report
     assert free.collision_free and free.ok
 

@@ -12,7 +12,7 @@ from ctrplan.base.parallel import InlinePool
 from ctrplan.cli.app import main
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.planning import BoxSpace
-from ctrplan.planning.roadmap.build import Source, build
+from ctrplan.planning.roadmap.build import build
 from ctrplan.planning.roadmap.query import RoadmapPlanner
 from ctrplan.planning.roadmap.store import fingerprints, load_roadmap
 from ctrplan.scene.loader import load_scene
@@ -20,6 +20,7 @@ from ctrplan.scene.objects import TargetRegion
 from tests.independent.cosserat import Tubes, solve
 from tests.independent.geometry import axis_angle, box_gap, sphere_gap
 from tests.paths import SCENES
+from tests.roadmaps import small_roadmap
 
 OPEN = SCENES / "open.yaml"
 FIRST_NODES = 600
@@ -29,10 +30,7 @@ FIRST_NODES = 600
 def built(tmp_path_factory):
     """A roadmap of open.yaml grown to `FIRST_NODES` nodes in this process (a budget in work)."""
     folder = tmp_path_factory.mktemp("roadmap")
-    source = Source(str(OPEN), "pinn")
-    ctx = source()
-    rm = build(ctx, source, folder, InlinePool(context=lambda: ctx), time_limit_s=600.0, seed=0, workers=1,
-               executor="test", max_nodes=FIRST_NODES)
+    ctx, source, rm = small_roadmap(folder, 0, FIRST_NODES)
     return ctx, source, folder, rm
 
 

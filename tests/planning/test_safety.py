@@ -71,7 +71,7 @@ def test_a_right_tip_on_a_colliding_body_is_never_solved(collar_scene):
     assert v is not None, res.message  # the folded model found a path ...
     assert v.tip_in_target and v.converged  # ... whose exact tip is in the target ...
     assert not v.collision_free  # ... and whose exact body goes through the collar
-    assert v.first_collision["obstacles"][0].startswith("collar")
+    assert v.first_collision.obstacles[0].startswith("collar")
     assert not res.solved and res.to_json()["solved"] is False
     assert "collides" in res.message
 
@@ -82,8 +82,8 @@ def test_repair_of_a_colliding_body_is_checked_again(collar_scene):
     exactly when the plan says solved (distances computed here, not by FCL)."""
     folded = FoldedBodyBackend(CosseratBackend(collar_scene.robot))
     res = plan(collar_scene, folded, seed=0, time_limit_s=8.0)
-    first = res.details["first_validation"]  # a repair was tried
-    assert first["collision_free"] is False and first["tip_in_target"] is True
+    first = res.work.repair.first_validation  # a repair was tried
+    assert first.collision_free is False and first.tip_in_target is True
     p, r = res.dense.exact.positions_mm, res.dense.exact.radius_mm
     gap = min(box_gap(p, r, o.pose[:3, 3], o.size, o.pose[:3, :3]) for o in collar_scene.obstacles
               if o.name.startswith("collar"))
@@ -116,6 +116,6 @@ def test_an_obstacle_thinner_than_the_resolution_is_caught():
     assert np.linalg.norm(cbb.tip_mm[2] - cbb.tip_mm[1]) > 4 * 0.45  # the states step over the plate
 
     rep = validate_path(thin, np.stack([a, b]), exact, exact=exact, resolution=resolution).report
-    assert not rep.collision_free and rep.first_collision["obstacles"] == ["plate"]
+    assert not rep.collision_free and rep.first_collision.obstacles == ("plate",)
     assert rep.states > len(coarse) and rep.max_step_mm <= rep.step_bound_mm + 1e-9
     assert np.isclose(rep.step_bound_mm, sc.robot.outer_radii_mm[0] + sc.settings.margin_mm)

@@ -57,7 +57,7 @@ def test_a_structure_margin_invalidates_a_close_path_and_the_replan_keeps_it(ope
     guarded = with_ball_margin(open_scene, margin)
     check = validate_path(guarded, first.path, exact=exact)
     assert not check.report.collision_free
-    assert check.report.first_collision["obstacles"] == ["ball"]
+    assert check.report.first_collision.obstacles == ("ball",)
     # the same path under the scene without the margin stays valid (the margin did it)
     assert validate_path(open_scene, first.path, exact=exact).report.collision_free
 

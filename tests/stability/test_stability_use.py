@@ -141,7 +141,7 @@ def test_exact_validation_fails_every_unstable_state(tmp_path, private_cache):
     assert rep.converged and rep.tip_in_target
     assert not rep.stable and not rep.ok
     assert rep.colliding_states == list(range(rep.states))
-    assert not rep.collision_free and "unstable" in " ".join(rep.first_collision["obstacles"])
+    assert not rep.collision_free and "unstable" in rep.first_collision.why
     control = validate_path(scene, np.array([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])).report
     assert control.stable and control.collision_free and control.colliding_states == []
 

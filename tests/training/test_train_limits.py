@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 from ctrplan.cli.app import main
-from ctrplan.training.target import ACCURACY_TARGET
 from ctrplan.training.recipes import get_recipe, pool_size
+from ctrplan.training.target import ACCURACY_TARGET
 from ctrplan.training.trainer import train
 from tests.cli.test_ctrl_c import interrupt
 from tests.paths import REPO
@@ -80,7 +80,8 @@ def test_a_model_below_its_target_says_so_in_its_card_and_summary(quick_model):
     assert card["meets_target"] is (tip["p99_9"] <= 0.5 and tip["max"] <= 1.0) is False
     text = " ".join(err.split())
     assert "this model MISSES its accuracy target" in text
-    assert "accuracy: misses the accuracy target (tube-1 tip p99.9 <= 0.5 mm, max <= 1 mm) in 0.05 min" in text
+    assert ("accuracy: misses the accuracy target (tube-1 tip p99.9 <= 0.5 mm, max <= 1 mm) in 0.05 min"
+            in text)
     curve = card["time_to_target"]["curve"]
     assert curve and curve[-1]["step"] == card["steps"] and card["time_to_target"]["reached_at_s"] is None
 

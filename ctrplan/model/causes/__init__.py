@@ -26,7 +26,11 @@ and of the solver).
 
 from __future__ import annotations
 
-from ctrplan.model.causes import measurement_side, mechanics  # noqa: F401  (they register their causes)
+# Importing a module registers its causes, in this order (the order of `CAUSES`: mechanics first).
+from ctrplan.model.causes import mechanics  # noqa: F401
+
+# isort: split
+from ctrplan.model.causes import measurement_side  # noqa: F401
 from ctrplan.model.causes.base import EFFECTS, cause_table
 
 #: Every cause name, in definition order.

@@ -14,12 +14,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ctrplan.kinematics import make_backend
 from ctrplan.kinematics.base import Backend
-from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.planning.ik import IKResult, backend_tip_jacobian, solve_ik
 from ctrplan.planning.model import PlanningModel
-from ctrplan.planning.planner import compile_kernels, exact_goal, search
+from ctrplan.planning.planner import compile_kernels, exact_goal
+from ctrplan.planning.search import search
 from ctrplan.planning.space import BoxSpace
 from ctrplan.planning.validate import ValidatedPath, validate_path
 from ctrplan.planning.validity import ConfigurationChecker
@@ -51,25 +50,15 @@ class PlanningContext:
         return float(self.scene.settings.resolution_mm)
 
 
-def planning_context(scene: Scene, backend: Backend, model: str | None = None,
-                     compile_now: bool = True) -> PlanningContext:
-    """The `PlanningContext` of ``scene`` with ``backend`` (PINN weights ``model``, None: the
-    default), as `ctrplan.planning.plan` sets it up (kernels compiled first when ``compile_now``).
-    The exact model is the Cosserat solver; behind a surrogate it starts its shooting from the
-    surrogate's predicted initial states (the ``hybrid`` backend: the same exact solutions in fewer
-    Newton iterations, rows the guess cannot bring home retried cold)."""
-    loaded = backend
-    if backend.exact:
-        exact = backend
-    elif backend.name == "pinn":
-        exact = make_backend("hybrid", scene.robot, model)
-    else:
-        exact = CosseratBackend(scene.robot)
-    model = PlanningModel.build(scene, backend, exact)  # stability decided once, margins as in plan
+def planning_context(scene: Scene, backend: Backend, compile_now: bool = True) -> PlanningContext:
+    """The `PlanningContext` of ``scene`` with ``backend``, as `ctrplan.planning.plan` sets it up: the
+    same planning model (margins, stability decision) and the same exact companion
+    (`ctrplan.kinematics.registry.exact_companion`); kernels compiled first when ``compile_now``."""
+    model = PlanningModel.build(scene, backend)  # stability decided once, margins as in plan
     if compile_now:
         compile_kernels(model)
     checker = ConfigurationChecker(model)
-    return PlanningContext(scene, loaded, model.stability.apply(backend), model.exact, checker,
+    return PlanningContext(scene, backend, model.stability.apply(backend), model.exact, checker,
                            model.margin_mm, model.margin_source,
                            backend_tip_jacobian(model.backend, model.space),
                            ConfigurationChecker(model.exact_search()))
@@ -189,3 +178,18 @@ def single_query_path(ctx: PlanningContext, region: TargetRegion, seed: int, max
 def densify(ctx: PlanningContext, path_q: np.ndarray, step_mm: float) -> np.ndarray:
     """The path with states added so consecutive ones are at most ``step_mm`` apart (planning metric)."""
     return ctx.space.densify(path_q, step_mm)
+
+
+def with_world(ctx: PlanningContext, scene: Scene, world) -> PlanningContext:
+    """``ctx`` on ``scene`` -- the same robot, start and joint box with obstacles that moved -- whose
+    collision world is ``world`` (`ctrplan.collision.world.CollisionWorld.moved`): planning and exact
+    checkers made again, backends, margins and kernels kept."""
+    model = replace(ctx.checker.model, scene=scene, world=world)
+    return replace(ctx, scene=scene, checker=ConfigurationChecker(model),
+                   exact_checker=ConfigurationChecker(model.exact_search()))
+
+
+def checker_with_world(ctx: PlanningContext, world) -> ConfigurationChecker:
+    """A planning checker of ``ctx`` (backend and margins) against ``world`` alone (e.g. one structure
+    that moved)."""
+    return ConfigurationChecker(replace(ctx.checker.model, world=world))

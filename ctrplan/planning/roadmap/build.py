@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -36,6 +36,7 @@ from ctrplan.planning.roadmap._adapter import (
     single_query_path,
 )
 from ctrplan.planning.roadmap.store import Roadmap, fingerprints, load_roadmap, read_meta
+from ctrplan.planning.roadmap.sweep import build_sweep
 from ctrplan.scene.objects import TargetRegion
 
 #: Seconds between checkpoints of a running build.
@@ -82,7 +83,7 @@ class Source:
         from ctrplan.scene.loader import load_scene
 
         scene = load_scene(self.scene_file)
-        return planning_context(scene, make_backend(self.backend, scene.robot, self.model), self.model)
+        return planning_context(scene, make_backend(self.backend, scene.robot, self.model))
 
 
 def check_job(ctx: PlanningContext, job: dict) -> dict:
@@ -228,17 +229,30 @@ class BuildStats:
     edges_valid: int = 0
     worker_s: float = 0.0
     worker_cpu_s: float = 0.0
+    #: per focus region: the distance (mm) from it of the nearest tip of a node connected to the start
+    #: (0: inside) and how many such tips lie inside (`reach`)
+    reach: dict = field(default_factory=dict)
 
 
 class Grower:
     """Makes jobs from the graph and adds their results (see the module docstring)."""
 
     def __init__(self, ctx: PlanningContext, graph: _Graph, source: Source, rng: np.random.Generator,
-                 focus: TargetRegion):
-        self.ctx, self.graph, self.source, self.rng, self.focus = ctx, graph, source, rng, focus
+                 regions: list[tuple[str, TargetRegion]]):
+        self.ctx, self.graph, self.source, self.rng, self.regions = ctx, graph, source, rng, regions
         self.range_mm = float(ctx.scene.settings.range_mm or 10.0)
         self.stats = BuildStats()
         self.made = 0
+        self.turns = {"grow": 0, "seed": 0}  # jobs of each kind made: the regions take turns in each
+        self.region = 0  # the focus region of the job being made
+
+    @property
+    def focus(self) -> TargetRegion:
+        return self.regions[self.region][1]
+
+    def _turn(self, kind: str) -> None:
+        self.region = self.turns[kind] % len(self.regions)
+        self.turns[kind] += 1
 
     def _parents(self, m: int) -> tuple[np.ndarray, np.ndarray]:
         """Parents of ``m`` candidates: spread ones (weight 1 / (1 + degree)) and focus ones (among
@@ -248,8 +262,9 @@ class Grower:
         w = 1.0 / (1.0 + g.deg[conn])
         k = int(round(FOCUS_SHARE * m))
         spread = self.rng.choice(conn, size=m - k, p=w / w.sum())
-        d = self.focus.distance(g.tips[conn])
-        near = conn[np.argsort(np.where(np.isfinite(d), d, np.inf))[:FOCUS_POOL]]
+        d = np.where(np.isfinite(d := self.focus.distance(g.tips[conn])), d, np.inf)
+        self.stats.reach[self.regions[self.region][0]] = _reach(d)
+        near = conn[np.argsort(d)[:FOCUS_POOL]]
         return spread, self.rng.choice(near, size=k)
 
     def _steps(self, spread: np.ndarray, focus: np.ndarray) -> np.ndarray:
@@ -284,7 +299,9 @@ class Grower:
         """Every `SEED_EVERY`-th job (the first ones included) a seed job, else a grow job."""
         self.made += 1
         if self.made % SEED_EVERY != 1:
+            self._turn("grow")
             return self.make_job()
+        self._turn("seed")
         aim = self.focus.center + 1.25 * (self.focus.sample(1, self.rng)[0] - self.focus.center)
         job = {"kind": "seed", "source": self.source, "aim": aim, "tolerance_mm": SEED_TOLERANCE_MM,
                "seed": int(self.rng.integers(2**31)), "max_states": SEED_STATES,
@@ -326,6 +343,18 @@ class Grower:
         st.edges_valid += int(ok.sum())
 
 
+def _reach(d: np.ndarray) -> dict:
+    """How close tips at distances ``d`` (mm, 0 inside) came to a region."""
+    return {"closest_mm": round(float(d.min(initial=np.inf)), 3), "inside": int((d <= 0).sum())}
+
+
+def reach(roadmap: Roadmap, regions: list[tuple[str, TargetRegion]]) -> dict:
+    """Per region (name -> ``closest_mm``, ``inside``): how close the tips of the nodes connected to
+    the start came to it."""
+    tips = roadmap.tips[roadmap.connected]
+    return {name: _reach(np.nan_to_num(region.distance(tips), nan=np.inf)) for name, region in regions}
+
+
 Progress = Callable[[dict], None]
 
 
@@ -354,22 +383,28 @@ def open_build(ctx: PlanningContext, folder: Path, meta: dict) -> Roadmap:
 
 def build(ctx: PlanningContext, source: Source, folder: Path, pool: Pool, *, time_limit_s: float,
           seed: int, workers: int, executor: str, progress: Progress = _quiet,
-          max_nodes: int | None = None) -> Roadmap:
+          max_nodes: int | None = None, focus: list[tuple[str, TargetRegion]] | None = None,
+          index: bool = True) -> Roadmap:
     """Grow the roadmap in ``folder`` (new, or continued) until its total build time reaches
     ``time_limit_s`` (or it has ``max_nodes`` nodes: a budget in work), with ``workers`` jobs in flight
-    on ``pool``; saved every `CHECKPOINT_S` s, at the end and when interrupted. Returns the saved
-    roadmap."""
+    on ``pool``, towards the ``focus`` regions in turn (name, region; default: the scene's target);
+    saved every `CHECKPOINT_S` s, at the end and when interrupted, with how close it came to each
+    region (``meta["reach"]``, also in every ``progress`` report's stats). Then, with ``index``, the
+    sweep index of the finished roadmap (`ctrplan.planning.roadmap.sweep`) on the same pool, saved
+    beside it (``progress({"indexing": (done, total)})``). Returns the saved roadmap."""
+    focus = focus or [("target", ctx.scene.target)]
     meta = {"scene_name": ctx.scene.name, "scene_file": source.scene_file, "robot": ctx.scene.robot.name,
             "backend": source.backend, "model": source.model,
             "fingerprints": fingerprints(ctx.scene, ctx.loaded),
             "settings": {"range_mm": ctx.scene.settings.range_mm or 10.0, "neighbours": NEIGHBOURS,
-                         "min_separation_mm": MIN_SEPARATION_MM, "focus": ctx.scene.target.to_dict(),
+                         "min_separation_mm": MIN_SEPARATION_MM,
+                         "focus": {name: region.to_dict() for name, region in focus},
                          "planning_margin_mm": ctx.margin_mm, "margin_source": ctx.margin_source}}
     roadmap = open_build(ctx, folder, meta)
     runs = list(roadmap.meta.get("runs", []))
     before = float(sum(r["seconds"] for r in runs))
     graph = _Graph(ctx, roadmap)
-    grower = Grower(ctx, graph, source, np.random.default_rng([seed, len(runs)]), ctx.scene.target)
+    grower = Grower(ctx, graph, source, np.random.default_rng([seed, len(runs)]), focus)
     run = {"seed": seed, "workers": workers, "executor": executor, "seconds": 0.0, "nodes_before": graph.n}
     progress({"starting": workers})
     for _ in range(workers):  # every worker loads its model and scene before the clock starts
@@ -382,6 +417,7 @@ def build(ctx: PlanningContext, source: Source, folder: Path, pool: Pool, *, tim
         run["seconds"] = round(time.perf_counter() - t0, 2)
         run.update(nodes_after=graph.n, **vars(grower.stats))
         done = graph.roadmap({**meta, "runs": [*runs, run], "build_s": round(before + run["seconds"], 2)})
+        done.meta["reach"] = reach(done, focus)
         done.save(folder)
         return done
 
@@ -408,4 +444,8 @@ def build(ctx: PlanningContext, source: Source, folder: Path, pool: Pool, *, tim
             grower.integrate(in_flight.pop(number), result)
     finally:
         done = save()
+    if index:
+        sweep = build_sweep(ctx, done, lambda k, n: progress({"indexing": (k, n)}), pool,
+                            in_flight=max(2, 2 * workers))
+        sweep.save(folder)
     return done

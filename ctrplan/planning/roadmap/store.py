@@ -43,9 +43,9 @@ def scene_fingerprint(scene: Scene) -> str:
 
 
 def model_fingerprint(backend: Backend) -> str:
-    """``<backend>:<sha256 of the weights>`` for a network backend, ``<backend>`` for an exact one."""
-    pinn = getattr(backend, "pinn", backend)  # hybrid keeps its PINN in .pinn
-    sha = getattr(pinn, "card", {}).get("weights_sha256")
+    """``<backend>:<sha256 of the weights>`` for a backend with a model card (`Backend.model_card`),
+    ``<backend>`` for one without."""
+    sha = (backend.model_card or {}).get("weights_sha256")
     return f"{backend.name}:{sha}" if sha else backend.name
 
 

@@ -1,10 +1,11 @@
-"""Pictures and the offline report of a design study.
+"""The figures and the page of a design study (`ctrplan.design.outputs.StudyOutcome`).
 
 `pareto_figure` draws targets reached over the trials and against every other objective (Pareto front,
 best and base design marked); `overview_figure` the anatomy around the targets with the best design's
 backbone at the end of each path; `write_report` one self-contained ``report.html`` (images embedded,
 no external resource): the reach table (targets x base design, best design), the best design's
-parameters, the overview, each target's path, the Pareto plot and every trial.
+parameters, the overview, each target's path, the Pareto plot and every trial. `write_study_figures`
+writes them all, and each reached target's plan outputs, as ``ctrplan design`` leaves them.
 """
 
 from __future__ import annotations
@@ -18,33 +19,39 @@ from typing import Any
 
 import numpy as np
 
-from ctrplan.base.dataio import save_figure
+from ctrplan.design.outputs import StudyOutcome
 from ctrplan.design.ranking import Design, ranked
+from ctrplan.design.record import DesignRecord
 from ctrplan.design.task import DesignTask
+from ctrplan.viz.plan_outputs import plan_document, write_plan_outputs
+from ctrplan.viz.plan_plot import triangles_in
+from ctrplan.viz.style import pyplot, write_png
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+def write_study_figures(outcome: StudyOutcome, out: Path) -> None:
+    """Every reached target's plan outputs (``paths/<target>/``: path.json, plan.png, plan.html,
+    obstacles.ply), ``pareto.png`` and then ``report.html``, which embeds them."""
+    for best in outcome.paths.values():
+        doc = plan_document(best.result, best.scene, best.scene_file, None)
+        write_plan_outputs(best.folder, best.scene, best.result, doc, best.trajectory)
+    pareto_figure(outcome.task, outcome.designs, outcome.front, outcome.best, outcome.nominal,
+                  out / "pareto.png")
+    write_report(outcome, out)
 
 
 def pareto_figure(task: DesignTask, designs: list[Design], front: list[Design], best: Design | None,
                   nominal: Design | None, path: Path) -> Path:
     """``pareto.png``: targets reached per trial, then against each other objective."""
-    plt = _pyplot()
+    plt = pyplot()
     others = task.objectives[1:]
     fig, axes = plt.subplots(1, 1 + len(others), figsize=(5.2 * (1 + len(others)), 4.4), squeeze=False)
     axes = axes[0]
     n_targets = len(task.targets)
-    feasible = [d for d in designs if d.record["feasible"]]
-    infeasible = [d for d in designs if not d.record["feasible"]]
+    feasible = [d for d in designs if d.record.feasible]
+    infeasible = [d for d in designs if not d.record.feasible]
 
     def reached(ds: list[Design]) -> np.ndarray:
-        return np.array([len(d.record["reached"]) for d in ds], dtype=float)
+        return np.array([len(d.record.reached) for d in ds], dtype=float)
 
     ax = axes[0]
     ax.plot([d.trial for d in infeasible], reached(infeasible), "x", color="0.6", label="infeasible")
@@ -54,19 +61,19 @@ def pareto_figure(task: DesignTask, designs: list[Design], front: list[Design], 
         ax.step(trials, np.maximum.accumulate(reached(feasible)), where="post", color="tab:red",
                 label="best trial so far")
     if nominal is not None:
-        ax.axhline(len(nominal.record["reached"]), color="k", ls="--", lw=1, label="base design")
+        ax.axhline(len(nominal.record.reached), color="k", ls="--", lw=1, label="base design")
     ax.set_xlabel("trial")
     ax.set_ylabel(f"targets reached (of {n_targets})")
     ax.set_title("search progress", fontsize=10)
     rng = np.random.default_rng(0)  # a little vertical spread: many designs share a count
     for ax, objective in zip(axes[1:], others, strict=True):
-        def x(ds: list[Design], value: Callable[[dict], float] = objective.value) -> list[float]:
+        def x(ds: list[Design], value: Callable[[DesignRecord], float] = objective.value) -> list[float]:
             return [value(d.record) for d in ds]
 
         jitter = rng.uniform(-0.12, 0.12, len(feasible))
         ax.plot(x(feasible), reached(feasible) + jitter, "o", color="0.55", ms=4, label="feasible design")
         ax.plot(x(front), reached(front), "o", mfc="none", mec="tab:red", ms=9, mew=1.5, label="Pareto front")
-        if nominal is not None and nominal.record["feasible"]:
+        if nominal is not None and nominal.record.feasible:
             ax.plot(x([nominal]), reached([nominal]), "D", color="k", ms=7, label="base design")
         if best is not None:
             ax.plot(x([best]), reached([best]), "*", color="gold", mec="k", ms=16,
@@ -82,9 +89,7 @@ def pareto_figure(task: DesignTask, designs: list[Design], front: list[Design], 
     fig.suptitle(f"{task.name}: {len(designs)} trials, {len(feasible)} feasible", fontsize=11)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    save_figure(fig, path, dpi=100)
-    plt.close(fig)
-    return path
+    return write_png(fig, path, dpi=100)
 
 
 def _region_outline(region, a: int, b: int) -> np.ndarray:
@@ -97,29 +102,16 @@ def _region_outline(region, a: int, b: int) -> np.ndarray:
     return pts[ConvexHull(pts).vertices]
 
 
-def overview_figure(task: DesignTask, best: Design | None) -> bytes:
+def overview_figure(task: DesignTask, backbones: list[tuple[str, np.ndarray]]) -> bytes:
     """PNG: side (z-y) and top (z-x) views of the anatomy around the targets, every target in its
-    colour, and the best design's backbone at the end of its path to each reached target (same
-    colour)."""
+    colour, and the best design's ``backbones`` (target name, (P, 3) scene frame, mm) at the end of
+    its path to each reached target (same colour)."""
     from matplotlib.collections import PolyCollection
 
-    from ctrplan.design.space import build_robot
-    from ctrplan.kinematics import CosseratBackend
-    from ctrplan.viz.plan_plot import triangles_in
-
-    plt = _pyplot()
+    plt = pyplot()
     scene = task.scene
     centres = np.array([t.region.center for t in task.targets])
     lo, hi = centres.min(axis=0) - 25.0, centres.max(axis=0) + 12.0
-    backbones: list[tuple[str, np.ndarray]] = []
-    if best is not None:
-        record = best.record
-        robot = build_robot(record["robot"], "best design")
-        reached = [t for t in record["targets"] if t["reached"]]
-        if reached:
-            bb = CosseratBackend(robot).forward(np.array([t["path"][-1] for t in reached]), points=60,
-                                                check=False)
-            backbones = list(zip([t["name"] for t in reached], scene.to_scene(bb.positions_mm), strict=True))
     bounds = np.stack([lo, hi])
     tris = triangles_in(scene, bounds, max_triangles=15000)
     colours = plt.get_cmap("tab10")
@@ -170,23 +162,25 @@ def _fmt(value: Any) -> str:
     return html.escape(str(value))
 
 
-def _reach_cell(record: dict | None, name: str) -> str:
+def _reach_cell(record: DesignRecord | None, name: str) -> str:
     if record is None:
         return "–"
-    if not record["feasible"]:
+    if not record.feasible:
         return "infeasible"
-    t = next(t for t in record["targets"] if t["name"] == name)
-    if t["reached"]:
-        return (f'<span class="yes">reached</span><br><small>clearance {t["min_clearance_mm"]:.2f} mm, '
-                f'{t["planning_time_s"]:.1f} s</small>')
-    return f'<span class="no">no</span><br><small>{html.escape(t["message"])}</small>'
+    t = record.target(name)
+    if t.reached:
+        return (f'<span class="yes">reached</span><br><small>clearance {t.min_clearance_mm:.2f} mm, '
+                f'{t.planning_time_s:.1f} s</small>')
+    return f'<span class="no">no</span><br><small>{html.escape(t.message)}</small>'
 
 
-def write_report(task: DesignTask, doc: dict, designs: list[Design], best: Design | None,
-                 nominal: Design | None, out: Path) -> Path:
+def write_report(outcome: StudyOutcome, out: Path) -> Path:
     """``report.html`` in ``out`` (after the other outputs: it embeds ``pareto.png`` and each
     reached target's ``plan.png``)."""
     from ctrplan.base.dataio import atomic_write
+
+    task, doc, designs = outcome.task, outcome.doc, outcome.designs
+    best, nominal = outcome.best, outcome.nominal
 
     parts = [f"<h1>ctrplan design: {html.escape(task.name)}</h1>",
              f"<p>Study <b>{html.escape(doc['study'])}</b> in <code>{html.escape(doc['storage'])}</code>: "
@@ -202,8 +196,8 @@ def write_report(task: DesignTask, doc: dict, designs: list[Design], best: Desig
     rows = [[f"<b>{html.escape(t.name)}</b>", html.escape(t.reason),
              _reach_cell(None if nominal is None else nominal.record, t.name),
              _reach_cell(None if best is None else best.record, t.name)] for t in task.targets]
-    n_nom = "–" if nominal is None else len(nominal.record["reached"])
-    n_best = "–" if best is None else len(best.record["reached"])
+    n_nom = "–" if nominal is None else len(nominal.record.reached)
+    n_best = "–" if best is None else len(best.record.reached)
     rows.append(["<b>total</b>", "", f"<b>{n_nom} of {len(task.targets)}</b>", f"<b>{n_best} of "
                  f"{len(task.targets)}</b>"])
     is_base = best is not None and best.trial is None
@@ -216,13 +210,13 @@ def write_report(task: DesignTask, doc: dict, designs: list[Design], best: Desig
                   _parameter_table(task, best, nominal),
                   "<p>Robot file: <code>best_robot.yaml</code>; each target's scene: "
                   "<code>paths/&lt;target&gt;/scene.yaml</code>.</p>"]
-    parts += ["<h2>Anatomy and paths</h2>", _img(overview_figure(task, best), "overview")]
+    parts += ["<h2>Anatomy and paths</h2>", _img(overview_figure(task, outcome.backbones), "overview")]
     for t in task.targets:
         png = out / "paths" / t.name / "plan.png"
         if png.is_file():
             parts += [f"<h3>{html.escape(t.name)}</h3>", _img(png.read_bytes(), f"path to {t.name}"),
                       f'<p><a href="paths/{html.escape(t.name)}/plan.html">interactive 3-D view</a></p>']
-    infeasible = [d for d in designs if not d.record["feasible"]]
+    infeasible = [d for d in designs if not d.record.feasible]
     parts += ["<h2>Pareto front</h2>", _img((out / "pareto.png").read_bytes(), "Pareto plot"),
               "<h2>Every trial</h2><p>Feasible designs best first, then the infeasible ones.</p>",
               f'<div class="wide">{_designs_table(task, ranked(designs, task) + infeasible)}</div>']
@@ -253,7 +247,7 @@ def _warnings(doc: dict, is_base: bool) -> list[str]:
 
 def _parameter_table(task: DesignTask, best: Design, nominal: Design | None) -> str:
     base = task.robot.to_dict()["tubes"]
-    mine = best.record["robot"]["tubes"]
+    mine = best.record.robot["tubes"]
     rows = []
     for i, (b, m) in enumerate(zip(base, mine, strict=True)):
         for key in ("inner_diameter_mm", "outer_diameter_mm", "straight_length_mm", "curved_length_mm",
@@ -268,15 +262,15 @@ def _parameter_table(task: DesignTask, best: Design, nominal: Design | None) -> 
 
 
 def _designs_table(task: DesignTask, designs: list[Design]) -> str:
-    params = sorted({k for d in designs for k in d.record["parameters"]})
+    params = sorted({k for d in designs for k in d.record.parameters})
     header = ["trial", "feasible", "reached", *[o.name for o in task.objectives[1:]], *params, "time s"]
     rows = []
     for d in designs:
         r = d.record
-        status = "yes" if r["feasible"] else f"no: {html.escape(r['infeasible']['constraint'])}"
-        rows.append([d.trial, status, html.escape(", ".join(r["reached"]) or "–"),
+        status = "yes" if r.feasible else f"no: {html.escape(r.infeasible.constraint)}"
+        rows.append([d.trial, status, html.escape(", ".join(r.reached) or "–"),
                      *[_fmt(o.value(r)) for o in task.objectives[1:]],
-                     *[_fmt(r["parameters"].get(p)) for p in params], f"{r['time_s']:.1f}"])
+                     *[_fmt(r.parameters.get(p)) for p in params], f"{r.time_s:.1f}"])
     return _table(header, rows)
 
 

@@ -1,14 +1,17 @@
-"""Benchmark figures (matplotlib, no display needed), written atomically as PNG."""
+"""Benchmark figures of the records and summaries of `ctrplan.bench` (PNG): per-call times, planning
+times with success rates and the time split, roadmap query times."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
 
-from ctrplan.base.dataio import atomic_write
+from ctrplan.bench.roadmap import ROADMAP_PLANNER
+from ctrplan.viz.style import write_png
 
 
 def timing_boxplot(series: Mapping[tuple[str, int], np.ndarray], path: str | Path, *,
@@ -39,8 +42,7 @@ def timing_boxplot(series: Mapping[tuple[str, int], np.ndarray], path: str | Pat
     ax.grid(axis="y", which="both", alpha=0.3)
     ax.legend(loc="best", fontsize="small")
     fig.tight_layout()
-    with atomic_write(path, "wb") as fh:
-        fig.savefig(fh, format="png", dpi=150)
+    write_png(fig, path, dpi=150)
 
 
 def planning_plots(summary: list[dict], records: list[dict], out: Path) -> list[Path]:
@@ -81,8 +83,7 @@ def planning_plots(summary: list[dict], records: list[dict], out: Path) -> list[
         ax.legend(fontsize="small", loc="lower right")
     fig.tight_layout()
     paths = [out / "planning_times.png", out / "time_split.png"]
-    with atomic_write(paths[0], "wb") as fh:
-        fig.savefig(fh, format="png", dpi=130)
+    write_png(fig, paths[0], dpi=130)
 
     labels = [f"{s['scene']} | {s['planner']} | {s['backend']}" for s in summary]
     fig = Figure(figsize=(8.0, 1.2 + 0.28 * len(summary)))
@@ -99,6 +100,21 @@ def planning_plots(summary: list[dict], records: list[dict], out: Path) -> list[
     ax.legend(fontsize="small", loc="lower right")
     ax.grid(axis="x", alpha=0.3)
     fig.tight_layout()
-    with atomic_write(paths[1], "wb") as fh:
-        fig.savefig(fh, format="png", dpi=130)
+    write_png(fig, paths[1], dpi=130)
     return paths
+
+
+def roadmap_times_figure(records: list[dict[str, Any]], path: Path) -> None:
+    """Box plot (log scale) of roadmap query, roadmap exact validation and single-query planning times
+    of `ctrplan bench roadmap`'s records (`ctrplan.bench.roadmap`)."""
+    road = [r for r in records if r["planner"] == ROADMAP_PLANNER]
+    single = [r for r in records if r["planner"] == "rrtconnect"]
+    validated = [r["validation_s"] for r in road if r["solved"]]
+    scene = road[0]["scene_name"]
+    series = {("roadmap query", scene): np.array([r["planning_time_s"] for r in road]) * 1e3,
+              ("roadmap exact validation", scene): np.array(validated) * 1e3}
+    if single:
+        series["single-query RRTConnect", scene] = np.array([r["planning_time_s"] for r in single]) * 1e3
+    timing_boxplot({k: v for k, v in series.items() if len(v)}, path,
+                   title=f"{len(road)} random targets in the target region (tolerance "
+                         f"{road[0]['tolerance_mm']:g} mm)", group_name="scene")

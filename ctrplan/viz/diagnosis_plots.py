@@ -1,4 +1,5 @@
-"""Residual plots of a `Diagnosis` (matplotlib, Agg; PNG files).
+"""Residual plots of a `ctrplan.calibration.Diagnosis` (PNG files; `ctrplan diagnose --out` writes
+them after the diagnosis' own outputs).
 
 * ``residual_vs_joints.png``  -- tube-1 tip error against each joint, nominal vs extended;
 * ``residual_vs_direction.png`` -- per joint, the joint change that best explains each row's residual,
@@ -14,27 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ctrplan.base.dataio import atomic_write, joint_names
-
-NOMINAL_COLOR = "#b0b0b0"
-EXTENDED_COLOR = "#1f77b4"
-TUBE_COLORS = ("#d62728", "#2ca02c", "#1f77b4")
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
-    return plt
+from ctrplan.base.dataio import joint_names
+from ctrplan.viz.style import EXTENDED_COLOR, NOMINAL_COLOR, TUBE_COLORS, pyplot, write_png
 
 
 def _save(fig, path: Path) -> Path:
-    with atomic_write(path, "wb") as fh:
-        fig.savefig(fh, format="png", dpi=110, bbox_inches="tight")
-    _plt().close(fig)
-    return path
+    return write_png(fig, path, dpi=110, bbox_inches="tight")
 
 
 def _joint_axis(j: int, q: np.ndarray) -> tuple[np.ndarray, str]:
@@ -62,7 +48,7 @@ def _title(diag) -> str:
 
 
 def plot_residual_vs_joints(diag, path: Path) -> Path:
-    plt = _plt()
+    plt = pyplot()
     rows = np.setdiff1d(np.arange(len(diag.data)), diag.unsolved)
     q = diag.data.q[rows]
     e0 = diag.errors("nominal")[rows, 0]
@@ -105,7 +91,7 @@ def _explaining_change(diag, which: str) -> np.ndarray:
 
 
 def plot_residual_vs_direction(diag, path: Path) -> Path:
-    plt = _plt()
+    plt = pyplot()
     rows = np.setdiff1d(np.arange(len(diag.data)), diag.unsolved)
     c0 = _explaining_change(diag, "nominal")[rows]
     c1 = _explaining_change(diag, "extended")[rows] if diag.chosen is not None else None
@@ -141,7 +127,7 @@ def plot_residual_vs_direction(diag, path: Path) -> Path:
 
 
 def plot_residual_direction(diag, path: Path) -> Path:
-    plt = _plt()
+    plt = pyplot()
     rows = np.setdiff1d(np.arange(len(diag.data)), diag.unsolved)
     r0 = diag.residuals("nominal")[rows, 0]
     r1 = diag.residuals("extended")[rows, 0]
@@ -170,7 +156,7 @@ def plot_residual_direction(diag, path: Path) -> Path:
 
 
 def plot_before_after(diag, path: Path) -> Path:
-    plt = _plt()
+    plt = pyplot()
     h = diag.heldout
     e0 = diag.errors("nominal")[h]
     e1 = diag.errors("extended")[h]
@@ -211,7 +197,7 @@ def plot_before_after(diag, path: Path) -> Path:
 
 
 def plot_candidates(diag, path: Path) -> Path:
-    plt = _plt()
+    plt = pyplot()
     cands = sorted(diag.candidates, key=lambda c: c.fit.bic)
     names = [c.name for c in cands]
     dbic = [c.delta_bic for c in cands]
