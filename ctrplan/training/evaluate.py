@@ -200,28 +200,36 @@ PROBE_STEP = {"translation_mm": 0.1, "rotation_rad": 0.01}
 JUMP_MM = 3.0
 
 
-def worst_configurations(cmp: Comparison, robot: Robot, k: int = WORST_CHECKED) -> dict:
-    """Where the tail lives: the ``k`` solved configurations with the largest tube-1 tip error and,
-    for each, the largest move of the exact tip for a `PROBE_STEP` either way of one free coordinate
-    of the domain box (`JointDomain`);
-    ``next_to_jump`` counts those that move more than `JUMP_MM` (a jump of the exact model between
-    equilibria, which no smooth surrogate follows). JSON-ready."""
-    ok = np.flatnonzero(cmp.solved)
-    err = np.linalg.norm(cmp.predicted.tips_mm[ok, 0] - cmp.exact.tips_mm[ok, 0], axis=-1)
-    worst = ok[np.argsort(err)[::-1][:k]]
+def exact_tip_steps(robot: Robot, q: np.ndarray, tips_mm: np.ndarray, step: dict = PROBE_STEP) -> np.ndarray:
+    """The largest move (mm) of the exact tube-1 tip when each free coordinate of the domain box
+    (`JointDomain`) of each configuration moves by ``step`` (translations ``translation_mm``, rotations
+    ``rotation_rad``) either way; inf where the exact solver does not converge there. ``q``: (k, 2N)
+    configurations, mm and rad; ``tips_mm``: (k, 3) their exact tube-1 tips. A move above `JUMP_MM`
+    is a jump of the exact model within ``step`` of the configuration. Shape (k,)."""
     n = robot.n_tubes
-    q = cmp.exact.q[worst]
     box = robot.domain.to_box(q)
     steps = []
     for j in np.flatnonzero(~robot.domain.fixed):
         for sign in (-1.0, 1.0):
             shifted = box.copy()
-            shifted[:, j] += sign * (PROBE_STEP["rotation_rad"] if j >= n else PROBE_STEP["translation_mm"])
+            shifted[:, j] += sign * (step["rotation_rad"] if j >= n else step["translation_mm"])
             steps.append(robot.domain.from_box(shifted))
     probe = CosseratBackend(robot).forward(np.concatenate(steps), points=2, check=False)
-    at = np.tile(cmp.exact.tips_mm[worst, 0], (len(steps), 1))
-    moved = np.linalg.norm(probe.tips_mm[:, 0] - at, axis=-1)
-    moved = np.where(probe.converged, moved, np.inf).reshape(len(steps), len(worst)).max(axis=0)
+    moved = np.linalg.norm(probe.tips_mm[:, 0] - np.tile(tips_mm, (len(steps), 1)), axis=-1)
+    return np.where(probe.converged, moved, np.inf).reshape(len(steps), len(q)).max(axis=0)
+
+
+def worst_configurations(cmp: Comparison, robot: Robot, k: int = WORST_CHECKED) -> dict:
+    """Where the tail lives: the ``k`` solved configurations with the largest tube-1 tip error and,
+    for each, the largest move of the exact tip for a `PROBE_STEP` either way of one free coordinate
+    of the domain box (`exact_tip_steps`);
+    ``next_to_jump`` counts those that move more than `JUMP_MM` (a jump of the exact model between
+    equilibria, which no smooth surrogate follows). JSON-ready."""
+    ok = np.flatnonzero(cmp.solved)
+    err = np.linalg.norm(cmp.predicted.tips_mm[ok, 0] - cmp.exact.tips_mm[ok, 0], axis=-1)
+    worst = ok[np.argsort(err)[::-1][:k]]
+    q = cmp.exact.q[worst]
+    moved = exact_tip_steps(robot, q, cmp.exact.tips_mm[worst, 0])
     rows = [{"q": [round(float(v), 4) for v in qi], "tip_error_mm": round(float(e), 4),
              "exact_tip_step_mm": None if not np.isfinite(m) else round(float(m), 3)}
             for qi, e, m in zip(q, np.sort(err)[::-1][:k], moved, strict=True)]
