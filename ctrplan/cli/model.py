@@ -118,7 +118,7 @@ def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None
     that round's fresh configurations. Checkpoints go to NAME.ckpt.* beside the model every two
     minutes; `--resume` picks them up (Ctrl-C prints the command). The card records the robot (and
     its fingerprint), recipe, sample counts, the configurations the exact solver could not solve,
-    wall time, hardware, accuracy on 2,000 unseen configurations, whether it meets the accuracy
+    wall time, hardware, accuracy on 5,000 unseen configurations, whether it meets the accuracy
     target (meets_target), what the time limit cut, and the calibrated backbone error bound the
     planner adds to the capsule radii when it plans with this model (5,000 more configurations).
 
