@@ -3,7 +3,7 @@
 
 On the configurations of `ctrplan eval-model --n N` (same seed), the exact tube-1 tip is probed a
 step of r rad (rotations) and 10 r mm (translations; the ratio of `PROBE_STEP`) either way along
-every free coordinate (`ctrplan.training.evaluate.exact_tip_steps`). Where it moves more than
+every free coordinate (`ctrplan.training.evaluate.jumps_within`). Where it moves more than
 `JUMP_MM`, that step is bisected (the half where the tip moves more, each time) down to
 `RESOLUTION_RAD` (0.001 rad, 0.01 mm): a configuration lies within r of a jump of the exact model
 when the tip still moves more than `JUMP_MM` across that last step (3,000 mm/rad; the steepest smooth
@@ -28,47 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.pinn import PinnBackend
 from ctrplan.model.robot import Robot
-from ctrplan.training.evaluate import JUMP_MM, PROBE_STEP, compare, exact_tip_steps
+from ctrplan.training.evaluate import JUMP_MM, PROBE_STEP, RESOLUTION_RAD, compare, jumps_within
 from ctrplan.training.target import meets, tail
-
-#: mm of translation per rad of rotation in a probe step (as in `PROBE_STEP`)
-MM_PER_RAD = PROBE_STEP["translation_mm"] / PROBE_STEP["rotation_rad"]
-#: the step (rad; times `MM_PER_RAD` for translations) a jump is narrowed down to
-RESOLUTION_RAD = 0.001
-
-
-def _exact_tips(robot: Robot, box: np.ndarray) -> np.ndarray:
-    """Exact tube-1 tips (k, 3) mm at domain-box coordinates; NaN where the solver fails."""
-    b = CosseratBackend(robot).forward(robot.domain.from_box(box), points=2, check=False)
-    return np.where(b.converged[:, None], b.tips_mm[:, 0], np.nan)
-
-
-def jumps_within(robot: Robot, q: np.ndarray, tips_mm: np.ndarray, radius: float) -> np.ndarray:
-    """Which configurations ``q`` (k, 2N; exact tube-1 tips ``tips_mm`` (k, 3)) lie within ``radius``
-    rad (10x that in mm for translations) of a jump of the exact model: the tip moves more than
-    `JUMP_MM` across a step of `RESOLUTION_RAD` found by bisecting the probe step. Bool (k,); a
-    configuration where the solver fails on the way is not counted."""
-    step = {"translation_mm": MM_PER_RAD * radius, "rotation_rad": radius}
-    screened = np.flatnonzero(np.nan_to_num(exact_tip_steps(robot, q, tips_mm, step), posinf=0.0) > JUMP_MM)
-    found = np.zeros(len(q), bool)
-    box0, n = robot.domain.to_box(q[screened]), robot.n_tubes
-    for j in np.flatnonzero(~robot.domain.fixed):
-        axis = np.zeros(box0.shape[1])
-        axis[j] = 1.0 if j >= n else MM_PER_RAD
-        for sign in (-1.0, 1.0):
-            lo, hi = np.zeros(len(screened)), np.full(len(screened), radius)
-            t_lo, t_hi = tips_mm[screened], _exact_tips(robot, box0 + sign * np.outer(hi, axis))
-            while len(screened) and hi[0] - lo[0] > RESOLUTION_RAD:
-                mid = (lo + hi) / 2
-                t_mid = _exact_tips(robot, box0 + sign * np.outer(mid, axis))
-                left = np.linalg.norm(t_mid - t_lo, axis=1) >= np.linalg.norm(t_hi - t_mid, axis=1)
-                hi, t_hi = np.where(left, mid, hi), np.where(left[:, None], t_mid, t_hi)
-                lo, t_lo = np.where(left, lo, mid), np.where(left[:, None], t_lo, t_mid)
-            found[screened[np.linalg.norm(t_hi - t_lo, axis=1) > JUMP_MM]] = True
-    return found
 
 
 def near_jumps(robot: Robot, model: str, n: int, radii: list[float]) -> dict:
@@ -82,7 +45,8 @@ def near_jumps(robot: Robot, model: str, n: int, radii: list[float]) -> dict:
     for r in radii:
         jump = jumps_within(robot, cmp.exact.q[ok], cmp.exact.tips_mm[ok, 0], r)
         kept = tail(err[~jump])
-        rows.append({"radius_rad": r, "translation_mm": MM_PER_RAD * r, "resolution_rad": RESOLUTION_RAD,
+        mm_per_rad = PROBE_STEP["translation_mm"] / PROBE_STEP["rotation_rad"]
+        rows.append({"radius_rad": r, "translation_mm": mm_per_rad * r, "resolution_rad": RESOLUTION_RAD,
                      "near_jump": int(jump.sum()),
                      "near_jump_errors_mm": sorted((round(float(e), 3) for e in err[jump]), reverse=True),
                      "without_near_jump": kept, "meets_target_without": bool(meets(kept))})

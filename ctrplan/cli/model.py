@@ -342,10 +342,11 @@ def _report(console: Console, out: Path, result: TrainResult, budget: TimeBudget
         if not card.get("meets_target") and m.get("worst", {}).get("next_to_jump"):
             w = m["worst"]
             console.print(f"{w['next_to_jump']} of the {w['checked']} configurations with the largest tip "
-                          f"error lie next to a jump of the exact model (its tip moves over "
-                          f"{w['jump_mm']:g} mm for a step of {w['probe_step']['rotation_rad']:g} rad or "
-                          f"{w['probe_step']['translation_mm']:g} mm: the robot snaps there, see `ctrplan "
-                          f"stability`); no training time makes a smooth surrogate follow a jump")
+                          f"error lie within {w['probe_step']['rotation_rad']:g} rad or "
+                          f"{w['probe_step']['translation_mm']:g} mm of a jump of the exact model (its tip "
+                          f"moves over {w['jump_mm']:g} mm across {w['resolution_rad']:g} rad: the robot "
+                          f"snaps there, see `ctrplan stability`); no training time makes a smooth "
+                          f"surrogate follow a jump")
     if card.get("meets_target") is False:
         console.print(f"warning: {target_text(card)}: this model MISSES its accuracy target; train it longer "
                       f"(--time-limit, --steps). Planning with it warns (meets_target: false in "

@@ -219,19 +219,61 @@ def exact_tip_steps(robot: Robot, q: np.ndarray, tips_mm: np.ndarray, step: dict
     return np.where(probe.converged, moved, np.inf).reshape(len(steps), len(q)).max(axis=0)
 
 
+#: A jump is narrowed down to a step of this many rad (times the `PROBE_STEP` ratio, mm per rad, for
+#: translations): more than `JUMP_MM` across it is 3,000 mm/rad, ten times the steepest smooth places.
+RESOLUTION_RAD = 0.001
+
+
+def _exact_tips(robot: Robot, box: np.ndarray) -> np.ndarray:
+    """Exact tube-1 tips (k, 3) mm at domain-box coordinates; NaN where the solver fails."""
+    b = CosseratBackend(robot).forward(robot.domain.from_box(box), points=2, check=False)
+    return np.where(b.converged[:, None], b.tips_mm[:, 0], np.nan)
+
+
+def jumps_within(robot: Robot, q: np.ndarray, tips_mm: np.ndarray, radius: float) -> np.ndarray:
+    """Which configurations ``q`` (k, 2N, mm and rad; exact tube-1 tips ``tips_mm`` (k, 3)) lie within
+    ``radius`` rad of a rotation (or the `PROBE_STEP` ratio times it in mm of a translation) of a jump
+    of the exact model: where the probe step of `exact_tip_steps` moves the tip more than `JUMP_MM`,
+    it is bisected (the half where the tip moves more, each time) down to `RESOLUTION_RAD`, and the
+    tip must still move more than `JUMP_MM` across that. The steep but smooth places (140-300 mm/rad)
+    do not count. Bool (k,); a configuration where the solver fails on the way does not count."""
+    mm_per_rad = PROBE_STEP["translation_mm"] / PROBE_STEP["rotation_rad"]
+    step = {"translation_mm": mm_per_rad * radius, "rotation_rad": radius}
+    moved = np.nan_to_num(exact_tip_steps(robot, q, tips_mm, step), posinf=0.0)
+    screened = np.flatnonzero(moved > JUMP_MM)
+    found = np.zeros(len(q), bool)
+    box0, n = robot.domain.to_box(q[screened]), robot.n_tubes
+    for j in np.flatnonzero(~robot.domain.fixed):
+        axis = np.zeros(box0.shape[1])
+        axis[j] = 1.0 if j >= n else mm_per_rad
+        for sign in (-1.0, 1.0):
+            lo, hi = np.zeros(len(screened)), np.full(len(screened), radius)
+            t_lo, t_hi = tips_mm[screened], _exact_tips(robot, box0 + sign * np.outer(hi, axis))
+            while len(screened) and hi[0] - lo[0] > RESOLUTION_RAD:
+                mid = (lo + hi) / 2
+                t_mid = _exact_tips(robot, box0 + sign * np.outer(mid, axis))
+                left = np.linalg.norm(t_mid - t_lo, axis=1) >= np.linalg.norm(t_hi - t_mid, axis=1)
+                hi, t_hi = np.where(left, mid, hi), np.where(left[:, None], t_mid, t_hi)
+                lo, t_lo = np.where(left, lo, mid), np.where(left[:, None], t_lo, t_mid)
+            found[screened[np.linalg.norm(t_hi - t_lo, axis=1) > JUMP_MM]] = True
+    return found
+
+
 def worst_configurations(cmp: Comparison, robot: Robot, k: int = WORST_CHECKED) -> dict:
     """Where the tail lives: the ``k`` solved configurations with the largest tube-1 tip error and,
     for each, the largest move of the exact tip for a `PROBE_STEP` either way of one free coordinate
     of the domain box (`exact_tip_steps`);
-    ``next_to_jump`` counts those that move more than `JUMP_MM` (a jump of the exact model between
-    equilibria, which no smooth surrogate follows). JSON-ready."""
+    ``next_to_jump`` counts those within that step of a jump of the exact model between equilibria
+    (`jumps_within`: more than `JUMP_MM` across `RESOLUTION_RAD`), which no smooth surrogate follows.
+    JSON-ready."""
     ok = np.flatnonzero(cmp.solved)
     err = np.linalg.norm(cmp.predicted.tips_mm[ok, 0] - cmp.exact.tips_mm[ok, 0], axis=-1)
     worst = ok[np.argsort(err)[::-1][:k]]
     q = cmp.exact.q[worst]
     moved = exact_tip_steps(robot, q, cmp.exact.tips_mm[worst, 0])
+    jumps = jumps_within(robot, q, cmp.exact.tips_mm[worst, 0], PROBE_STEP["rotation_rad"])
     rows = [{"q": [round(float(v), 4) for v in qi], "tip_error_mm": round(float(e), 4),
              "exact_tip_step_mm": None if not np.isfinite(m) else round(float(m), 3)}
             for qi, e, m in zip(q, np.sort(err)[::-1][:k], moved, strict=True)]
-    return {"checked": len(rows), "next_to_jump": int((moved > JUMP_MM).sum()), "probe_step": PROBE_STEP,
-            "jump_mm": JUMP_MM, "configurations": rows}
+    return {"checked": len(rows), "next_to_jump": int(jumps.sum()), "probe_step": PROBE_STEP,
+            "jump_mm": JUMP_MM, "resolution_rad": RESOLUTION_RAD, "configurations": rows}
