@@ -15,7 +15,14 @@ import yaml
 from ctrplan.kinematics import CosseratBackend
 from ctrplan.kinematics.pinn import PinnBackend
 from ctrplan.model.robot import Robot
-from ctrplan.training.evaluate import JUMP_MM, Comparison, compare, worst_configurations
+from ctrplan.training.evaluate import (
+    JUMP_MM,
+    Comparison,
+    compare,
+    exact_tip_steps,
+    jumps_within,
+    worst_configurations,
+)
 from ctrplan.training.recipes import get_recipe
 from ctrplan.training.target import ACCURACY_TARGET, CurvePoint, Monitor, meets, summary, time_to_target
 from ctrplan.training.trainer import train
@@ -80,6 +87,17 @@ def test_worst_configurations_find_a_jump_of_the_exact_model(tmp_path):
     assert w["next_to_jump"] == 1 and w["checked"] == 3
     assert all(c["exact_tip_step_mm"] < 1.5 for c in w["configurations"][1:])
     assert math.isclose(w["probe_step"]["rotation_rad"], 0.01)
+
+
+def test_a_steep_smooth_place_is_not_a_jump():
+    """design_1 is snap-free by the stability sweep; here a 0.03-rad step moves its exact tip 3.6 mm
+    (121 mm/rad, smooth: 0.12 mm across 0.001 rad). The single step would call it a jump; bisecting
+    it does not."""
+    robot = Robot.load(REPO / "docs" / "training" / "design_robots" / "design_1.yaml")
+    q = np.array([[-26.7585, -13.1626, -8.6932, -1.4499, -1.2164, 2.091]])
+    tips = CosseratBackend(robot).forward(q, 2).tips_mm[:, 0]
+    assert exact_tip_steps(robot, q, tips, {"rotation_rad": 0.03, "translation_mm": 0.3})[0] > JUMP_MM
+    assert not jumps_within(robot, q, tips, 0.03)[0]
 
 
 def test_a_short_run_on_a_small_robot_meets_a_proportionally_loose_target(tmp_path):
