@@ -6,7 +6,6 @@ import json
 import re
 import shlex
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -35,7 +34,7 @@ from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnBackend
 from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.model.robot import Robot
-from ctrplan.training.budget import MIN_EVAL_CONFIGURATIONS, TimeBudget
+from ctrplan.training.budget import CLOCKS, MIN_EVAL_CONFIGURATIONS, TimeBudget, now, use_clock
 from ctrplan.training.checkpoints import check_checkpoint, checkpoint_meta, remove_checkpoint
 from ctrplan.training.evaluate import CALIBRATION_CONFIGURATIONS, calibrate, compare, worst_configurations
 from ctrplan.training.recipes import DEFAULT_RECIPE, RECIPES, Recipe, get_recipe, pool_size
@@ -72,6 +71,10 @@ TrainTimeLimitOpt = time_limit_option(
     "Time for the whole command, e.g. 25m or 90s; a bare number is minutes: exact data, training, "
     "evaluation and calibration (default: the recipe's budget); what it cuts is reported; the "
     "learning-rate schedule fits it.")
+ClockOpt = Annotated[str, typer.Option(
+    "--clock", metavar="wall|cpu",
+    help="The clock --time-limit, the schedule and the time-to-target read: wall time, or the CPU time "
+         "of this process (all its threads; for a machine shared with other jobs).")]
 SeedOpt = seed_option()
 DeviceOpt = Annotated[str, typer.Option("--device", help="cpu | cuda | cuda:N")]
 ThreadsOpt = Annotated[int | None, typer.Option("--threads", min=1, help="CPU threads for torch.")]
@@ -106,10 +109,11 @@ CardJsonOpt = json_option("Print the model card as JSON on stdout.")
 
 @app.command()
 def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None, steps: StepsOpt = None,
-          time_limit: TrainTimeLimitOpt = None, seed: SeedOpt = 0, device: DeviceOpt = "cpu",
-          threads: ThreadsOpt = None, resume: ResumeOpt = False, init: InitOpt = None,
-          measured: MeasuredOpt = None, shots: ShotsOpt = None, heldout: HeldoutOpt = None,
-          heldout_last: HeldoutLastOpt = None, adapt_minutes: AdaptOpt = 4.0, transfer: TransferOpt = "auto",
+          time_limit: TrainTimeLimitOpt = None, clock: ClockOpt = "wall", seed: SeedOpt = 0,
+          device: DeviceOpt = "cpu", threads: ThreadsOpt = None, resume: ResumeOpt = False,
+          init: InitOpt = None, measured: MeasuredOpt = None, shots: ShotsOpt = None,
+          heldout: HeldoutOpt = None, heldout_last: HeldoutLastOpt = None, adapt_minutes: AdaptOpt = 4.0,
+          transfer: TransferOpt = "auto",
           out_dir: OutDirOpt = MODELS_DIR, settings: SetOpt = None, as_json: CardJsonOpt = False) -> None:
     """Train a PINN on the Cosserat-rod equations (paper III) and write it with its model card.
 
@@ -130,7 +134,10 @@ def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None
     calibration so `fk --robot NAME.robot.yaml --model NAME` predicts what the tracker measures; the card
     records the data file (name, SHA-256), the split, the stage kept and that table.
     """
-    t_start = time.monotonic()  # --time-limit bounds the command from here
+    if clock not in CLOCKS:
+        raise InputError(f"--clock {clock!r}: one of {', '.join(CLOCKS)}")
+    use_clock(clock)
+    t_start = now()  # --time-limit bounds the command from here, on that clock
     import torch
 
     if name is not None:

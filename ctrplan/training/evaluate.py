@@ -9,7 +9,6 @@ from another one (`CALIBRATION_SEED`), used nowhere else.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -19,7 +18,7 @@ from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.model.robot import Robot
-from ctrplan.training.budget import MIN_EVAL_CONFIGURATIONS
+from ctrplan.training.budget import MIN_EVAL_CONFIGURATIONS, now
 from ctrplan.training.target import ACCURACY_TARGET, TARGET_STATISTIC, meets, tail
 
 EVAL_SEED = 918_273_645
@@ -123,7 +122,7 @@ def compare(model: Backend, robot: Robot, n: int = 100, points: int = 100,
             min_n: int = MIN_EVAL_CONFIGURATIONS) -> Comparison:
     """Run ``model`` and the exact solver on ``n`` unseen configurations of the robot's domain.
 
-    With a ``deadline`` (`time.monotonic` time) they run in chunks of `COMPARE_CHUNK` and stop after
+    With a ``deadline`` (`budget.now` time) they run in chunks of `COMPARE_CHUNK` and stop after
     the first chunk that ends past it, once ``min_n`` are done: the comparison then covers the first
     configurations of the ``n`` only (its length says how many)."""
     q = robot.sample_joints(n, rng=seed)
@@ -134,7 +133,7 @@ def compare(model: Backend, robot: Robot, n: int = 100, points: int = 100,
     for a in range(0, n, COMPARE_CHUNK):
         qa = q[a:a + COMPARE_CHUNK]
         parts.append((model.forward(qa, points), exact.forward(qa, points)))
-        if a + len(qa) >= min_n and time.monotonic() >= deadline:
+        if a + len(qa) >= min_n and now() >= deadline:
             break
     return Comparison(predicted=concatenate([p for p, _ in parts]), exact=concatenate([e for _, e in parts]))
 

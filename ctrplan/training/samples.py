@@ -19,6 +19,7 @@ import numpy as np
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.pinn_net import P_REF_MM
 from ctrplan.model.robot import Robot
+from ctrplan.training.budget import now
 
 #: Configurations solved per call while a pool is built (progress is reported between chunks).
 SOLVE_CHUNK = 4096
@@ -59,7 +60,7 @@ def solve_dense(robot: Robot, q: np.ndarray, points: int,
                 deadline: float | None = None) -> DenseStates:
     """Exact states at ``points`` uniform arc fractions for configurations q (B, 2N), solved in
     chunks (``progress(done, total)`` after each). Rows the solver could not converge on are left out
-    and listed in ``unsolved``. With a ``deadline`` (`time.monotonic` time) solving stops after the
+    and listed in ``unsolved``. With a ``deadline`` (`budget.now` time) solving stops after the
     first chunk that ends past it: the pool then covers the first rows of q only."""
     t0 = time.perf_counter()
     backend = CosseratBackend(robot)
@@ -69,7 +70,7 @@ def solve_dense(robot: Robot, q: np.ndarray, points: int,
         parts.append(backend.forward(q[a:a + chunk], points=points, check=False))
         if progress is not None:
             progress(min(a + chunk, len(q)), len(q))
-        if deadline is not None and time.monotonic() >= deadline:
+        if deadline is not None and now() >= deadline:
             q = q[:a + chunk]
             break
     ok = np.concatenate([bb.converged for bb in parts]) if parts else np.zeros(0, dtype=bool)

@@ -26,7 +26,6 @@ schedule, samplers, budget): split apart, a resumed run could restore part of it
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -40,7 +39,7 @@ from ctrplan.kinematics.model_file import save_model
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY
 from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.model.robot import Robot
-from ctrplan.training.budget import TimeBudget
+from ctrplan.training.budget import TimeBudget, now
 from ctrplan.training.checkpoints import check_checkpoint, checkpoint_meta, load_checkpoint, save_checkpoint
 from ctrplan.training.evaluate import accuracy_verdict
 from ctrplan.training.mining import HardExamples
@@ -252,7 +251,7 @@ class Trainer:
         return self
 
     def _elapsed_s(self) -> float:
-        return self.elapsed_before_s + time.perf_counter() - self._t0
+        return self.elapsed_before_s + now() - self._t0
 
     def _out_of_time(self) -> bool:
         return self.time_limit_s is not None and self._elapsed_s() >= self.time_limit_s
@@ -302,7 +301,7 @@ class Trainer:
         the loss terms, ``time_s`` (the training time so far), after mining rounds the network's
         tail on the round's fresh configurations, and after the monitor's measurements its tail."""
         one_step = self._adam_step if self.recipe.optimizer == "adam" else self._lbfgs_step
-        self._t0 = self._last_ckpt = self._last_watch = time.perf_counter()
+        self._t0 = self._last_ckpt = self._last_watch = now()
         self._fresh: dict = {}
         first = self.step
         while self.step < self.recipe.steps and (self.step < first + min_steps or not self._out_of_time()):
@@ -330,20 +329,20 @@ class Trainer:
         """Every 10 steps: check the loss, record history, measure (when due), report, checkpoint."""
         if not math.isfinite(loss):
             raise TrainingDivergedError(self.step, self.recipe, {k: float(v) for k, v in self._stats.items()})
-        now = time.perf_counter()
-        elapsed = self.elapsed_before_s + now - self._t0
-        if self.monitor is not None and (last or now - self._last_watch >= MONITOR_EVERY_S):
+        t = now()
+        elapsed = self.elapsed_before_s + t - self._t0
+        if self.monitor is not None and (last or t - self._last_watch >= MONITOR_EVERY_S):
             tip = self.monitor(self.net, self.step, self.run_clock_s()).tip_mm
             self._fresh |= {"unseen_tip_p99_9_mm": tip["p99_9"], "unseen_tip_max_mm": tip["max"]}
-            self._last_watch = now
+            self._last_watch = t
         values = {"loss": loss, **{k: float(v) for k, v in self._stats.items()}, **self._fresh}
         if self.step % 50 == 0 or last:
             self.history.append({"step": self.step, "time_s": round(elapsed, 2), **values})
         if progress is not None:
             progress(self.step, self.recipe.steps, {**values, "time_s": elapsed})
-        if now - self._last_ckpt > checkpoint_every_s:
+        if t - self._last_ckpt > checkpoint_every_s:
             self._checkpoint(out, elapsed)
-            self._last_ckpt = now
+            self._last_ckpt = t
 
     def _mining_record(self) -> dict:
         """The card's record of hard-example mining: rounds, pool, time and their history."""
@@ -427,7 +426,7 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
     dev = torch.device(device)
     torch.manual_seed(seed)
     recipe = transfer.recipe(recipe) if transfer is not None else recipe
-    t_start = time.perf_counter()
+    t_start = now()
     own = budget is None  # then no deadline on the exact data: only the training loop is limited
     budget = budget or TimeBudget(time_limit_s if time_limit_s is not None
                                   else (recipe.minutes * 60 if recipe.minutes else None))
@@ -435,7 +434,7 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
                               deadline=None if own else budget.data_deadline(), budget=budget)
     net = start_net(robot, recipe, data, init_from, transfer, out if resume else None).to(dev).train()
     net.requires_grad_(True)
-    data_time_s = time.perf_counter() - t_start
+    data_time_s = now() - t_start
     trainer = Trainer(robot, data, net, data_time_s=data_time_s, budget=None if own else budget)
     trainer.transferred_from = transfer.to_json() if transfer is not None else None
     trainer.compile(recipe, seed=seed).watch(monitor)  # the first optimiser loads torch's compiler: seconds

@@ -9,6 +9,7 @@ import json
 import os
 import re
 import shlex
+import time
 from pathlib import Path
 
 import pytest
@@ -149,3 +150,26 @@ def test_ctrl_c_in_design_says_how_to_continue_the_study(tmp_path, monkeypatch):
     out = "runs/design/task"
     assert f"the finished trials are kept in study 'task' of sqlite:///{out}/study.db" in hint
     assert f"continue the study (only the missing trials run) with: ctrplan design {task} --out {out}" in hint
+
+
+def test_on_the_cpu_clock_a_sleep_takes_no_time_and_the_card_says_which_clock():
+    """`--clock cpu` reads the process's CPU time: sleeping 0.2 s spends none of the limit, the wall
+    clock sees it, and the budget's record names the clock and both times."""
+    from ctrplan.training import budget
+
+    budget.use_clock("cpu")
+    try:
+        limit = budget.TimeBudget(1.0)
+        time.sleep(0.2)
+        assert limit.elapsed_s() < 0.1 and limit.left_s() > 0.9
+        record = limit.to_json()
+        assert record["clock"] == "cpu" and record["wall_s"] >= 0.2 and record["cpu_s"] < 0.1
+    finally:
+        budget.use_clock("wall")
+    assert budget.TimeBudget(1.0).to_json()["clock"] == "wall"
+
+
+def test_an_unknown_clock_is_one_line(capsys):
+    assert main(["train", "--clock", "sundial", "--steps", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "--clock 'sundial': one of wall, cpu" in err and "Traceback" not in err
