@@ -6,7 +6,6 @@ import json
 import re
 import shlex
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -35,24 +34,17 @@ from ctrplan.kinematics.model_file import DEFAULT_MODEL, MODELS_DIR
 from ctrplan.kinematics.pinn import ERROR_BOUND_KEY, PinnBackend
 from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.model.robot import Robot
-from ctrplan.training.budget import MIN_EVAL_CONFIGURATIONS, TimeBudget
-from ctrplan.training.evaluate import CALIBRATION_CONFIGURATIONS, calibrate, compare
-from ctrplan.training.trainer import (
-    CHECKPOINT_EVERY_S,
-    DEFAULT_RECIPE,
-    RECIPES,
-    Recipe,
-    TrainResult,
-    check_checkpoint,
-    checkpoint_meta,
-    get_recipe,
-    pool_size,
-    remove_checkpoint,
-)
+from ctrplan.training.budget import CLOCKS, MIN_EVAL_CONFIGURATIONS, TimeBudget, now, use_clock
+from ctrplan.training.checkpoints import check_checkpoint, checkpoint_meta, remove_checkpoint
+from ctrplan.training.evaluate import CALIBRATION_CONFIGURATIONS, calibrate, compare, worst_configurations
+from ctrplan.training.recipes import DEFAULT_RECIPE, RECIPES, Recipe, get_recipe, pool_size
+from ctrplan.training.target import ACCURACY_TARGET, Monitor, summary
+from ctrplan.training.trainer import CHECKPOINT_EVERY_S, TrainResult
 from ctrplan.training.trainer import train as run_training
 
 if TYPE_CHECKING:
     from ctrplan.training.fewshot import FewShot
+    from ctrplan.training.transfer import Transfer
 
 #: Backbone-sized arrays `eval-model` holds per configuration (the exact and predicted backbones and
 #: the error statistics; measured 4.5 with tracemalloc at 100 and 400 points).
@@ -63,8 +55,9 @@ MODEL_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,99}")
 POOL_COPIES = 2.0
 #: A run longer than this times its --time-limit says why (the parts no limit cuts).
 OVERRUN = 1.05
-#: Unseen configurations the model card's accuracy is measured on at the end of `ctrplan train`.
-CARD_EVAL_CONFIGURATIONS = 2000
+#: Unseen configurations the model card's accuracy is measured on at the end of `ctrplan train` (the
+#: first of `eval-model`'s: the same configurations as `ctrplan eval-model --n 5000`).
+CARD_EVAL_CONFIGURATIONS = 5000
 
 
 NameOpt = Annotated[str | None, typer.Option(
@@ -78,6 +71,10 @@ TrainTimeLimitOpt = time_limit_option(
     "Time for the whole command, e.g. 25m or 90s; a bare number is minutes: exact data, training, "
     "evaluation and calibration (default: the recipe's budget); what it cuts is reported; the "
     "learning-rate schedule fits it.")
+ClockOpt = Annotated[str, typer.Option(
+    "--clock", metavar="wall|cpu",
+    help="The clock --time-limit, the schedule and the time-to-target read: wall time, or the CPU time "
+         "of this process (all its threads; for a machine shared with other jobs).")]
 SeedOpt = seed_option()
 DeviceOpt = Annotated[str, typer.Option("--device", help="cpu | cuda | cuda:N")]
 ThreadsOpt = Annotated[int | None, typer.Option("--threads", min=1, help="CPU threads for torch.")]
@@ -98,6 +95,11 @@ AdaptOpt = Annotated[float, typer.Option(
     "--adapt-minutes", min=0.0,
     help="With --measured: minutes to adapt the PINN to the extended mechanics diagnose finds "
          "(0: fine-tune the PINN as it is).")]
+TransferOpt = Annotated[str, typer.Option(
+    "--transfer", metavar="auto|none|NAME",
+    help="Start from the layers of a model trained for another robot: auto picks the nearest shipped "
+         "or models/ model with the same tube count (by tube and domain parameters), none trains from "
+         "scratch, NAME|PATH names one. Not with --init, --measured or --resume.")]
 OutDirOpt = Annotated[Path, typer.Option("--out-dir", help="Where models are written.")]
 SetOpt = Annotated[list[str] | None, typer.Option(
     "--set", metavar="FIELD=VALUE",
@@ -107,11 +109,12 @@ CardJsonOpt = json_option("Print the model card as JSON on stdout.")
 
 @app.command()
 def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None, steps: StepsOpt = None,
-          time_limit: TrainTimeLimitOpt = None, seed: SeedOpt = 0, device: DeviceOpt = "cpu",
-          threads: ThreadsOpt = None, resume: ResumeOpt = False, init: InitOpt = None,
-          measured: MeasuredOpt = None, shots: ShotsOpt = None, heldout: HeldoutOpt = None,
-          heldout_last: HeldoutLastOpt = None, adapt_minutes: AdaptOpt = 4.0, out_dir: OutDirOpt = MODELS_DIR,
-          settings: SetOpt = None, as_json: CardJsonOpt = False) -> None:
+          time_limit: TrainTimeLimitOpt = None, clock: ClockOpt = "wall", seed: SeedOpt = 0,
+          device: DeviceOpt = "cpu", threads: ThreadsOpt = None, resume: ResumeOpt = False,
+          init: InitOpt = None, measured: MeasuredOpt = None, shots: ShotsOpt = None,
+          heldout: HeldoutOpt = None, heldout_last: HeldoutLastOpt = None, adapt_minutes: AdaptOpt = 4.0,
+          transfer: TransferOpt = "auto",
+          out_dir: OutDirOpt = MODELS_DIR, settings: SetOpt = None, as_json: CardJsonOpt = False) -> None:
     """Train a PINN on the Cosserat-rod equations (paper III) and write it with its model card.
 
     The default recipe solves an exact pool, then trains with hard-example mining for its time
@@ -119,7 +122,7 @@ def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None
     that round's fresh configurations. Checkpoints go to NAME.ckpt.* beside the model every two
     minutes; `--resume` picks them up (Ctrl-C prints the command). The card records the robot (and
     its fingerprint), recipe, sample counts, the configurations the exact solver could not solve,
-    wall time, hardware, accuracy on 2,000 unseen configurations, whether it meets the accuracy
+    wall time, hardware, accuracy on 5,000 unseen configurations, whether it meets the accuracy
     target (meets_target), what the time limit cut, and the calibrated backbone error bound the
     planner adds to the capsule radii when it plans with this model (5,000 more configurations).
 
@@ -131,7 +134,10 @@ def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None
     calibration so `fk --robot NAME.robot.yaml --model NAME` predicts what the tracker measures; the card
     records the data file (name, SHA-256), the split, the stage kept and that table.
     """
-    t_start = time.monotonic()  # --time-limit bounds the command from here
+    if clock not in CLOCKS:
+        raise InputError(f"--clock {clock!r}: one of {', '.join(CLOCKS)}")
+    use_clock(clock)
+    t_start = now()  # --time-limit bounds the command from here, on that clock
     import torch
 
     if name is not None:
@@ -153,6 +159,8 @@ def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None
         init = init or DEFAULT_MODEL
         fewshot = _measured_split(measured, model_robot, shots, heldout, heldout_last)
     start = PinnBackend.load(init, model_robot) if init else None
+    source = _transfer_source(transfer, model_robot, rec,
+                              plain=start is not None or measured is not None or resume)
     if name is None:
         name = check_model_name(f"{model_robot.name}_{rec.name}", "the robot's name (give --name)")
     check_fits("--set dense_configs", pool_size(rec),
@@ -165,9 +173,11 @@ def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None
         meta = check_checkpoint(out, model_robot)
         console.print(f"resuming {name} from step {meta['step']:,} ({meta['elapsed_s'] / 60:.1f} min of "
                       f"training done; checkpoint {meta['file']})")
+        source = _resumed_transfer(meta, model_robot)
     try:
         result = _run(model_robot, rec, out, start, fewshot, budget, console,
-                      dict(seed=seed, device=device, resume=resume), init=init, adapt_minutes=adapt_minutes)
+                      dict(seed=seed, device=device, resume=resume), init=init, adapt_minutes=adapt_minutes,
+                      transfer=source)
     except KeyboardInterrupt:
         _how_to_resume(console, out)
         raise
@@ -208,9 +218,34 @@ def _report_finetune(console: Console, out: Path, card: dict) -> None:
     console.print(kept_text(card["finetuned_on"]["kept"]))
 
 
+def _transfer_source(choice: str, robot: Robot, recipe: Recipe, plain: bool) -> Transfer | None:
+    """The model `--transfer` names (``plain``: a run that starts from a model of this robot, or
+    resumes, uses none; `InputError` when it was named explicitly)."""
+    from ctrplan.training.transfer import load_transfer, nearest_model
+
+    if choice == "none" or (plain and choice == "auto"):
+        return None
+    if plain:
+        raise InputError("--transfer: not with --init, --measured or --resume (they start from a model "
+                         "of this robot or from the checkpoint)")
+    if choice != "auto":
+        return load_transfer(choice, robot)
+    shape = {"features": recipe.features, "harmonics": recipe.harmonics, "hidden": recipe.hidden,
+             "layers": recipe.layers}
+    return nearest_model(robot, shape)
+
+
+def _resumed_transfer(meta: dict, robot: Robot) -> Transfer | None:
+    """The transfer the checkpointed run started from (its recipe and frame tube depend on it)."""
+    from ctrplan.training.transfer import load_transfer
+
+    source = meta.get("transferred_from")
+    return load_transfer(source["file"], robot) if source else None
+
+
 def _run(robot: Robot, rec: Recipe, out: Path, start: PinnBackend | None, fewshot: FewShot | None,
          budget: TimeBudget, console: Console, common: dict, *, init: str | None,
-         adapt_minutes: float) -> TrainResult:
+         adapt_minutes: float, transfer: Transfer | None) -> TrainResult:
     """Train (or fine-tune on ``fewshot``) with a progress bar on a terminal; the card's evaluation
     and calibration are cut short where the ``budget`` runs out (`ctrplan.training.budget`)."""
     bar = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[done]}"),
@@ -228,9 +263,9 @@ def _run(robot: Robot, rec: Recipe, out: Path, start: PinnBackend | None, fewsho
 
         def progress(step: int, total: int, stats: dict) -> None:
             info = f"loss {stats['loss']:.4g}"
-            if "fresh_tip_max_mm" in stats:
-                info += (f" | fresh tip p99.9 {stats['fresh_tip_p99_9_mm']:.2f} max "
-                         f"{stats['fresh_tip_max_mm']:.2f} mm")
+            if "unseen_tip_max_mm" in stats:
+                info += (f" | unseen tip p99.9 {stats['unseen_tip_p99_9_mm']:.2f} max "
+                         f"{stats['unseen_tip_max_mm']:.2f} mm")
             t, limit = budget.elapsed_s(), budget.limit_s  # the whole command's clock
             bar.update(task, completed=training_fraction(step, total, t, limit),
                        done=progress_text(step, total, t, limit), info=info, visible=True)
@@ -244,6 +279,7 @@ def _run(robot: Robot, rec: Recipe, out: Path, start: PinnBackend | None, fewsho
                             **common)
         return run_training(robot, rec, out, init_from=start.net if start else None, **common,
                             progress=progress, data_progress=data_progress, budget=budget,
+                            monitor=Monitor(robot), transfer=transfer,
                             extra_card={"stages": training_stages(start.card)} if start else None,
                             **card_evaluation(robot, budget))
 
@@ -261,7 +297,7 @@ def card_evaluation(robot: Robot, budget: TimeBudget) -> dict[str, Callable[[Pin
         if len(cmp.exact) < CARD_EVAL_CONFIGURATIONS:
             budget.cut(f"evaluation: {len(cmp.exact):,} of {CARD_EVAL_CONFIGURATIONS:,} unseen "
                        f"configurations")
-        return cmp.metrics()
+        return {**cmp.metrics(), "worst": worst_configurations(cmp, robot)}
 
     def calibrate_(net: PinnNet) -> dict:
         bound = calibrate(PinnBackend(robot, net), robot, n=CALIBRATION_CONFIGURATIONS,
@@ -307,6 +343,17 @@ def _report(console: Console, out: Path, result: TrainResult, budget: TimeBudget
                       f"{budget.limit_s:.0f} s: loading torch's optimiser, the first chunk of exact data, "
                       f"the first training step and the smallest evaluation and calibration "
                       f"({MIN_EVAL_CONFIGURATIONS} configurations each) are never cut")
+    if "time_to_target" in card:
+        console.print("accuracy: " + summary(card["time_to_target"], m["tip_error_mm"]["tube1"],
+                                             budget.limit_s))
+        if not card.get("meets_target") and m.get("worst", {}).get("next_to_jump"):
+            w = m["worst"]
+            console.print(f"{w['next_to_jump']} of the {w['checked']} configurations with the largest tip "
+                          f"error lie within {w['probe_step']['rotation_rad']:g} rad or "
+                          f"{w['probe_step']['translation_mm']:g} mm of a jump of the exact model (its tip "
+                          f"moves over {w['jump_mm']:g} mm across {w['resolution_rad']:g} rad: the robot "
+                          f"snaps there, see `ctrplan stability`); no training time makes a smooth "
+                          f"surrogate follow a jump")
     if card.get("meets_target") is False:
         console.print(f"warning: {target_text(card)}: this model MISSES its accuracy target; train it longer "
                       f"(--time-limit, --steps). Planning with it warns (meets_target: false in "
@@ -314,14 +361,13 @@ def _report(console: Console, out: Path, result: TrainResult, budget: TimeBudget
 
 
 def target_text(card: dict) -> str:
-    """``tube-1 tip error mean 32.3 % (target <= 0.1 %), max 65.7 % (target <= 1 %) of arc length on
-    2000 unseen configurations`` from a card's `accuracy_target`."""
+    """``tube-1 tip error p99.9 0.61 mm (target <= 0.5 mm), max 1.2 mm (target <= 1 mm) on 5000
+    unseen configurations`` from a card's `accuracy_target`."""
     t = card["accuracy_target"]
     got = t["measured"]
-    return (f"tube-1 tip error mean {got['tube1_tip_mean_pct_length']:.3g} % (target <= "
-            f"{t['tube1_tip_mean_pct_length']:g} %), max {got['tube1_tip_max_pct_length']:.3g} % "
-            f"(target <= {t['tube1_tip_max_pct_length']:g} %) of arc length on {t['configurations']} "
-            f"unseen configurations")
+    parts = [f"{k.removeprefix('tube1_tip_').removesuffix('_mm').replace('_', '.')} {got[k]:.3g} mm "
+             f"(target <= {t[k]:g} mm)" for k in ACCURACY_TARGET]
+    return f"tube-1 tip error {', '.join(parts)} on {t['configurations']} unseen configurations"
 
 
 def _how_to_resume(console: Console, out: Path) -> None:

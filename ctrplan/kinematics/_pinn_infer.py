@@ -53,25 +53,27 @@ def _tanh_inplace(a):
 
 
 @njit(cache=True, fastmath=True)
-def infer(q, frac, box_M, box_lo, box_hi, length1, scales, loaded, equivariant, harmonics, absolute,
+def infer(q, frac, box_M, box_lo, box_hi, length1, scales, loaded, frame, harmonics, absolute,
           W0, b0, Wh, bh, Wo, bo, out):
     """States ``out`` (B, F, 2N + 9) at arc fractions ``frac`` (B, F) for joints ``q`` (B, 2N).
 
-    Weights are float32 and laid out for ``x @ W`` (in, out). ``equivariant`` selects the input
-    encoding, ``harmonics`` K its relative-rotation harmonics and ``absolute`` its absolute-angle
-    features (see `ctrplan.kinematics.pinn`); a fixed box coordinate (``box_lo == box_hi``) enters as 0.
+    Weights are float32 and laid out for ``x @ W`` (in, out). ``frame`` selects the input encoding:
+    -1 the paper's, else the equivariant one with that frame tube (0-based), ``harmonics`` K its
+    relative-rotation harmonics and ``absolute`` its absolute-angle features (see
+    `ctrplan.kinematics.pinn_net`); a fixed box coordinate (``box_lo == box_hi``) enters as 0.
     """
     zq = np.empty((frac.shape[0], W0.shape[0] - 1), dtype=np.float32)
-    _encode(q, box_M, box_lo, box_hi, equivariant, harmonics, absolute, zq)
+    _encode(q, box_M, box_lo, box_hi, frame, harmonics, absolute, zq)
     h = _hidden(zq, frac, W0, b0, Wh, bh)
-    _decode(q, frac, h @ Wo + bo, length1, scales, loaded, equivariant, out)
+    _decode(q, frac, h @ Wo + bo, length1, scales, loaded, frame, out)
 
 
 @njit(cache=True, fastmath=True)
-def _encode(q, box_M, box_lo, box_hi, equivariant, harmonics, absolute, zq):
+def _encode(q, box_M, box_lo, box_hi, frame, harmonics, absolute, zq):
     """The per-configuration inputs ``zq`` (B, inputs - 1) of the first layer for joints q (B, 2N)
-    (the arc-length input is `_hidden`'s): the box coordinates scaled to [-1, 1], or with
-    ``equivariant`` the betas and the relative-rotation harmonics (and ``absolute`` angles)."""
+    (the arc-length input is `_hidden`'s): the box coordinates scaled to [-1, 1], or with a
+    ``frame`` tube (>= 0, equivariant) the betas and the harmonics of the rotations relative to the
+    frame tube (and ``absolute`` angles)."""
     nb = q.shape[0]
     nt = box_lo.shape[0] // 2
     box = np.empty(2 * nt)
@@ -84,15 +86,18 @@ def _encode(q, box_M, box_lo, box_hi, equivariant, harmonics, absolute, zq):
         for i in range(2 * nt):
             width = box_hi[i] - box_lo[i]
             box[i] = 2.0 * (box[i] - box_lo[i]) / width - 1.0 if width > 0.0 else 0.0
-        if equivariant:  # betas, then cos(k da_i) for k = 1…K (k-major), then the sines
+        if frame >= 0:  # betas, then cos(k da_i) for k = 1…K (k-major; i != frame), then the sines
             for i in range(nt):
                 zq[b, i] = box[i]
             n_ang = harmonics * (nt - 1)
             for k in range(harmonics):
-                for i in range(1, nt):
-                    angle = (k + 1) * (q[b, nt + i] - q[b, nt])
-                    zq[b, nt + k * (nt - 1) + i - 1] = math.cos(angle)
-                    zq[b, nt + n_ang + k * (nt - 1) + i - 1] = math.sin(angle)
+                for i in range(nt):
+                    if i == frame:
+                        continue
+                    col = nt + k * (nt - 1) + (i if i < frame else i - 1)
+                    angle = (k + 1) * (q[b, nt + i] - q[b, nt + frame])
+                    zq[b, col] = math.cos(angle)
+                    zq[b, col + n_ang] = math.sin(angle)
             if absolute:
                 for i in range(nt):
                     zq[b, nt + 2 * n_ang + i] = math.cos(q[b, nt + i])
@@ -125,10 +130,11 @@ def _hidden(zq, frac, W0, b0, Wh, bh):
 
 
 @njit(cache=True, fastmath=True)
-def _decode(q, frac, raw, length1, scales, loaded, equivariant, out):
+def _decode(q, frac, raw, length1, scales, loaded, frame, out):
     """States ``out`` (B, F, 2N + 9) from the raw network outputs (B * F, 2N + 9): scaled, positions
-    built from their boundary condition at s = 0, quaternions normalised, and with ``equivariant``
-    rotated back by the first tube's angle."""
+    built from their boundary condition at s = 0, quaternions normalised, and with a ``frame`` tube
+    (>= 0, equivariant) rotated back by its angle (orientations: ``qz(alpha_f) h qz(alpha1 - alpha_f)``,
+    see `PinnNet`), the twists offset by ``alpha_i - alpha1``."""
     nb, nf = frac.shape
     nt = q.shape[1] // 2
     ns = 2 * nt + 9
@@ -137,8 +143,10 @@ def _decode(q, frac, raw, length1, scales, loaded, equivariant, out):
     for b in range(nb):
         l1 = q[b, 0] + length1
         a1 = q[b, nt]
-        ca, sa = math.cos(a1), math.sin(a1)
-        ch, sh = math.cos(0.5 * a1), math.sin(0.5 * a1)
+        af = q[b, nt + max(frame, 0)]
+        ca, sa = math.cos(af), math.sin(af)
+        ch, sh = math.cos(0.5 * af), math.sin(0.5 * af)
+        cr, sr = math.cos(0.5 * (a1 - af)), math.sin(0.5 * (a1 - af))
         for f in range(nf):
             r = b * nf + f
             o = out[b, f]
@@ -159,10 +167,12 @@ def _decode(q, frac, raw, length1, scales, loaded, equivariant, out):
             nq = math.sqrt(x[i_q] ** 2 + x[i_q + 1] ** 2 + x[i_q + 2] ** 2 + x[i_q + 3] ** 2)
             nq = max(nq, 1e-12)
             w, hx, hy, hz = x[i_q] / nq, x[i_q + 1] / nq, x[i_q + 2] / nq, x[i_q + 3] / nq
-            if equivariant:
+            if frame >= 0:
                 for i in range(1, nt):
                     o[i_th + i] += q[b, nt + i] - a1
                 px, py = ca * px - sa * py, sa * px + ca * py
+                # h <- qz(alpha_f) (x) h (x) qz(alpha1 - alpha_f)
+                w, hx, hy, hz = cr * w - sr * hz, cr * hx + sr * hy, cr * hy - sr * hx, cr * hz + sr * w
                 w, hx, hy, hz = ch * w - sh * hz, ch * hx - sh * hy, ch * hy + sh * hx, ch * hz + sh * w
             o[i_p], o[i_p + 1], o[i_p + 2] = px, py, pz
             o[i_q], o[i_q + 1], o[i_q + 2], o[i_q + 3] = w, hx, hy, hz

@@ -96,8 +96,8 @@ def save_model(net: PinnNet, robot: Robot, path: str | Path, card: dict[str, Any
         "robot": robot.to_dict(),
         "robot_fingerprint": robot.fingerprint,
         "network": {"inputs": net.n_inputs, "features": net.features_mode, "harmonics": net.harmonics,
-                    "absolute_angles": net.absolute_angles, "hidden": net.hidden, "layers": net.layers,
-                    "outputs": net.n_states, "activation": "tanh"},
+                    "absolute_angles": net.absolute_angles, "frame_tube": net.frame + 1, "hidden": net.hidden,
+                    "layers": net.layers, "outputs": net.n_states, "activation": "tanh"},
         **card,
         "weights_file": weights.name,
         "weights_sha256": file_sha256(weights),
@@ -165,7 +165,8 @@ def load_model(model: str | Path | None, robot: Robot) -> tuple[PinnNet, dict[st
     try:
         net = PinnNet(robot, hidden=int(netcfg.get("hidden", 100)), layers=int(netcfg.get("layers", 6)),
                       features=features, harmonics=int(netcfg.get("harmonics", 1)),
-                      absolute_angles=bool(netcfg.get("absolute_angles", False)))
+                      absolute_angles=bool(netcfg.get("absolute_angles", False)),
+                      frame=int(netcfg.get("frame_tube", 1)) - 1)
     except (TypeError, ValueError) as exc:
         raise InputError(f"{weights.with_suffix('.json')}: network section unusable ({exc})") from None
     try:
@@ -183,8 +184,18 @@ def below_target(weights: Path, card: dict[str, Any]) -> str:
     """The warning for a model whose card says it misses its accuracy target (``meets_target``)."""
     target = card.get("accuracy_target") or {}
     got = target.get("measured") or {}
-    numbers = ", ".join(f"{k.replace('_pct_length', '')} {got[k]:.3g} % (target <= {target[k]:g} %)"
+    numbers = ", ".join(f"{_statistic(k)} {got[k]:.3g} {_unit(k)} (target <= {target[k]:g} {_unit(k)})"
                         for k in got if isinstance(got[k], (int, float)) and k in target)
-    return (f"{weights}: this PINN misses its accuracy target ({numbers or 'see its card'} of arc length): "
+    numbers = numbers or "see its card"
+    return (f"{weights}: this PINN misses its accuracy target (tube-1 tip error {numbers}): "
             f"its shapes and its planning margin are that far from the exact model's; train it longer or "
             f"use --backend cosserat")
+
+
+def _statistic(key: str) -> str:
+    """``tube1_tip_p99_9_mm`` -> ``p99.9``; ``tube1_tip_max_pct_length`` -> ``max`` (older cards)."""
+    return key.removeprefix("tube1_tip_").removesuffix("_mm").removesuffix("_pct_length").replace("_", ".")
+
+
+def _unit(key: str) -> str:
+    return "% of arc length" if key.endswith("_pct_length") else "mm"

@@ -116,7 +116,7 @@ class PinnBackend(Backend):
         return (net.box_from_joints.numpy().astype(float),
                 net.box_lower.numpy().astype(float), net.box_upper.numpy().astype(float),
                 float(net.lengths[0]), net.scales.numpy().astype(float), float(net.loaded),
-                net.features_mode == "equivariant", net.harmonics, net.absolute_angles,
+                net.frame if net.features_mode == "equivariant" else -1, net.harmonics, net.absolute_angles,
                 w(linear[0]), b(linear[0]),
                 np.ascontiguousarray(np.stack([w(m) for m in hidden])), np.stack([b(m) for m in hidden]),
                 w(linear[-1]), b(linear[-1]))

@@ -8,15 +8,21 @@ Two input encodings (``features``), for N = 1…4 tubes:
   to [-1, 1] (7 for three tubes).
 * ``equivariant`` (default) -- uses an exact symmetry of the mechanics: adding c to every alpha rotates
   the whole robot about z by c. The network sees ``2 s/l1 - 1``, the N translation box coordinates and
-  ``cos, sin`` of ``alpha_i - alpha1`` for i = 2…N (the mechanics is 2 pi-periodic in them), in the
-  order ``cos(alpha2 - alpha1) … cos(alphaN - alpha1), sin(alpha2 - alpha1) …``; positions and
-  orientation it predicts are rotated by ``Rz(alpha1)`` and the twist angles are
-  ``theta_i = alpha_i - alpha1 + (learned deviation)``. 3N - 1 inputs (8 for three tubes), one
-  dimension fewer to learn. With ``harmonics`` K > 1 the network also sees ``cos, sin`` of
-  ``k (alpha_i - alpha1)`` for k = 2…K (``cos`` for every k, then ``sin``): where two tubes are nearly
-  opposed the shape changes over a few hundredths of a radian of their relative rotation, and the
-  harmonics let the first layer resolve that. They cost nothing per node at inference (the first
-  layer's per-configuration part is computed once per backbone).
+  ``cos, sin`` of ``alpha_i - alpha_f`` for the tubes i other than the frame tube f (the mechanics is
+  2 pi-periodic in them), in the order ``cos(alpha_i - alpha_f)`` for i = 1…N without f, then the
+  sines: 3N - 1 inputs (8 for three tubes), one dimension fewer to learn. Positions it predicts are
+  rotated by ``Rz(alpha_f)``, orientations ``R`` (tube 1's material frame) are
+  ``Rz(alpha_f) R_net Rz(alpha1 - alpha_f)`` (so that ``R_net(0)`` is near the identity for every
+  frame tube), and the twist angles are ``theta_i = alpha_i - alpha1 + (learned deviation)``.
+  Any tube can be the frame tube (``frame``, 0-based; the paper's robot and the default: tube 1): its
+  rotation is then exact, and the network learns only what the others' rotations relative to it do.
+  The trainer picks the tube whose rotation moves the tip most (`ctrplan.training.samples.frame_tube`):
+  on a robot whose stiff outer tube swings the whole backbone, that motion costs the network nothing.
+  With ``harmonics`` K > 1 the network also sees ``cos, sin`` of ``k (alpha_i - alpha_f)`` for
+  k = 2…K (``cos`` for every k, then ``sin``): where two tubes are nearly opposed the shape changes
+  over a few hundredths of a radian of their relative rotation, and the harmonics let the first layer
+  resolve that. They cost nothing per node at inference (the first layer's per-configuration part is
+  computed once per backbone).
 
 The symmetry holds only when the loads are along z (`Loads.axisymmetric`). Otherwise (gravity across
 the robot), and for what measured data shows beyond the mechanics (a tracker offset fixed in the
@@ -63,7 +69,7 @@ class PinnNet(nn.Module):
 
     def __init__(self, robot: Robot, hidden: int = 100, layers: int = 6,
                  scales: np.ndarray | None = None, features: str = "equivariant", harmonics: int = 1,
-                 absolute_angles: bool | None = None):
+                 absolute_angles: bool | None = None, frame: int = 0):
         super().__init__()
         if features not in FEATURES:
             raise ValueError(f"features must be one of {sorted(FEATURES)}, got {features!r}")
@@ -75,7 +81,11 @@ class PinnNet(nn.Module):
         if absolute_angles and features != "equivariant":
             raise ValueError("absolute_angles extends the equivariant encoding (paper features are "
                              "absolute already)")
+        if not 0 <= frame < robot.n_tubes or (frame and features != "equivariant"):
+            raise ValueError(f"frame must be a tube index 0…{robot.n_tubes - 1} (other than 0 only with "
+                             f"equivariant features), got {frame}")
         self.features_mode, self.harmonics, self.absolute_angles = features, harmonics, absolute_angles
+        self.frame = frame
         self.n_tubes, self.n_states = robot.n_tubes, robot.n_states
         self.n_inputs = n_inputs(features, robot.n_tubes, harmonics, absolute_angles)
         dims = [self.n_inputs] + [hidden] * layers
@@ -88,7 +98,7 @@ class PinnNet(nn.Module):
             if isinstance(m, nn.Linear):
                 nn.init.xavier_normal_(m.weight)
                 nn.init.zeros_(m.bias)
-        # start near the unit quaternion (rotated by Rz(alpha1) when equivariant): the orientation
+        # start near the unit quaternion (rotated by Rz(alpha_f) when equivariant): the orientation
         # about the tangent does not show in positions, so a random start is slow to unlearn
         out, i_h = self.mlp[-1], 2 * self.n_tubes + 5
         with torch.no_grad():
@@ -125,7 +135,8 @@ class PinnNet(nn.Module):
         zs = 2 * sigma[:, None] - 1
         if self.features_mode == "paper":
             return torch.cat([zs, zq], -1)
-        dalpha = q[:, n + 1:] - q[:, n:n + 1]
+        others = [i for i in range(n) if i != self.frame]
+        dalpha = q[:, [n + i for i in others]] - q[:, n + self.frame:n + self.frame + 1]
         k = torch.arange(1, self.harmonics + 1, dtype=q.dtype, device=q.device)
         angles = (k[:, None, None] * dalpha[None]).transpose(0, 1).reshape(len(q), -1)  # (B, K (N - 1))
         parts = [zs, zq[:, :n], torch.cos(angles), torch.sin(angles)]
@@ -139,7 +150,7 @@ class PinnNet(nn.Module):
         if self.absolute_angles:
             return copy.deepcopy(self)
         net = PinnNet(robot, self.hidden, self.layers, self.scales.cpu().numpy(), self.features_mode,
-                      self.harmonics, absolute_angles=True)
+                      self.harmonics, absolute_angles=True, frame=self.frame)
         state = {k: v.clone() for k, v in self.state_dict().items()}
         w = state["mlp.0.weight"]
         state["mlp.0.weight"] = torch.cat([w, torch.zeros(w.shape[0], 2 * self.n_tubes, dtype=w.dtype)], 1)
@@ -159,11 +170,13 @@ class PinnNet(nn.Module):
         h = raw[:, ip + 3:ip + 7]
         h = h / h.norm(dim=-1, keepdim=True).clamp(min=1e-12)
         if self.features_mode == "equivariant":
-            a1 = q[:, n:n + 1]
+            a1, af = q[:, n:n + 1], q[:, n + self.frame:n + self.frame + 1]
             theta = theta + torch.cat([torch.zeros_like(a1), q[:, n + 1:] - a1], -1)
-            c, sn = torch.cos(a1), torch.sin(a1)
+            c, sn = torch.cos(af), torch.sin(af)
             p = torch.cat([c * p[:, 0:1] - sn * p[:, 1:2], sn * p[:, 0:1] + c * p[:, 1:2], p[:, 2:3]], -1)
-            cw, sz = torch.cos(0.5 * a1), torch.sin(0.5 * a1)    # h <- qz(alpha1) (x) h
+            cr, sr = torch.cos(0.5 * (a1 - af)), torch.sin(0.5 * (a1 - af))  # h <- h (x) qz(alpha1 - alpha_f)
             w, x, y, z = h[:, 0:1], h[:, 1:2], h[:, 2:3], h[:, 3:4]
+            w, x, y, z = cr * w - sr * z, cr * x + sr * y, cr * y - sr * x, cr * z + sr * w
+            cw, sz = torch.cos(0.5 * af), torch.sin(0.5 * af)    # h <- qz(alpha_f) (x) h
             h = torch.cat([cw * w - sz * z, cw * x - sz * y, cw * y + sz * x, cw * z + sz * w], -1)
         return torch.cat([mb, uz, theta, p, h], -1)

@@ -8,6 +8,10 @@ exact solver solved the pool, at most `EVAL_SHARE` of the limit); the evaluation
 then get that rest, in proportion to their sizes, and stop early on a smaller set (at least
 `MIN_EVAL_CONFIGURATIONS` each). Whatever the limit cut is recorded (`TimeBudget.cuts`) for the
 model card and the summary line.
+
+The limit is read on one clock for the whole run (`now`): the wall clock by default, or with `ctrplan
+train --clock cpu` the CPU time of the process (`time.process_time`, all its threads), so that a run
+on a machine shared with other jobs gets the work it was given rather than what the others left it.
 """
 
 from __future__ import annotations
@@ -15,6 +19,28 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Literal
+
+#: The clocks a time limit can be read on: seconds of wall time, or CPU seconds of this process.
+CLOCKS = {"wall": time.monotonic, "cpu": time.process_time}
+_clock: list[str] = ["wall"]
+
+
+def use_clock(name: Literal["wall", "cpu"]) -> None:
+    """Read every training time limit, deadline and time-to-target of this process on ``name``."""
+    if name not in CLOCKS:
+        raise ValueError(f"clock {name!r}: one of {', '.join(CLOCKS)}")
+    _clock[0] = name
+
+
+def clock_name() -> str:
+    """The clock `now` reads ("wall" or "cpu")."""
+    return _clock[0]
+
+
+def now() -> float:
+    """Seconds on the training clock (`use_clock`); only differences mean anything."""
+    return CLOCKS[_clock[0]]()
 
 #: Share of the limit the exact pool may take.
 DATA_SHARE = 0.3
@@ -30,23 +56,25 @@ EVAL_COST_PER_SOLUTION = 2.0
 
 @dataclass
 class TimeBudget:
-    """A time limit (s; None: none) for a run started at ``start`` (`time.monotonic`) that ends by
-    comparing the model with the exact solver on ``eval_configurations`` configurations."""
+    """A time limit (s on the clock `now` reads; None: none) for a run started at ``start`` (`now`)
+    that ends by comparing the model with the exact solver on ``eval_configurations`` configurations."""
 
     limit_s: float | None
     eval_configurations: int = 0
-    start: float = field(default_factory=time.monotonic)
+    start: float = field(default_factory=now)
     cuts: list[str] = field(default_factory=list)
+    wall_start: float = field(default_factory=time.monotonic)
+    cpu_start: float = field(default_factory=time.process_time)
 
     def elapsed_s(self) -> float:
-        return time.monotonic() - self.start
+        return now() - self.start
 
     def left_s(self) -> float:
         """Seconds left (inf without a limit; never negative)."""
         return math.inf if self.limit_s is None else max(self.limit_s - self.elapsed_s(), 0.0)
 
     def data_deadline(self) -> float | None:
-        """When solving the exact pool must stop (`time.monotonic` time), or None."""
+        """When solving the exact pool must stop (`now` time), or None."""
         return None if self.limit_s is None else self.start + DATA_SHARE * self.limit_s
 
     def training_s(self, solutions_per_s: float) -> float | None:
@@ -59,12 +87,15 @@ class TimeBudget:
 
     def phase_deadline(self, share: float) -> float | None:
         """The deadline of a phase that may take ``share`` of the time left, or None."""
-        return None if self.limit_s is None else time.monotonic() + share * self.left_s()
+        return None if self.limit_s is None else now() + share * self.left_s()
 
     def cut(self, what: str) -> None:
         """Record that the limit cut ``what`` short (e.g. "exact data: 3,072 of 100,000 solutions")."""
         self.cuts.append(what)
 
     def to_json(self) -> dict:
-        """The card's record: the limit, the whole run's time so far and what the limit cut."""
-        return {"limit_s": self.limit_s, "elapsed_s": round(self.elapsed_s(), 1), "cut": list(self.cuts)}
+        """The card's record: the limit, the clock it was read on, the whole run's time so far on it,
+        its wall and CPU seconds, and what the limit cut."""
+        return {"limit_s": self.limit_s, "clock": clock_name(), "elapsed_s": round(self.elapsed_s(), 1),
+                "wall_s": round(time.monotonic() - self.wall_start, 1),
+                "cpu_s": round(time.process_time() - self.cpu_start, 1), "cut": list(self.cuts)}

@@ -9,7 +9,6 @@ from another one (`CALIBRATION_SEED`), used nowhere else.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -19,7 +18,8 @@ from ctrplan.kinematics.backbone import Backbone
 from ctrplan.kinematics.base import Backend
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.model.robot import Robot
-from ctrplan.training.budget import MIN_EVAL_CONFIGURATIONS
+from ctrplan.training.budget import MIN_EVAL_CONFIGURATIONS, now
+from ctrplan.training.target import ACCURACY_TARGET, TARGET_STATISTIC, meets, tail
 
 EVAL_SEED = 918_273_645
 #: Seed of the calibration configurations of `error_bound` (used nowhere else).
@@ -32,16 +32,6 @@ COVERAGES = (0.5, 0.8, 0.9, 0.95, 0.99)
 CALIBRATION_CONFIGURATIONS = 5000
 #: Configurations compared per chunk when a deadline may cut a comparison short.
 COMPARE_CHUNK = MIN_EVAL_CONFIGURATIONS
-#: The accuracy a trained model is meant to reach (docs/benchmarks.md, the PINN: issue 18's target): tube-1
-#: tip error over unseen configurations, mean and max, in % of tube 1's arc length.
-ACCURACY_TARGET = {"tube1_tip_mean_pct_length": 0.1, "tube1_tip_max_pct_length": 1.0}
-
-
-def _tail(x: np.ndarray) -> dict:
-    """mean, p99, p99.9 and max of errors (any shape)."""
-    x = np.ravel(x)
-    return {"mean": float(x.mean()), "p99": float(np.percentile(x, 99)),
-            "p99_9": float(np.percentile(x, 99.9)), "max": float(x.max())}
 
 
 def conformal_quantile(scores: np.ndarray, coverage: float) -> float:
@@ -106,13 +96,13 @@ class Comparison:
             "nonfinite_predictions": int((~finite).sum()),
             "backbone_error_pct": {"mean": float(e.mean()), "max": float(e.max()),
                                    "p95": float(np.percentile(e, 95))},
-            "tip_error_mm": {f"tube{i + 1}": _tail(tip[:, i]) for i in range(n)},
-            "tip_error_pct_length": _tail(100.0 * tip[:, 0] / exact.tube_ends_mm[ok, 0]),
+            "tip_error_mm": {f"tube{i + 1}": tail(tip[:, i]) for i in range(n)},
+            "tip_error_pct_length": tail(100.0 * tip[:, 0] / exact.tube_ends_mm[ok, 0]),
             "u_z_rmse_1_per_m": float(np.sqrt(((ps[..., 2:2 + n] - es[..., 2:2 + n]) ** 2).mean()) * 1e3),
             "theta_rmse_rad": float(np.sqrt(((ps[..., 3 + n:2 + 2 * n] - es[..., 3 + n:2 + 2 * n]) ** 2
                                              ).mean())) if n > 1 else 0.0,
-            "orientation_error_deg": _tail(angle),
-            "tip_orientation_error_deg": _tail(angle[:, -1]),
+            "orientation_error_deg": tail(angle),
+            "tip_orientation_error_deg": tail(angle[:, -1]),
         })
 
 
@@ -132,7 +122,7 @@ def compare(model: Backend, robot: Robot, n: int = 100, points: int = 100,
             min_n: int = MIN_EVAL_CONFIGURATIONS) -> Comparison:
     """Run ``model`` and the exact solver on ``n`` unseen configurations of the robot's domain.
 
-    With a ``deadline`` (`time.monotonic` time) they run in chunks of `COMPARE_CHUNK` and stop after
+    With a ``deadline`` (`budget.now` time) they run in chunks of `COMPARE_CHUNK` and stop after
     the first chunk that ends past it, once ``min_n`` are done: the comparison then covers the first
     configurations of the ``n`` only (its length says how many)."""
     q = robot.sample_joints(n, rng=seed)
@@ -143,7 +133,7 @@ def compare(model: Backend, robot: Robot, n: int = 100, points: int = 100,
     for a in range(0, n, COMPARE_CHUNK):
         qa = q[a:a + COMPARE_CHUNK]
         parts.append((model.forward(qa, points), exact.forward(qa, points)))
-        if a + len(qa) >= min_n and time.monotonic() >= deadline:
+        if a + len(qa) >= min_n and now() >= deadline:
             break
     return Comparison(predicted=concatenate([p for p, _ in parts]), exact=concatenate([e for _, e in parts]))
 
@@ -189,11 +179,100 @@ def calibrate(model: Backend, robot: Robot, n: int = CALIBRATION_CONFIGURATIONS,
 
 
 def accuracy_verdict(metrics: dict) -> dict:
-    """Whether ``metrics`` (`Comparison.metrics`) meet `ACCURACY_TARGET`: ``{"meets_target": bool,
-    "accuracy_target": {the target, "measured": the values compared, "configurations"}}``."""
-    tip = metrics["tip_error_pct_length"]
-    measured = {"tube1_tip_mean_pct_length": tip["mean"], "tube1_tip_max_pct_length": tip["max"]}
-    meets = all(v is not None and v <= ACCURACY_TARGET[k] for k, v in measured.items())
-    return {"meets_target": bool(meets and not metrics.get("nonfinite_predictions")),
+    """Whether ``metrics`` (`Comparison.metrics`) meet `ACCURACY_TARGET` (tube-1 tip error, mm):
+    ``{"meets_target": bool, "accuracy_target": {the target, "measured": the values compared,
+    "configurations"}}``."""
+    tip = metrics["tip_error_mm"]["tube1"]
+    measured = {k: tip[TARGET_STATISTIC[k]] for k in ACCURACY_TARGET}
+    return {"meets_target": bool(meets(tip) and not metrics.get("nonfinite_predictions")),
             "accuracy_target": {**ACCURACY_TARGET, "measured": measured,
                                 "configurations": metrics["configurations"]}}
+
+
+#: Configurations with the largest tube-1 tip error that `worst_configurations` looks at.
+WORST_CHECKED = 10
+#: Its probe: a step of each joint (translations mm, rotations rad) ...
+PROBE_STEP = {"translation_mm": 0.1, "rotation_rad": 0.01}
+#: ... that moves the exact tip further than this (mm) is a jump: the exact model changes
+#: equilibrium there (the robot snaps). The steepest smooth places of the shipped robots move the tip
+#: about 1.4 mm for 0.01 rad (136 mm/rad, docs/benchmarks.md).
+JUMP_MM = 3.0
+
+
+def exact_tip_steps(robot: Robot, q: np.ndarray, tips_mm: np.ndarray, step: dict = PROBE_STEP) -> np.ndarray:
+    """The largest move (mm) of the exact tube-1 tip when each free coordinate of the domain box
+    (`JointDomain`) of each configuration moves by ``step`` (translations ``translation_mm``, rotations
+    ``rotation_rad``) either way; inf where the exact solver does not converge there. ``q``: (k, 2N)
+    configurations, mm and rad; ``tips_mm``: (k, 3) their exact tube-1 tips. A move above `JUMP_MM`
+    is a jump of the exact model within ``step`` of the configuration. Shape (k,)."""
+    n = robot.n_tubes
+    box = robot.domain.to_box(q)
+    steps = []
+    for j in np.flatnonzero(~robot.domain.fixed):
+        for sign in (-1.0, 1.0):
+            shifted = box.copy()
+            shifted[:, j] += sign * (step["rotation_rad"] if j >= n else step["translation_mm"])
+            steps.append(robot.domain.from_box(shifted))
+    probe = CosseratBackend(robot).forward(np.concatenate(steps), points=2, check=False)
+    moved = np.linalg.norm(probe.tips_mm[:, 0] - np.tile(tips_mm, (len(steps), 1)), axis=-1)
+    return np.where(probe.converged, moved, np.inf).reshape(len(steps), len(q)).max(axis=0)
+
+
+#: A jump is narrowed down to a step of this many rad (times the `PROBE_STEP` ratio, mm per rad, for
+#: translations): more than `JUMP_MM` across it is 3,000 mm/rad, ten times the steepest smooth places.
+RESOLUTION_RAD = 0.001
+
+
+def _exact_tips(robot: Robot, box: np.ndarray) -> np.ndarray:
+    """Exact tube-1 tips (k, 3) mm at domain-box coordinates; NaN where the solver fails."""
+    b = CosseratBackend(robot).forward(robot.domain.from_box(box), points=2, check=False)
+    return np.where(b.converged[:, None], b.tips_mm[:, 0], np.nan)
+
+
+def jumps_within(robot: Robot, q: np.ndarray, tips_mm: np.ndarray, radius: float) -> np.ndarray:
+    """Which configurations ``q`` (k, 2N, mm and rad; exact tube-1 tips ``tips_mm`` (k, 3)) lie within
+    ``radius`` rad of a rotation (or the `PROBE_STEP` ratio times it in mm of a translation) of a jump
+    of the exact model: where the probe step of `exact_tip_steps` moves the tip more than `JUMP_MM`,
+    it is bisected (the half where the tip moves more, each time) down to `RESOLUTION_RAD`, and the
+    tip must still move more than `JUMP_MM` across that. The steep but smooth places (140-300 mm/rad)
+    do not count. Bool (k,); a configuration where the solver fails on the way does not count."""
+    mm_per_rad = PROBE_STEP["translation_mm"] / PROBE_STEP["rotation_rad"]
+    step = {"translation_mm": mm_per_rad * radius, "rotation_rad": radius}
+    moved = np.nan_to_num(exact_tip_steps(robot, q, tips_mm, step), posinf=0.0)
+    screened = np.flatnonzero(moved > JUMP_MM)
+    found = np.zeros(len(q), bool)
+    box0, n = robot.domain.to_box(q[screened]), robot.n_tubes
+    for j in np.flatnonzero(~robot.domain.fixed):
+        axis = np.zeros(box0.shape[1])
+        axis[j] = 1.0 if j >= n else mm_per_rad
+        for sign in (-1.0, 1.0):
+            lo, hi = np.zeros(len(screened)), np.full(len(screened), radius)
+            t_lo, t_hi = tips_mm[screened], _exact_tips(robot, box0 + sign * np.outer(hi, axis))
+            while len(screened) and hi[0] - lo[0] > RESOLUTION_RAD:
+                mid = (lo + hi) / 2
+                t_mid = _exact_tips(robot, box0 + sign * np.outer(mid, axis))
+                left = np.linalg.norm(t_mid - t_lo, axis=1) >= np.linalg.norm(t_hi - t_mid, axis=1)
+                hi, t_hi = np.where(left, mid, hi), np.where(left[:, None], t_mid, t_hi)
+                lo, t_lo = np.where(left, lo, mid), np.where(left[:, None], t_lo, t_mid)
+            found[screened[np.linalg.norm(t_hi - t_lo, axis=1) > JUMP_MM]] = True
+    return found
+
+
+def worst_configurations(cmp: Comparison, robot: Robot, k: int = WORST_CHECKED) -> dict:
+    """Where the tail lives: the ``k`` solved configurations with the largest tube-1 tip error and,
+    for each, the largest move of the exact tip for a `PROBE_STEP` either way of one free coordinate
+    of the domain box (`exact_tip_steps`);
+    ``next_to_jump`` counts those within that step of a jump of the exact model between equilibria
+    (`jumps_within`: more than `JUMP_MM` across `RESOLUTION_RAD`), which no smooth surrogate follows.
+    JSON-ready."""
+    ok = np.flatnonzero(cmp.solved)
+    err = np.linalg.norm(cmp.predicted.tips_mm[ok, 0] - cmp.exact.tips_mm[ok, 0], axis=-1)
+    worst = ok[np.argsort(err)[::-1][:k]]
+    q = cmp.exact.q[worst]
+    moved = exact_tip_steps(robot, q, cmp.exact.tips_mm[worst, 0])
+    jumps = jumps_within(robot, q, cmp.exact.tips_mm[worst, 0], PROBE_STEP["rotation_rad"])
+    rows = [{"q": [round(float(v), 4) for v in qi], "tip_error_mm": round(float(e), 4),
+             "exact_tip_step_mm": None if not np.isfinite(m) else round(float(m), 3)}
+            for qi, e, m in zip(q, np.sort(err)[::-1][:k], moved, strict=True)]
+    return {"checked": len(rows), "next_to_jump": int(jumps.sum()), "probe_step": PROBE_STEP,
+            "jump_mm": JUMP_MM, "resolution_rad": RESOLUTION_RAD, "configurations": rows}

@@ -46,11 +46,13 @@ from ctrplan.kinematics.pinn import PinnBackend
 from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.model.causes.base import make_effect
 from ctrplan.model.robot import Robot
+from ctrplan.training.checkpoints import remove_checkpoint
 from ctrplan.training.evaluate import compare
 from ctrplan.training.fewshot import FewShot, mechanics_joints, model_joints, observations, validation_split
 from ctrplan.training.lag import fit_friction
 from ctrplan.training.physics import quat_to_matrix
-from ctrplan.training.trainer import Recipe, TrainResult, get_recipe, remove_checkpoint, train
+from ctrplan.training.recipes import Recipe, get_recipe
+from ctrplan.training.trainer import TrainResult, train
 
 #: Minutes of the adaptation stage (the default recipe on the extended mechanics).
 ADAPT_MINUTES = 4.0

@@ -97,14 +97,15 @@ def observation_residual(net: PinnNet, q: torch.Tensor, tips: torch.Tensor, tt: 
 
 
 def supervised_residual(net: PinnNet, sigma: torch.Tensor, q: torch.Tensor, x_true: torch.Tensor,
-                        orientation_weight: float = 1.0) -> torch.Tensor:
+                        orientation_weight: float = 1.0, position_weight: float = 1.0) -> torch.Tensor:
     """Dense supervision from exact Cosserat states x_true (B, 2N + 9), per group, mean squared and
-    scaled; the quaternion residual is multiplied by ``orientation_weight``."""
+    scaled; the quaternion and position residuals are multiplied by ``orientation_weight`` and
+    ``position_weight``."""
     ip = x_true.shape[1] - 7
     x = net(sigma, q)
     e = (x - x_true) / net.scales
     s = (sigma * (q[:, 0] + net.lengths[0]))[:, None]
     # positions as the evaluation sees them: error over arc length, in percent (5 mm softening at s=0)
-    e[:, ip:ip + 3] = (x[:, ip:ip + 3] - x_true[:, ip:ip + 3]) * 100.0 / (s + 5.0)
+    e[:, ip:ip + 3] = (x[:, ip:ip + 3] - x_true[:, ip:ip + 3]) * (100.0 * position_weight) / (s + 5.0)
     e[:, ip + 3:] = e[:, ip + 3:] * orientation_weight
     return group_norms(e, "mse")

@@ -23,6 +23,7 @@ import torch
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.model.robot import Robot
+from ctrplan.training import target
 from ctrplan.training.samples import solve_dense
 
 #: A tip orientation error of this many degrees scores like 1 mm of tip position error.
@@ -60,10 +61,8 @@ class Round:
 
 
 def tail(x: np.ndarray) -> dict:
-    """mean, p99, p99.9 and max of ``x`` (any shape), rounded for the card."""
-    x = np.ravel(x)
-    return {"mean": round(float(x.mean()), 4), "p99": round(float(np.percentile(x, 99)), 4),
-            "p99_9": round(float(np.percentile(x, 99.9)), 4), "max": round(float(x.max()), 4)}
+    """mean, p99, p99.9 and max of ``x`` (any shape; `ctrplan.training.target.tail`), rounded for the card."""
+    return {k: round(v, 4) for k, v in target.tail(x).items()}
 
 
 def tip_errors(net: PinnNet, q: np.ndarray, tips_mm: np.ndarray, quats: np.ndarray

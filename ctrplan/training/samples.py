@@ -19,6 +19,7 @@ import numpy as np
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.pinn_net import P_REF_MM
 from ctrplan.model.robot import Robot
+from ctrplan.training.budget import now
 
 #: Configurations solved per call while a pool is built (progress is reported between chunks).
 SOLVE_CHUNK = 4096
@@ -59,7 +60,7 @@ def solve_dense(robot: Robot, q: np.ndarray, points: int,
                 deadline: float | None = None) -> DenseStates:
     """Exact states at ``points`` uniform arc fractions for configurations q (B, 2N), solved in
     chunks (``progress(done, total)`` after each). Rows the solver could not converge on are left out
-    and listed in ``unsolved``. With a ``deadline`` (`time.monotonic` time) solving stops after the
+    and listed in ``unsolved``. With a ``deadline`` (`budget.now` time) solving stops after the
     first chunk that ends past it: the pool then covers the first rows of q only."""
     t0 = time.perf_counter()
     backend = CosseratBackend(robot)
@@ -69,7 +70,7 @@ def solve_dense(robot: Robot, q: np.ndarray, points: int,
         parts.append(backend.forward(q[a:a + chunk], points=points, check=False))
         if progress is not None:
             progress(min(a + chunk, len(q)), len(q))
-        if deadline is not None and time.monotonic() >= deadline:
+        if deadline is not None and now() >= deadline:
             q = q[:a + chunk]
             break
     ok = np.concatenate([bb.converged for bb in parts]) if parts else np.zeros(0, dtype=bool)
@@ -84,6 +85,24 @@ def solve_dense(robot: Robot, q: np.ndarray, points: int,
                            tips=np.empty((0, n, 3)), ends=np.empty((0, n)), unsolved=q)
     return DenseStates(q=q[ok], sigma=sigma, states=joined("state"), tips=joined("tips_mm"),
                        ends=joined("tube_ends_mm"), unsolved=q[~ok], seconds=time.perf_counter() - t0)
+
+
+def pool_joints(robot: Robot, n: int, rng: np.random.Generator, edge_share: float = 0.0) -> np.ndarray:
+    """``n`` configurations (n, 2N) for the exact pool: uniform in the domain box, except that in a
+    share ``edge_share`` of them, spread over the pool (a pool cut short keeps the share), each
+    translation box coordinate follows the arcsine law on its interval (density
+    ``1 / sqrt(x (1 - x))``: more near both limits, where the tubes are fully extended or retracted
+    and the tail of a network's error lives)."""
+    q = robot.sample_joints(n, rng)
+    k = int(round(edge_share * n))
+    if k:
+        nt, dom = robot.n_tubes, robot.domain
+        box = dom.to_box(q[n - k:])
+        u = 0.5 * (1.0 - np.cos(np.pi * rng.uniform(size=(k, nt))))
+        box[:, :nt] = dom.box_lower[:nt] + (dom.box_upper[:nt] - dom.box_lower[:nt]) * u
+        q[n - k:] = dom.from_box(box)
+        q = q[rng.permutation(n)]
+    return q
 
 
 def collocation(robot: Robot, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -117,3 +136,29 @@ def state_scales(dense: DenseStates, features: str) -> np.ndarray:
     scales[i_p:i_p + 3] = np.maximum(scales[i_p:i_p + 3], 1e-2)
     scales[i_p + 3:] = 1.0
     return scales
+
+
+#: Configurations and rotation step (rad) of `frame_tube`'s finite differences.
+FRAME_SAMPLES = 400
+FRAME_STEP_RAD = 1e-3
+
+
+def frame_tube(robot: Robot, n: int = FRAME_SAMPLES, seed: int = 0) -> int:
+    """The equivariant network's frame tube (0-based; `PinnNet`): the rotatable tube whose own
+    rotation moves the tube-1 tip most (median over ``n`` configurations of the domain, exact model,
+    finite differences). Turning all tubes together turns the tip rigidly, so with this tube as the
+    frame the network learns the smallest motion left: the others' rotations relative to it."""
+    nt = robot.n_tubes
+    rotatable = [i for i in range(nt) if not robot.domain.fixed[nt + i]]
+    if len(rotatable) < 2:
+        return rotatable[0] if rotatable else 0
+    backend = CosseratBackend(robot)
+    q = robot.sample_joints(n, np.random.default_rng([seed, 7]))
+    turned = [q.copy() for _ in rotatable]
+    for qi, i in zip(turned, rotatable, strict=True):
+        qi[:, nt + i] += FRAME_STEP_RAD
+    bb = backend.forward(np.concatenate([q, *turned]), points=2, check=False)
+    tips = bb.tips_mm[:, 0].reshape(len(rotatable) + 1, n, 3)
+    ok = bb.converged.reshape(len(rotatable) + 1, n).all(axis=0)
+    moved = np.linalg.norm(tips[1:, ok] - tips[:1, ok], axis=-1)
+    return rotatable[int(np.argmax(np.median(moved, axis=1)))] if ok.any() else 0

@@ -15,7 +15,8 @@ from ctrplan.training.losses import boundary_residual, observation_residual, ode
 from ctrplan.training.physics import TubeTensors
 
 if TYPE_CHECKING:
-    from ctrplan.training.trainer import Recipe, TrainingData
+    from ctrplan.training.recipes import Recipe
+    from ctrplan.training.trainer import TrainingData
 
 #: Weights of the state groups ``m_b, u, theta, p, h`` in the per-group residuals.
 GROUP_WEIGHTS = (1.0, 1.0, 1.0, 1.0, 1.0)
@@ -101,7 +102,8 @@ class DenseSupervision(LossTerm):
     def value(self, losses, net, step):
         r = losses.recipe
         sigma, q, x = self.batch(r, losses.data, losses.data.sampler.generator(step if r.resample else 0, 3))
-        return (losses.group_weights * supervised_residual(net, sigma, q, x, r.orientation_weight)).sum()
+        per_group = supervised_residual(net, sigma, q, x, r.orientation_weight, r.position_weight)
+        return (losses.group_weights * per_group).sum()
 
     @staticmethod
     def batch(r: Recipe, d: TrainingData, g: torch.Generator

@@ -8,7 +8,7 @@ from ctrplan.base.errors import InputError
 from ctrplan.cli.app import main
 from ctrplan.kinematics import make_backend
 from ctrplan.training.fewshot import split_shots
-from ctrplan.training.trainer import get_recipe
+from ctrplan.training.recipes import get_recipe
 
 
 @pytest.mark.parametrize(("call", "message"), [

@@ -17,7 +17,8 @@ from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.training.evaluate import compare
 from ctrplan.training.losses import boundary_residual
 from ctrplan.training.physics import TubeTensors, rhs
-from ctrplan.training.trainer import get_recipe, train
+from ctrplan.training.recipes import get_recipe
+from ctrplan.training.trainer import train
 from tests.paths import REPO
 
 

@@ -18,8 +18,9 @@ from ctrplan.kinematics.pinn import PinnBackend
 from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.model.robot import Loads, Robot
 from ctrplan.training.losses import boundary_residual, tracked_tips
-from ctrplan.training.physics import TubeTensors
-from ctrplan.training.trainer import get_recipe, train
+from ctrplan.training.physics import TubeTensors, quat_to_matrix
+from ctrplan.training.recipes import get_recipe
+from ctrplan.training.trainer import train
 from tests.paths import REPO
 
 TWO_TUBE = REPO / "examples" / "robots" / "two_tube.yaml"
@@ -43,10 +44,10 @@ domain:
 """
 
 
-def random_net(robot: Robot, seed: int, harmonics: int = 1) -> PinnNet:
+def random_net(robot: Robot, seed: int, harmonics: int = 1, frame: int = 0) -> PinnNet:
     torch.manual_seed(seed)
     return PinnNet(robot, hidden=32, layers=3, scales=np.linspace(0.5, 1.5, robot.n_states),
-                   harmonics=harmonics)
+                   harmonics=harmonics, frame=frame)
 
 
 def test_three_tube_encoding_is_the_papers(robot):
@@ -79,10 +80,12 @@ def test_harmonic_encoding_adds_multiples_of_the_relative_rotations(robot):
     torch.testing.assert_close(net.features(sigma, turned), expected, atol=2e-5, rtol=0)
 
 
-@pytest.mark.parametrize("n", [1, 2, 3, 4])
-def test_hard_constraints_and_equivariance_for_n_tubes(n):
+@pytest.mark.parametrize(("n", "frame"), [(1, 0), (2, 0), (2, 1), (3, 0), (3, 2), (4, 1)])
+def test_hard_constraints_and_equivariance_for_n_tubes(n, frame):
+    """Whichever tube is the frame tube: p(0) = 0, p'(0) = e3, m_b = 0, theta_1 = 0, unit
+    quaternions, and adding c to every alpha turns positions and tube 1's frame by Rz(c)."""
     robot = robot_of(n)
-    net = random_net(robot, n).double()
+    net = random_net(robot, n, frame=frame).double()
     assert net.n_inputs == 3 * n - 1 and net.mlp[-1].out_features == 2 * n + 9
     q = torch.tensor(robot.sample_joints(5, rng=n))
     x, dx = torch.func.jvp(lambda sg: net(sg, q), (torch.zeros(5, dtype=torch.float64),),
@@ -106,6 +109,7 @@ def test_hard_constraints_and_equivariance_for_n_tubes(n):
                       dtype=torch.float64)
     torch.testing.assert_close(b[:, ip:ip + 3], a[:, ip:ip + 3] @ rz.T)
     torch.testing.assert_close(b[:, 2:ip], a[:, 2:ip])
+    torch.testing.assert_close(quat_to_matrix(b[:, ip + 3:]), rz @ quat_to_matrix(a[:, ip + 3:]))
 
 
 def test_fixed_joints_give_constant_zero_features(tmp_path):
@@ -124,10 +128,10 @@ def test_fixed_joints_give_constant_zero_features(tmp_path):
     np.testing.assert_allclose(fast, net(torch.full((6,), 0.5), q).detach().numpy(), atol=2e-4)
 
 
-@pytest.mark.parametrize(("n", "harmonics"), [(1, 1), (2, 3), (3, 1), (3, 4), (4, 2)])
-def test_compiled_inference_matches_torch_for_n_tubes(n, harmonics):
+@pytest.mark.parametrize(("n", "harmonics", "frame"), [(1, 1, 0), (2, 3, 1), (3, 1, 0), (3, 4, 2), (4, 2, 1)])
+def test_compiled_inference_matches_torch_for_n_tubes(n, harmonics, frame):
     robot = robot_of(n, LOADS if n == 2 else Loads())
-    net = random_net(robot, 10 + n, harmonics)
+    net = random_net(robot, 10 + n, harmonics, frame)
     q = robot.sample_joints(40, rng=n)  # more than one cache-sized chunk of nodes
     frac = np.random.default_rng(n).uniform(0, 1, (40, 4))
     pinn = PinnBackend(robot, net, nodes=None)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
+from ctrplan.training.recipes import RECIPES, Recipe
 from ctrplan.training.terms import LOSS_TERMS, default_weights
-from ctrplan.training.trainer import RECIPES, Recipe
 
 
 def _active(recipe: Recipe, step: int, observations: int = 10) -> list[str]:

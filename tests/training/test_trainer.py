@@ -8,11 +8,11 @@ import pytest
 import torch
 
 from ctrplan.kinematics.pinn_net import PinnNet
+from ctrplan.training.recipes import get_recipe
 from ctrplan.training.trainer import (
     CosineSchedule,
     Trainer,
     TrainingData,
-    get_recipe,
     make_optimizer,
     new_net,
     train,
