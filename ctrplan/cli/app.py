@@ -47,8 +47,8 @@ def _root(
 
 
 #: The command modules, in the order `ctrplan --help` lists their commands (groups come last).
-COMMAND_MODULES = ("kinematics", "design", "diagnose", "model", "plan", "roadmap", "serve", "stability",
-                   "bench", "scene")
+COMMAND_MODULES = ("kinematics", "design", "diagnose", "model", "eval_model", "plan", "roadmap", "serve",
+                   "stability", "bench", "scene")
 
 
 def _register() -> None:

@@ -129,7 +129,7 @@ def test_check_fits_refuses_one_more_than_it_says_fits():
 def test_eval_model_memory_estimate_is_not_below_what_it_uses(robot):
     """The estimate `eval-model` refuses sizes with covers the arrays a comparison really holds
     (numpy's allocations, traced)."""
-    from ctrplan.cli.model import EVAL_COPIES
+    from ctrplan.cli.eval_model import EVAL_COPIES
     from ctrplan.kinematics.pinn import PinnBackend
     from ctrplan.training.evaluate import compare
 
