@@ -40,6 +40,8 @@ GIZMO_MM = 24.0
 #: The exact clearances of an answer are measured once no new target came for this long (s): a
 #: measurement (a few hundred ms) never delays the path of a target that is still being dragged.
 SETTLE_S = 0.4
+#: What the panel says below a roadmap's "no path" while the single-query planner looks for one.
+FALLING_BACK = "\n\n*planning from scratch (the single-query planner) ...*"
 #: An obstacle much larger than the target region's neighbourhood (the face plate) is drawn faint.
 BACKDROP_MM = 150.0
 
@@ -163,9 +165,9 @@ class Page:
         answer = self.session.plan(centre, tol, use="roadmap", clearances=False, preview=self._sketched)
         if answer is None:  # a newer target came before the validation: it is planned next
             return
-        self.show(answer)
-        if not answer.result.solved and self.session.live is not None and self._idle():
-            self.result.content += "\n\n*planning from scratch (the single-query planner) ...*"
+        fall_back = not answer.result.solved and self.session.live is not None and self._idle()
+        self.show(answer, note=FALLING_BACK if fall_back else "")  # one update: never "no path" alone
+        if fall_back:
             answer = self.session.plan(centre, tol, use="single", clearances=False)
             self.show(answer)
         if answer.result.dense is not None and self._idle(SETTLE_S):
@@ -233,11 +235,11 @@ class Page:
                      "blocked ones reopened")
         self.moved.content = text
 
-    def show(self, answer: Answer, move_target: bool = False, again: bool = False) -> None:
+    def show(self, answer: Answer, move_target: bool = False, again: bool = False, note: str = "") -> None:
         """Draw an answer (unless a newer one is drawn already): path, result, slider; with
         ``move_target`` (a target set elsewhere: the API) the target too. A dragged target is never
         moved back to where an older answer was planned. ``again``: the answer drawn last, now with
-        its clearances: the panel only."""
+        its clearances: the panel only. ``note``: markdown appended to the panel in the same update."""
         with self._draw_lock:
             if again and answer.number == self._drawn:
                 moved = {o.name: self.session.shift_of(o.name) for o in answer.scene.obstacles}
@@ -254,7 +256,7 @@ class Page:
                     self.vector.value = tuple(np.round(doc["target_mm"], 2))
                 self._draw_path(answer)
                 moved = {o.name: self.session.shift_of(o.name) for o in answer.scene.obstacles}
-                self.result.content = result_markdown(doc, answer.plan_result.planner, moved)
+                self.result.content = result_markdown(doc, answer.plan_result.planner, moved) + note
             self.server.flush()
 
     def show_sketch(self, sketch: Sketch) -> None:
