@@ -4,8 +4,9 @@ from it). See `ctrplan.planning.roadmap`."""
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import typer
@@ -16,6 +17,9 @@ from ctrplan.cli.bench import bench_app, publish
 from ctrplan.cli.options import ModelOpt, RobotOpt, as_option, load_backend, parse_duration
 from ctrplan.cli.progress import PlainProgress, StatusLine
 from ctrplan.kinematics.registry import DEFAULT_PLANNING_BACKEND, PLANNING_ORDER
+
+if TYPE_CHECKING:
+    from ctrplan.planning.roadmap.store import Roadmap
 
 ROADMAP_HELP = "Multi-query roadmaps: build once per scene, then answer targets in milliseconds."
 roadmap_app = typer.Typer(help=ROADMAP_HELP, short_help=ROADMAP_HELP, no_args_is_help=True,
@@ -65,6 +69,7 @@ def build_command(
     from ctrplan.base.dataio import check_output_dir, output_dir
     from ctrplan.base.machine import limit_threads
     from ctrplan.base.parallel import check_workers, open_pool
+    from ctrplan.model.robot import BUILTIN_ROBOTS, Robot
     from ctrplan.planning.roadmap.build import Source, build, planning_context
     from ctrplan.planning.roadmap.store import fingerprints, load_roadmap, read_meta
     from ctrplan.scene.loader import load_scene
@@ -78,7 +83,6 @@ def build_command(
     except InputError as exc:
         raise as_option(exc, flags) from None
     check_output_dir(out)
-    from ctrplan.model.robot import BUILTIN_ROBOTS, Robot
 
     sc = load_scene(scene, robot=None if robot is None else Robot.load(robot))
     be = load_backend(backend, sc.robot, model)
@@ -92,25 +96,36 @@ def build_command(
         ctx = planning_context(sc, be)
         output_dir(out)
 
-        def progress(info: dict) -> None:
-            if "starting" in info:
-                status(f"starting {executor} (each loads the model and the scene)")
-                return
-            if "indexing" in info:
-                done, total = info["indexing"]
-                status(f"indexing the workspace each node and edge sweeps: {done:,}/{total:,}")
-                return
-            st = info["stats"]
-            status(f"{info['nodes']:,} nodes ({info['connected']:,} connected), {st.edges_valid:,} edges, "
-                   f"{st.jobs} jobs; {_reach_text(st.reach)}", info["elapsed_s"])
-
         if workers > 1 or ray:  # the main process only makes jobs and adds results: one thread
             limit_threads()
         here = workers == 1 and not ray  # jobs run in this process: they use the context built above
         with open_pool(workers, ray, context=(lambda: ctx) if here else source) as pool:
             rm = build(ctx, source, out, pool, time_limit_s=limit_s, seed=seed, workers=workers,
-                       executor=executor, progress=progress,
+                       executor=executor, progress=_build_progress(status, executor),
                        focus=[(name, region or sc.target) for name, region in regions])
+    _report_build(out, rm, executor)
+
+
+def _build_progress(status: Callable[..., None], executor: str) -> Callable[[dict], None]:
+    """The build's progress callback: its phases and growth as status lines."""
+
+    def progress(info: dict) -> None:
+        if "starting" in info:
+            status(f"starting {executor} (each loads the model and the scene)")
+            return
+        if "indexing" in info:
+            done, total = info["indexing"]
+            status(f"indexing the workspace each node and edge sweeps: {done:,}/{total:,}")
+            return
+        st = info["stats"]
+        status(f"{info['nodes']:,} nodes ({info['connected']:,} connected), {st.edges_valid:,} edges, "
+               f"{st.jobs} jobs; {_reach_text(st.reach)}", info["elapsed_s"])
+
+    return progress
+
+
+def _report_build(out: Path, rm: Roadmap, executor: str) -> None:
+    """The build's summary line, and a warning for each focus region it never reached."""
     run = rm.meta["runs"][-1]
     minutes = max(run["seconds"], 1e-9) / 60.0
     added = run["nodes_after"] - run["nodes_before"]

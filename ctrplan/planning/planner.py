@@ -32,14 +32,14 @@ from ctrplan.planning.budget import (
     clock_record,
     states_for,
 )
-from ctrplan.planning.failure import explain_failure
+from ctrplan.planning.failure import FailureAnalysis, explain_failure
 from ctrplan.planning.goal import ANGLE_WEIGHT_MM_PER_RAD, tip_tangents
 from ctrplan.planning.ik import backend_tip_jacobian, compile_ik, solve_ik
 from ctrplan.planning.model import PlanningModel
 from ctrplan.planning.planners import scene_planner
 from ctrplan.planning.result import ExactGoal, PlanResult, PlanWork, RepairRecord
 from ctrplan.planning.scene_check import check_scene
-from ctrplan.planning.search import Progress, no_progress, search
+from ctrplan.planning.search import Progress, SearchOutcome, no_progress, search
 from ctrplan.planning.validate import (
     ValidatedPath,
     Validation,
@@ -237,8 +237,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     With an approximate backend (the PINN) the capsules get extra radius while planning: its
     calibrated error bound by arc-length region at the scene's ``surrogate_coverage``, or the
     scene's ``surrogate_margin_mm`` (see `ctrplan.planning.model.planning_backend`). The planning
-    model (`PlanningModel.build`: backends, margins, collision world, the stability decision) is
-    built once here and handed to the search, validation and repair. Every path is re-validated with the
+    model (`PlanningModel.build`) is built once and shared. Every path is re-validated with the
     exact model -- ``exact``, by default the backend's exact companion
     (`ctrplan.kinematics.registry.exact_companion`) -- at the planner's resolution (refined where
     the backbone moves more than a capsule radius); a path that fails there is repaired (colliding
@@ -265,8 +264,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     planner, _ = scene_planner(scene, planner)
     time_limit_s = _time_limit(scene, time_limit_s)
     max_states = check_max_states(max_states) or s.max_states
-    seed = s.seed if seed is None else seed
-    repair = s.repair if repair is None else repair
+    seed, repair = (s.seed if seed is None else seed), (s.repair if repair is None else repair)
     progress("compile")  # loading a backend compiles its kernels too
     t_compile = time.perf_counter()
     scene.robot.calibration.refuse(scene.robot.name, "plan")
@@ -290,10 +288,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
 
     if not checker.is_valid(scene.start):  # under the planning backend: cached for the search
         # valid for the exact model (checked above), not for the planning backend + its margin
-        return result("INVALID_START",
-                      f"the start configuration collides under the {model.backend.name} backend with its "
-                      f"planning margin ({model.margin_source['source']}) but not under the exact model "
-                      f"with {s.margin_mm:g} mm",
+        return result("INVALID_START", _start_invalid_message(model, s.margin_mm),
                       PlanWork(model.margin_mm, model.margin_source, compile_s, copy(checker.counters)))
     outcome = search(checker, planner=planner, time_limit_s=time_limit_s, max_states=max_states,
                      seed=seed, progress=progress, goal_hints=goal_hints,
@@ -302,30 +297,55 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     searched = {"planning_time_s": outcome.time_s, "kinematics_calls": checker.counters.kinematics_calls,
                 "cut_short": outcome.budget.cut_short}
     if outcome.path_q is None:
-        if not explain or outcome.sampler is None:
-            return result(outcome.status, outcome.message, work, **searched)
-        progress("explain")
-        why = explain_failure(checker, outcome.sampler, seed=seed,
-                              deadline=None if clock is None else time.perf_counter() + clock.left())
-        told = why.summary()
+        why = _why_not(checker, outcome, seed, clock, progress) if explain else None
+        told = "" if why is None else why.summary()
         return result(outcome.status, f"{outcome.message}. {told}" if told else outcome.message, work,
                       failure=why, **searched)
+    vp, path_q, work, searched = _confirm(model, checker, outcome, work, searched, seed=seed,
+                                          time_limit_s=time_limit_s, repair=repair, clock=clock,
+                                          clearances=clearances, progress=progress)
+    return result(outcome.status, _verdict(vp.report, repair), work,
+                  **{**searched, "solved": vp.report.ok, "path": path_q, "dense": vp})
+
+
+def _start_invalid_message(model: PlanningModel, margin_mm: float) -> str:
+    """Why a start valid under the exact model is not under the planning backend with its margin."""
+    return (f"the start configuration collides under the {model.backend.name} backend with its planning "
+            f"margin ({model.margin_source['source']}) but not under the exact model with {margin_mm:g} mm")
+
+
+def _why_not(checker: ConfigurationChecker, outcome: SearchOutcome, seed: int, clock: PlanClock | None,
+             progress: Progress) -> FailureAnalysis | None:
+    """What blocked a search that found no path (`explain_failure`), within what is left of the
+    clock; None when the search kept nothing to examine."""
+    if outcome.sampler is None:
+        return None
+    progress("explain")
+    return explain_failure(checker, outcome.sampler, seed=seed,
+                           deadline=None if clock is None else time.perf_counter() + clock.left())
+
+
+def _confirm(model: PlanningModel, checker: ConfigurationChecker, outcome: SearchOutcome, work: PlanWork,
+             searched: dict, *, seed: int, time_limit_s: float, repair: bool, clock: PlanClock | None,
+             clearances: bool, progress: Progress) -> tuple[ValidatedPath, np.ndarray, PlanWork, dict]:
+    """The found path under the exact model: its goal corrected (`exact_goal`), validated, repaired
+    where it fails (with ``repair``), its clearances measured (with ``clearances``); returns the
+    validated path, its joints (K, 2N), the work record and ``searched`` with the time and calls of
+    these steps added."""
     t_goal = time.perf_counter()
     path_q = model.space.unwrap(exact_goal(outcome.path_q, checker))
     goal = ExactGoal(len(path_q) > len(outcome.path_q), time.perf_counter() - t_goal)
     progress("validate")
     vp = validate_planned_path(model, path_q)
     work = replace(work, exact_goal=goal, validation_time_s=vp.report.time_s)
-    planning_time_s = searched["planning_time_s"] + goal.time_s
+    searched = {**searched, "planning_time_s": searched["planning_time_s"] + goal.time_s}
     if not vp.report.ok and repair:
         vp, path_q, fixed = _repair(model, vp, path_q, seed, time_limit_s, progress, outcome.goals, clock)
         work = replace(work, repair=fixed)
-        planning_time_s += fixed.time_s
-        searched.update(kinematics_calls=searched["kinematics_calls"] + fixed.kinematics_calls,
+        searched.update(planning_time_s=searched["planning_time_s"] + fixed.time_s,
+                        kinematics_calls=searched["kinematics_calls"] + fixed.kinematics_calls,
                         cut_short=searched["cut_short"] or fixed.cut_short)
     if clearances:
         progress("clearance")
         vp = measure_clearance(model, vp)
-    return result(outcome.status, _verdict(vp.report, repair), work,
-                  **{**searched, "planning_time_s": planning_time_s, "solved": vp.report.ok, "path": path_q,
-                     "dense": vp})
+    return vp, path_q, work, searched
