@@ -172,7 +172,7 @@ def main() -> int:
     ap.add_argument("--shots", type=int, default=None, help="fewshot: shots (default: all training rows)")
     ap.add_argument("--out", type=Path, help="write the results as JSON here")
     ap.add_argument("--train-args", default="", help="fewshot: more options of `train`, e.g. "
-                    "'--adapt-minutes 8'")
+                    "'--adapt-steps 6000'")
     ap.add_argument("--keep", type=Path, help="keep the files the runs write (models, robots) here")
     a = ap.parse_args()
     data, robot = a.data / "data.csv", a.data / "robot.yaml"

@@ -36,7 +36,7 @@ from ctrplan.model.robot import Robot
 from ctrplan.training.budget import CLOCKS, MIN_EVAL_CONFIGURATIONS, TimeBudget, now, use_clock
 from ctrplan.training.checkpoints import check_checkpoint, checkpoint_meta, remove_checkpoint
 from ctrplan.training.evaluate import CALIBRATION_CONFIGURATIONS, calibrate, compare, worst_configurations
-from ctrplan.training.recipes import DEFAULT_RECIPE, RECIPES, Recipe, get_recipe, pool_size
+from ctrplan.training.recipes import ADAPT_STEPS, DEFAULT_RECIPE, RECIPES, Recipe, get_recipe, pool_size
 from ctrplan.training.target import ACCURACY_TARGET, Monitor, summary
 from ctrplan.training.trainer import CHECKPOINT_EVERY_S, TrainResult
 from ctrplan.training.trainer import train as run_training
@@ -87,10 +87,10 @@ ShotsOpt = Annotated[int | None, typer.Option(
 HeldoutOpt, HeldoutLastOpt = heldout_options(
     "With --measured: fraction of the rows held out in contiguous blocks (default 0.25).",
     "With --measured: hold out the last FRACTION of the rows in acquisition order instead.")
-AdaptOpt = Annotated[float, typer.Option(
-    "--adapt-minutes", min=0.0,
-    help="With --measured: minutes to adapt the PINN to the extended mechanics diagnose finds "
-         "(0: fine-tune the PINN as it is).")]
+AdaptOpt = Annotated[int, typer.Option(
+    "--adapt-steps", min=0,
+    help="With --measured: Adam steps to adapt the PINN to the extended mechanics diagnose finds, "
+         "however long they take (about 3 CPU-minutes for the default; 0: fine-tune the PINN as it is).")]
 TransferOpt = Annotated[str, typer.Option(
     "--transfer", metavar="auto|none|NAME",
     help="Start from the layers of a model trained for another robot: auto picks the nearest shipped "
@@ -108,8 +108,8 @@ def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None
           time_limit: TrainTimeLimitOpt = None, clock: ClockOpt = "wall", seed: SeedOpt = 0,
           device: DeviceOpt = "cpu", threads: ThreadsOpt = None, resume: ResumeOpt = False,
           init: InitOpt = None, measured: MeasuredOpt = None, shots: ShotsOpt = None,
-          heldout: HeldoutOpt = None, heldout_last: HeldoutLastOpt = None, adapt_minutes: AdaptOpt = 4.0,
-          transfer: TransferOpt = "auto",
+          heldout: HeldoutOpt = None, heldout_last: HeldoutLastOpt = None,
+          adapt_steps: AdaptOpt = ADAPT_STEPS, transfer: TransferOpt = "auto",
           out_dir: OutDirOpt = MODELS_DIR, settings: SetOpt = None, as_json: CardJsonOpt = False) -> None:
     """Train a PINN on the Cosserat-rod equations (paper III) and write it with its model card.
 
@@ -172,7 +172,7 @@ def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None
         source = _resumed_transfer(meta, model_robot)
     try:
         result = _run(model_robot, rec, out, start, fewshot, budget, console,
-                      dict(seed=seed, device=device, resume=resume), init=init, adapt_minutes=adapt_minutes,
+                      dict(seed=seed, device=device, resume=resume), init=init, adapt_steps=adapt_steps,
                       transfer=source)
     except KeyboardInterrupt:
         _how_to_resume(console, out)
@@ -241,7 +241,7 @@ def _resumed_transfer(meta: dict, robot: Robot) -> Transfer | None:
 
 def _run(robot: Robot, rec: Recipe, out: Path, start: PinnBackend | None, fewshot: FewShot | None,
          budget: TimeBudget, console: Console, common: dict, *, init: str | None,
-         adapt_minutes: float, transfer: Transfer | None) -> TrainResult:
+         adapt_steps: int, transfer: Transfer | None) -> TrainResult:
     """Train (or fine-tune on ``fewshot``) with a progress bar on a terminal; the card's evaluation
     and calibration are cut short where the ``budget`` runs out (`ctrplan.training.budget`)."""
     bar = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[done]}"),
@@ -271,7 +271,7 @@ def _run(robot: Robot, rec: Recipe, out: Path, start: PinnBackend | None, fewsho
             from ctrplan.training.finetune import finetune
 
             return finetune(fewshot, start, out, rec, init_model=str(init), log=console.print,
-                            adapt_minutes=adapt_minutes, progress=progress, time_limit_s=budget.limit_s,
+                            adapt_steps=adapt_steps, progress=progress, time_limit_s=budget.limit_s,
                             **common)
         return run_training(robot, rec, out, init_from=start.net if start else None, **common,
                             progress=progress, data_progress=data_progress, budget=budget,

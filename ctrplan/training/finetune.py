@@ -8,7 +8,8 @@ Stages (each timed; the card and the printout say how long each took):
    transmission lengths) and calibration (registration, sensor offset, backlash, windup).
 2. **adapt** the PINN to the extended mechanics where they differ from the model's robot: the default
    recipe's supervised training on exact solutions of the extended mechanics, started from the given
-   PINN and given `ADAPT_MINUTES` (hard-example mining included). This PINN is as good a model of the
+   PINN, for `ADAPT_STEPS` optimiser steps (hard-example mining included; a step budget, not minutes,
+   so that a loaded machine takes longer instead of stopping early). This PINN is as good a model of the
    extended robot as the start PINN was of its own.
 3. **learn from the shots** what the physics does not explain: first the lag of the joints after a
    reversal (`ctrplan.training.lag`: the cause library's `friction`, Maxwell-slip elements on the
@@ -32,6 +33,7 @@ the robot file written beside the model.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import time
 from pathlib import Path
 
@@ -51,11 +53,8 @@ from ctrplan.training.evaluate import compare
 from ctrplan.training.fewshot import FewShot, mechanics_joints, model_joints, observations, validation_split
 from ctrplan.training.lag import fit_friction
 from ctrplan.training.physics import quat_to_matrix
-from ctrplan.training.recipes import Recipe, get_recipe
+from ctrplan.training.recipes import ADAPT_STEPS, Recipe, get_recipe
 from ctrplan.training.trainer import TrainResult, train
-
-#: Minutes of the adaptation stage (the default recipe on the extended mechanics).
-ADAPT_MINUTES = 4.0
 
 #: Rows of the comparison table: key -> label.
 MODELS = {"nominal": "nominal Cosserat", "extended": "extended Cosserat",
@@ -131,21 +130,23 @@ def kept_text(kept: dict) -> str:
     return text
 
 
-def adapt(start: PinnBackend, mechanics: Robot, out: Path, minutes: float = ADAPT_MINUTES,
+def adapt(start: PinnBackend, mechanics: Robot, out: Path, steps: int = ADAPT_STEPS,
           **train_kwargs) -> PinnNet:
     """Stage 2: the start PINN trained on exact solutions of ``mechanics`` (the default recipe for
-    ``minutes``, continuing its weights at a lower learning rate); written to ``out`` either way (the
-    start network itself, noted in its card, when the mechanics are its robot's or ``minutes`` is 0)."""
-    if mechanics.fingerprint == start.robot.mechanics.fingerprint or minutes <= 0:
-        why = "the mechanics are the start model's" if minutes > 0 else "--adapt-minutes 0"
+    ``steps`` Adam steps, however long they take, continuing its weights at a lower learning rate);
+    written to ``out`` either way (the start network itself, noted in its card, when the mechanics are
+    its robot's or ``steps`` is 0)."""
+    if mechanics.fingerprint == start.robot.mechanics.fingerprint or steps <= 0:
+        why = "the mechanics are the start model's" if steps > 0 else "--adapt-steps 0"
         save_model(start.net, mechanics, out, {"note": f"the start network unchanged ({why})",
                                               "stages": start.card.get("stages", [])})
         return start.net
-    recipe = get_recipe("fast", lr=5e-4, warmup_steps=100)
+    recipe = dataclasses.replace(get_recipe("fast", lr=5e-4, warmup_steps=min(100, steps // 4), steps=steps),
+                                 minutes=None)   # no time limit: the steps are the budget
     net = copy.deepcopy(start.net)
     if not mechanics.loads.axisymmetric:     # gravity across the robot breaks the rotation symmetry
         net = net.with_absolute_angles(mechanics)
-    net = train(mechanics, recipe, out, init_from=net, time_limit_s=minutes * 60, **train_kwargs,
+    net = train(mechanics, recipe, out, init_from=net, **train_kwargs,
                 extra_card={"note": f"the extended mechanics {mechanics.name!r} of a diagnosis"}).net
     remove_checkpoint(out)
     return net
@@ -188,7 +189,7 @@ def choose_stage(fs: FewShot, val: np.ndarray, stages: dict[str, tuple[PinnNet, 
 
 
 def finetune(fs: FewShot, start: PinnBackend, out: Path, recipe: Recipe, *, init_model: str,
-             diagnose_options: DiagnoseOptions | None = None, adapt_minutes: float = ADAPT_MINUTES,
+             diagnose_options: DiagnoseOptions | None = None, adapt_steps: int = ADAPT_STEPS,
              log=None, **train_kwargs) -> TrainResult:
     """Fine-tune the PINN ``start`` (loaded as ``init_model``) on the shots of ``fs`` (data read from a
     file) in the three stages of this module; write ``out`` (the stage best on the validation shots),
@@ -208,7 +209,7 @@ def finetune(fs: FewShot, start: PinnBackend, out: Path, recipe: Recipe, *, init
     t0 = time.perf_counter()
     say(f"stage 2/3: adapt the PINN to the extended mechanics (named: {diag.cause})")
     adapt_kwargs = {k: v for k, v in train_kwargs.items() if k in ("seed", "device", "progress")}
-    adapted = adapt(start, ext.mechanics, out.with_name(out.name + "_adapted"), adapt_minutes, **adapt_kwargs)
+    adapted = adapt(start, ext.mechanics, out.with_name(out.name + "_adapted"), adapt_steps, **adapt_kwargs)
     seconds["adapt_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     say("stage 3/3: learn from the shots what the physics does not explain")

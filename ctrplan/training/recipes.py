@@ -75,6 +75,11 @@ RECIPES = {
 }
 DEFAULT_RECIPE = "fast"
 
+#: Adam steps of few-shot fine-tuning's adaptation stage (the default recipe on the extended mechanics
+#: a diagnosis found, `ctrplan.training.finetune.adapt`): about 3 CPU-minutes of one thread here. A step
+#: budget, not minutes: a 4-minute limit bought 106 steps on a machine at load 7-11.
+ADAPT_STEPS = 3000
+
 
 def get_recipe(name: str, /, **overrides) -> Recipe:
     """Recipe ``name`` with fields replaced by ``overrides`` (None values are ignored)."""

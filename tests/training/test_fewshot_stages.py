@@ -30,7 +30,7 @@ def run(tmp_path_factory):
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         rc = main(["train", "--measured", str(csv), "--shots", str(SHOTS), "--heldout-last",
-                   str(HELDOUT_LAST), "--adapt-minutes", "0", "--steps", "30", "--set", "lr=0.05",
+                   str(HELDOUT_LAST), "--adapt-steps", "0", "--steps", "30", "--set", "lr=0.05",
                    "--set", "dense_configs=2000",
                    "--set", "warmup_steps=0", "--threads", "1", "--out-dir", str(tmp), "--name", "ft",
                    "--json"])

@@ -46,7 +46,7 @@ def finetuned(measured, tmp_path_factory):
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
         rc = main(["train", "--measured", str(measured), "--shots", str(SHOTS), "--heldout", str(HELDOUT),
-                   "--steps", "60", "--adapt-minutes", "0.3", "--threads", "1", "--set", "dense_configs=2000",
+                   "--steps", "60", "--adapt-steps", "20", "--threads", "1", "--set", "dense_configs=2000",
                    "--out-dir", str(out),
                    "--name", "ft", "--json"])
     assert rc == 0
