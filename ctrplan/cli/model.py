@@ -348,8 +348,9 @@ def _report(console: Console, out: Path, result: TrainResult, budget: TimeBudget
                           f"error lie within {w['probe_step']['rotation_rad']:g} rad or "
                           f"{w['probe_step']['translation_mm']:g} mm of a jump of the exact model (its tip "
                           f"moves over {w['jump_mm']:g} mm across {w['resolution_rad']:g} rad: the robot "
-                          f"snaps there, see `ctrplan stability`); no training time makes a smooth "
-                          f"surrogate follow a jump")
+                          f"snaps there); no training time makes a smooth surrogate follow a jump. Train "
+                          f"on the snap-free part: `ctrplan stability --robot R.yaml --write-robot "
+                          f"R_snapfree.yaml`, then `ctrplan train --robot R_snapfree.yaml`")
     if card.get("meets_target") is False:
         console.print(f"warning: {target_text(card)}: this model MISSES its accuracy target; train it longer "
                       f"(--time-limit, --steps). Planning with it warns (meets_target: false in "

@@ -17,10 +17,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from ctrplan.model.robot import Robot
+from ctrplan.base.yamlio import YamlDoc
+from ctrplan.model.robot import Robot, robot_from_yaml
 
 #: Below this share of the checked configurations kept, no single coordinate explains the snaps.
 MIN_KEPT_SHARE = 0.3
@@ -45,6 +47,15 @@ class SnapAdvice:
         return {"coordinate": self.coordinate, "key": self.key, "interval": list(self.interval),
                 "near": self.near, "threshold": self.threshold, "kept_share": self.kept_share,
                 "text": self.text}
+
+    def limited(self, robot: Robot) -> Robot:
+        """``robot`` with this limit in its domain, named ``NAME_snapfree``: the robot file the advice
+        describes (a hypothesis until `ctrplan stability` certifies it)."""
+        data = robot.to_dict()
+        data["domain"][self.key] = [round(v, 3) for v in self.interval]   # as the advice's text gives it
+        data["name"] = f"{robot.name}_snapfree"
+        where = Path(f"<{robot.name} limited by {self.key}>")
+        return robot_from_yaml(YamlDoc(data=data, path=where, lines={}))
 
 
 def snap_advice(robot: Robot, q: np.ndarray, flagged: np.ndarray, steps: int) -> SnapAdvice | None:

@@ -112,3 +112,27 @@ def test_stability_command_prints_the_advice(tmp_path, capsys):
                  str(tmp_path / "out")]) == 0
     err = capsys.readouterr().err
     assert "advice: snaps near alpha2 - alpha1" in err and "alpha2_minus_alpha1_rad: [" in err
+
+
+def test_write_robot_writes_the_limited_robot_and_certifies_it(tmp_path, capsys):
+    """`--write-robot`: the pair above its critical length (it snaps near a half turn, the closed form)
+    is written with the advised limit and that robot is checked snap-free in the same run; a snap-free
+    robot writes nothing."""
+    r = overlapping_pair(1.1 * critical_length_mm(overlapping_pair(50.0)))
+    path, written = tmp_path / "pair.yaml", tmp_path / "out" / "pair_snapfree.yaml"
+    path.write_text(yaml.safe_dump(r.to_dict()))
+    assert main(["stability", "--robot", str(path), "--n", "6", "--steps", "37", "--seed", "1", "--out",
+                 str(tmp_path / "out"), "--write-robot", str(written), "--json"]) == 0
+    limited = json.loads(capsys.readouterr().out)["limited_robot"]
+    assert limited["snap_free"] is True and limited["file"] == str(written)
+    robot = Robot.load(written)
+    lo, hi = robot.domain.to_dict()["alpha2_minus_alpha1_rad"]
+    assert -math.pi < lo < -math.pi / 2 and hi == -lo   # the safe part: short of the half turn
+    assert robot.name == f"{r.name}_snapfree" and robot.fingerprint == limited["fingerprint"]
+    assert robot.tubes == r.tubes
+    safe = overlapping_pair(0.9 * critical_length_mm(overlapping_pair(50.0)))
+    path.write_text(yaml.safe_dump(safe.to_dict()))
+    other = tmp_path / "none.yaml"
+    assert main(["stability", "--robot", str(path), "--n", "4", "--steps", "19", "--out",
+                 str(tmp_path / "o2"), "--write-robot", str(other)]) == 0
+    assert "nothing to limit; wrote nothing" in capsys.readouterr().err and not other.exists()
