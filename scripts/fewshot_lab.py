@@ -96,9 +96,8 @@ def main() -> None:
     parser.add_argument("out", type=Path)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--shots", type=int, default=500)
-    parser.add_argument("extra", nargs="*")
-    ns = parser.parse_args()
-    report = run_lab(ns.out, ns.seed, ns.shots, ns.extra)
+    ns, extra = parser.parse_known_args()   # what follows `--` goes to `ctrplan train`
+    report = run_lab(ns.out, ns.seed, ns.shots, [a for a in extra if a != "--"])
     (ns.out / "report.json").write_text(json.dumps(report, indent=1))   # what update_readme renders
     print(json.dumps({k: v for k, v in report.items() if k != "card"}, indent=1))
 
