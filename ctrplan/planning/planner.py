@@ -73,10 +73,10 @@ def check_start(model: PlanningModel, start_backbone: Backbone | None = None) ->
 
 
 def compile_kernels(model: PlanningModel, progress: Progress = no_progress) -> Backbone:
-    """Run the model's backends on the start and on it twice, and the IK kernels on a dummy seed, so
-    that numba compiles (first run only) or loads from its cache every kernel a plan uses before the
-    planning clock starts. Returns the exact backbone of the start (the start check uses it: the
-    start is solved once).
+    """Run the model's backends on the start and on it twice, the IK kernels on a dummy seed and the
+    collision checks on the start, so that numba compiles (first run only) or loads from its cache
+    every kernel a plan uses before the planning clock starts. Returns the exact backbone of the start
+    (the start check uses it: the start is solved once).
     ``progress("compile", done=k, total=n)`` counts the n kernel sets (a backend's single-query and
     batched ones, and the exact backend's along a path where validation uses it), k of them ready."""
     q = np.asarray(model.scene.start, dtype=float)
@@ -91,6 +91,10 @@ def compile_kernels(model: PlanningModel, progress: Progress = no_progress) -> B
         if batch.ndim == 1:
             bb = out
     compile_ik(model.space)
+    # the collision checks' kernels (single and batched) and the world's grids, on throwaway checkers
+    # (their counters are no plan's): on a cold cache they took the whole time limit of a first plan
+    ConfigurationChecker(model).is_valid(q)
+    ConfigurationChecker(model).check(np.stack([q, q]))
     progress("compile", done=len(calls), total=len(calls))
     return bb
 
@@ -243,8 +247,9 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     the backbone moves more than a capsule radius); a path that fails there is repaired (colliding
     stretches re-planned with the exact model) or reported as not solved. ``solved`` is True only if
     the exact model confirms a collision-free path that ends with the tip in the target. Kernels are
-    compiled before the clock starts; a plan that takes longer than ``time_limit_s`` says so. Bad
-    input (an unknown planner, a start in collision) raises `InputError` naming the parameter.
+    compiled and the start checked before the clock starts; a plan that takes longer than
+    ``time_limit_s`` says so. Bad input (an unknown planner, a start in collision) raises
+    `InputError` naming the parameter.
     ``goal_hints`` (K, 2N): goal configurations known already (e.g. from a reachability screen),
     where goal sampling starts. ``world``: the scene's collision world if already built (a design
     study plans many targets in one anatomy); by default it is built here. ``clearances``: also
@@ -255,8 +260,8 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
 
     The clock (`ctrplan.planning.budget`): with ``wall_limit`` (default: when no work budget is given,
     neither ``max_states`` nor the scene's) ``time_limit_s`` is a time limit -- everything after
-    kernel compilation ends within `WALL_FACTOR` x it; otherwise the work budget decides and the
-    clock only guards.
+    the set-up (kernel compilation, the start check) ends within `WALL_FACTOR` x it; otherwise the
+    work budget decides and the clock only guards.
     """
     t_entry = time.perf_counter()
     s = scene.settings
@@ -270,10 +275,10 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     scene.robot.calibration.refuse(scene.robot.name, "plan")
     model = PlanningModel.build(scene, resolve_backend(backend, scene.robot), exact, world)
     start_bb = compile_kernels(model, progress)
-    compile_s = time.perf_counter() - t_compile
-    clock = PlanClock(time_limit_s, t_entry + compile_s) if wall_limit else None
-    progress("start")  # the collision world: its distance grid and kernels on first use
+    progress("start")  # the collision world: its distance grid on first use
     check_start(model, start_bb)  # the start under the exact model, solved once
+    compile_s = time.perf_counter() - t_compile  # set-up: outside the time limit
+    clock = PlanClock(time_limit_s, t_entry + compile_s) if wall_limit else None
     checker = ConfigurationChecker(model)
     max_states = max_states or states_for(model.backend.name, time_limit_s)
 

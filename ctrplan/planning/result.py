@@ -89,10 +89,11 @@ class RepairRecord:
 @dataclass(frozen=True)
 class PlanWork:
     """How a plan got to its verdict: the search's capsule margin (mm) and where it comes from
-    (`ctrplan.planning.model.planning_backend`), the kernel compile time (s, outside the planning
-    time), the search's counters, and -- where the plan got that far -- the search record, the exact
-    goal correction, the first exact validation's time (s), the repair, and how the clock bounded
-    the plan (`ctrplan.planning.budget.clock_record`)."""
+    (`ctrplan.planning.model.planning_backend`), the set-up time (s, outside the planning time and
+    its limit: kernel compilation, the collision world's first use, the start check), the search's
+    counters, and -- where the plan got that far -- the search record, the exact goal correction, the
+    first exact validation's time (s), the repair, and how the clock bounded the plan
+    (`ctrplan.planning.budget.clock_record`)."""
 
     planning_margin_mm: float
     margin_source: dict
