@@ -22,8 +22,8 @@ from ctrplan.planning.planner import resolve_backend
 from ctrplan.scene.loader import load_scene
 
 def signatures():
-    return {{f"{{m}}.{{k}}": len(v.signatures) for m, mod in list(sys.modules.items()) if m.startswith("ctrplan")
-            for k, v in list(vars(mod).items()) if isinstance(v, Dispatcher)}}
+    return {{f"{{m}}.{{k}}": len(v.signatures) for m, mod in list(sys.modules.items())
+            if m.startswith("ctrplan") for k, v in list(vars(mod).items()) if isinstance(v, Dispatcher)}}
 
 scene = load_scene({str(SCENES / "open.yaml")!r})
 model = PlanningModel.build(scene, resolve_backend("pinn", scene.robot))
@@ -33,7 +33,8 @@ checker = ConfigurationChecker(model)
 q = model.space.sample(16, np.random.default_rng(0))
 checker.is_valid(q[0]); checker.check(q[1:9]); checker.check_motion(q[0], q[9], 0.5)
 after = signatures()
-print(json.dumps({{"kernels": len(before), "new": {{k: v for k, v in after.items() if v != before.get(k, 0)}}}}))
+new = {{k: v for k, v in after.items() if v != before.get(k, 0)}}
+print(json.dumps({{"kernels": len(before), "new": new}}))
 """
 
 
