@@ -69,18 +69,3 @@ def private_cache(tmp_path, monkeypatch) -> Path:
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     return tmp_path / "cache"
 
-
-@pytest.fixture(autouse=True)
-def _sigint_left_as_found(request):
-    """A test that leaves Ctrl-C ignored (SIG_IGN) in this process makes every later child process
-    ignore it too (an ignored signal survives exec): put it back and say which test did it."""
-    import signal
-
-    before = signal.getsignal(signal.SIGINT)
-    yield
-    after = signal.getsignal(signal.SIGINT)
-    if after is not before:
-        signal.signal(signal.SIGINT, before)
-        import warnings
-
-        warnings.warn(f"{request.node.nodeid} left SIGINT {after!r} (was {before!r}); restored", stacklevel=1)

@@ -21,6 +21,9 @@ START = [sys.executable, "-c", "from ctrplan.cli.console import run; run()", "se
 
 
 def _child(args: list[str]) -> subprocess.Popen:
+    """The console script in a child with Ctrl-C at its default: a suite started in the background
+    (``pytest &``) runs with SIGINT ignored, which a child would inherit (an ignored signal survives
+    exec) and then never see the test's Ctrl-C."""
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     return subprocess.Popen(START + args, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
