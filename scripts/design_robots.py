@@ -23,9 +23,10 @@ import numpy as np
 import yaml
 
 from ctrplan.base.errors import InputError
-from ctrplan.design.space import DIAMETERS, build_robot, distributions, max_strain, robot_dict
+from ctrplan.design.space import DIAMETERS, distributions, max_strain, robot_dict
 from ctrplan.design.task import DesignTask, load_task
 from ctrplan.kinematics.stability import certify, is_certified
+from ctrplan.model.robot import robot_from_dict
 
 #: Draws per seed before giving up (the skull-base task's space is mostly feasible).
 MAX_DRAWS = 200
@@ -45,7 +46,7 @@ def draw(task: DesignTask, rng: np.random.Generator) -> dict:
 def why_infeasible(task: DesignTask, data: dict) -> str | None:
     """The first robot-only feasibility condition ``data`` (a robot-file dict) fails, or None."""
     try:
-        robot = build_robot(data, "design")
+        robot = robot_from_dict(data, "design")
     except InputError as exc:
         return f"robot: {exc}"
     if max_strain(data) > task.max_strain:

@@ -109,10 +109,11 @@ def _write_limited(model: Robot, report, path: Path, n: int, steps: int, seed: i
                else "no single limit keeps the safe part (see the advice)")
         return {"file": None, "text": f"--write-robot: {why}; wrote nothing"}
     limited = advice.limited(model)
+    limit = f"{advice.key} {limited.domain.to_dict()[advice.key]}"   # as the file has it
     again, certificate = _sweep(limited, n, steps, seed, console, quiet)
     output_dir(path.parent, "--write-robot")
     limited.save(path, comment=f"{model.name} limited by `ctrplan stability` to its snap-free part: "
-                               f"domain {advice.key} {limited.domain.to_dict()[advice.key]}\n"
+                               f"domain {limit}\n"
                                f"{'certified snap-free' if again.snap_free else 'NOT snap-free either'} "
                                f"over {again.checked} configurations ({n} sweeps of {steps}, seed {seed})")
     verdict = ("snap-free (certified: planning skips the per-state stability test for it)"
@@ -121,5 +122,5 @@ def _write_limited(model: Robot, report, path: Path, n: int, steps: int, seed: i
     return {"file": str(path), "name": limited.name, "fingerprint": limited.fingerprint,
             "snap_free": again.snap_free, "counts": again.counts, "checked": again.checked,
             "certificate": None if certificate is None else str(certificate),
-            "text": f"wrote {path} ({limited.name}: {advice.key} {limited.domain.to_dict()[advice.key]}, "
+            "text": f"wrote {path} ({limited.name}: {limit}, "
                     f"{100 * advice.kept_share:.0f} % of the domain): {verdict}"}

@@ -36,11 +36,11 @@ import numpy as np
 from ctrplan.base.errors import InputError
 from ctrplan.collision.world import CollisionWorld
 from ctrplan.design.record import DesignRecord, DesignTimings, Infeasible, StabilityVerdict, TargetRecord
-from ctrplan.design.space import Parameters, build_robot, max_strain, robot_dict, total_length_mm
+from ctrplan.design.space import Parameters, max_strain, robot_dict, total_length_mm
 from ctrplan.design.task import DesignTask, NamedTarget, load_task
 from ctrplan.kinematics import EXACT_MODEL, make_backend
 from ctrplan.kinematics.stability import certify, is_certified
-from ctrplan.model.robot import Robot
+from ctrplan.model.robot import Robot, robot_from_dict
 from ctrplan.scene.objects import Scene
 
 #: Goal-sampling batches of the reachability screen (each of 3 x the scene's goal_samples IK seeds);
@@ -124,7 +124,7 @@ def evaluate(task: DesignTask, parameters: Parameters, seed: int = 0, *,
                             timings=DesignTimings(**timings), time_s=time.perf_counter() - t0)
 
     try:
-        robot = build_robot(data, "design")
+        robot = robot_from_dict(data, "design")
     except InputError as exc:
         return record(Infeasible("robot", str(exc).removeprefix("design: ")))
     known["fingerprint"] = robot.fingerprint

@@ -43,11 +43,11 @@ from ctrplan.base.yamlio import dump_yaml, load_yaml
 from ctrplan.design.objectives import OBJECTIVES
 from ctrplan.design.ranking import Design, best_design, designs_of, nominal_of, pareto_front, ranked
 from ctrplan.design.record import DesignRecord, TargetRecord
-from ctrplan.design.space import build_robot
 from ctrplan.design.study import finished_trials
 from ctrplan.design.task import DesignTask
 from ctrplan.kinematics import EXACT_MODEL, make_backend
 from ctrplan.kinematics.stability import certify, is_certified
+from ctrplan.model.robot import robot_from_dict
 from ctrplan.planning.execution import TrajectoryTable, trajectory_table
 from ctrplan.planning.result import PlanResult
 from ctrplan.scene.objects import Scene
@@ -160,7 +160,7 @@ def best_backbones(task: DesignTask, best: Design | None) -> list[tuple[str, np.
     reached = [] if best is None else [t for t in best.record.targets if t.reached]
     if not reached:
         return []
-    robot = build_robot(best.record.robot, "best design")
+    robot = robot_from_dict(best.record.robot, "best design")
     bb = make_backend(EXACT_MODEL, robot).forward(np.array([t.path[-1] for t in reached]),
                                                   points=OVERVIEW_POINTS, check=False)
     return list(zip([t.name for t in reached], task.scene.to_scene(bb.positions_mm), strict=True))
@@ -172,7 +172,7 @@ def write_best(task: DesignTask, best: Design, out: Path, study: str) -> dict[st
     from ctrplan.planning.model import exact_backend
 
     record = best.record
-    robot = build_robot(record.robot, str(out / "best_robot.yaml"))
+    robot = robot_from_dict(record.robot, str(out / "best_robot.yaml"))
     certificate = "not requested (constraints.snap_free: false): planning tests stability per state"
     if task.snap_free:
         if not is_certified(robot):

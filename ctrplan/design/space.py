@@ -9,14 +9,11 @@ of a design; the robot loader (`ctrplan.model.robot.robot_from_yaml`) decides wh
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import optuna
 
-from ctrplan.base.yamlio import YamlDoc
 from ctrplan.design.task import DesignTask, StockSize
-from ctrplan.model.robot import Robot, robot_from_yaml
 
 #: Name of the categorical parameter that picks the stock sizes of all tubes.
 DIAMETERS = "diameters"
@@ -54,12 +51,6 @@ def robot_dict(task: DesignTask, parameters: Parameters) -> dict[str, Any]:
     if parameters:
         d["name"] = f"{task.name}_design"
     return d
-
-
-def build_robot(data: dict[str, Any], where: str) -> Robot:
-    """A `Robot` from a robot-file dict through the robot loader (`InputError` when it refuses;
-    ``where`` names the source in its message)."""
-    return robot_from_yaml(YamlDoc(data=data, path=Path(where), lines={}))
 
 
 def max_strain(data: dict[str, Any]) -> float:

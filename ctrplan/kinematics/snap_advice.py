@@ -17,12 +17,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from ctrplan.base.yamlio import YamlDoc
-from ctrplan.model.robot import Robot, robot_from_yaml
+from ctrplan.model.robot import Robot, robot_from_dict
 
 #: Below this share of the checked configurations kept, no single coordinate explains the snaps.
 MIN_KEPT_SHARE = 0.3
@@ -54,8 +52,7 @@ class SnapAdvice:
         data = robot.to_dict()
         data["domain"][self.key] = [round(v, 3) for v in self.interval]   # as the advice's text gives it
         data["name"] = f"{robot.name}_snapfree"
-        where = Path(f"<{robot.name} limited by {self.key}>")
-        return robot_from_yaml(YamlDoc(data=data, path=where, lines={}))
+        return robot_from_dict(data, f"<{robot.name} limited by {self.key}>")
 
 
 def snap_advice(robot: Robot, q: np.ndarray, flagged: np.ndarray, steps: int) -> SnapAdvice | None:

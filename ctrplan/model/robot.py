@@ -690,6 +690,12 @@ def robot_from_yaml(doc: YamlDoc) -> Robot:
     return robot
 
 
+def robot_from_dict(data: dict[str, Any], where: str) -> Robot:
+    """A `Robot` from a robot-file dict (what `Robot.to_dict` writes) through `robot_from_yaml`
+    (`InputError` when it refuses; ``where`` names the source in its message)."""
+    return robot_from_yaml(YamlDoc(data=data, path=Path(where), lines={}))
+
+
 def _limits_from_yaml(doc: YamlDoc) -> JointLimits:
     raw = doc.data.get("limits")
     if raw is None:

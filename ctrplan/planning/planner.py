@@ -270,14 +270,7 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
     time_limit_s = _time_limit(scene, time_limit_s)
     max_states = check_max_states(max_states) or s.max_states
     seed, repair = (s.seed if seed is None else seed), (s.repair if repair is None else repair)
-    progress("compile")  # loading a backend compiles its kernels too
-    t_compile = time.perf_counter()
-    scene.robot.calibration.refuse(scene.robot.name, "plan")
-    model = PlanningModel.build(scene, resolve_backend(backend, scene.robot), exact, world)
-    start_bb = compile_kernels(model, progress)
-    progress("start")  # the collision world: its distance grid on first use
-    check_start(model, start_bb)  # the start under the exact model, solved once
-    compile_s = time.perf_counter() - t_compile  # set-up: outside the time limit
+    model, start_bb, compile_s = _set_up(scene, backend, exact, world, progress)
     clock = PlanClock(time_limit_s, t_entry + compile_s) if wall_limit else None
     checker = ConfigurationChecker(model)
     max_states = max_states or states_for(model.backend.name, time_limit_s)
@@ -311,6 +304,21 @@ def plan(scene: Scene, backend: str | Backend | None = None, *, planner: str | N
                                           clearances=clearances, progress=progress)
     return result(outcome.status, _verdict(vp.report, repair), work,
                   **{**searched, "solved": vp.report.ok, "path": path_q, "dense": vp})
+
+
+def _set_up(scene: Scene, backend: str | Backend | None, exact: Backend | None, world: CollisionWorld | None,
+            progress: Progress) -> tuple[PlanningModel, Backbone, float]:
+    """What a plan does before its clock starts: the planning model, its kernels compiled
+    (`compile_kernels`) and the start checked (`check_start`). Returns the model, the start's exact
+    backbone and the seconds the set-up took."""
+    progress("compile")  # loading a backend compiles its kernels too
+    t0 = time.perf_counter()
+    scene.robot.calibration.refuse(scene.robot.name, "plan")
+    model = PlanningModel.build(scene, resolve_backend(backend, scene.robot), exact, world)
+    start_bb = compile_kernels(model, progress)
+    progress("start")  # the collision world: its distance grid on first use
+    check_start(model, start_bb)  # the start under the exact model, solved once
+    return model, start_bb, time.perf_counter() - t0
 
 
 def _start_invalid_message(model: PlanningModel, margin_mm: float) -> str:

@@ -21,10 +21,9 @@ from pathlib import Path
 from safetensors.torch import load_file
 
 from ctrplan.base.errors import InputError
-from ctrplan.base.yamlio import YamlDoc
 from ctrplan.kinematics.model_file import MODELS_DIR, read_card, shipped_models_dir
 from ctrplan.kinematics.pinn_net import PinnNet
-from ctrplan.model.robot import Robot, robot_from_yaml
+from ctrplan.model.robot import Robot, robot_from_dict
 from ctrplan.training.recipes import Recipe
 
 #: Tube properties compared by `robot_distance`.
@@ -64,7 +63,7 @@ def robot_distance(a: Robot, b: Robot) -> float:
 
 def card_robot(card: dict, where: Path) -> Robot:
     """The robot a model card was trained for (`InputError` if the card's robot cannot be read)."""
-    return robot_from_yaml(YamlDoc(data=card["robot"], path=where, lines={}))
+    return robot_from_dict(card["robot"], str(where))
 
 
 @dataclass(frozen=True)

@@ -19,14 +19,13 @@ from ctrplan.collision.checker import RobotCollisionChecker
 from ctrplan.collision.world import CollisionWorld
 from ctrplan.design.space import (
     DIAMETERS,
-    build_robot,
     distributions,
     max_strain,
     robot_dict,
     total_length_mm,
 )
 from ctrplan.design.task import load_task
-from ctrplan.model.robot import Robot, Tube
+from ctrplan.model.robot import Robot, Tube, robot_from_dict
 from tests.paths import REPO
 
 SKULLBASE_TASK = REPO / "scenes" / "skullbase_design.yaml"
@@ -90,7 +89,7 @@ def test_parameters_make_robot_files(task_file):
     params = {"tube1.curvature_1_per_m": 40.0, "tube1.curved_length_mm": 60.0, "tube2.curvature_1_per_m": 5.0,
               DIAMETERS: label}
     d = robot_dict(task, params)
-    robot = build_robot(d, "design")
+    robot = robot_from_dict(d, "design")
     t1, t2, t3 = robot.tubes
     assert t1.curvature_per_mm == pytest.approx(0.040) and t1.curved_length_mm == 60.0
     assert t2.curvature_per_mm == pytest.approx(0.005)
@@ -102,7 +101,7 @@ def test_parameters_make_robot_files(task_file):
     assert max_strain(d) == pytest.approx(expect)
     assert total_length_mm(d) == pytest.approx(sum(t.length_mm for t in robot.tubes))
     # the base design is the base robot itself (same fingerprint)
-    assert build_robot(robot_dict(task, {}), "base").fingerprint == Robot.nominal().fingerprint
+    assert robot_from_dict(robot_dict(task, {}), "base").fingerprint == Robot.nominal().fingerprint
 
 
 def _edit(path: Path, change) -> None:
