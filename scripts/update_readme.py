@@ -135,7 +135,8 @@ def render_robots(doc: dict[str, Any]) -> str:
         cpu = r.get("train_cpu_s")
         rows.append([f"`{r['robot']}`" if "/" in r["robot"] else r["robot"], start, r.get("clock", "wall"),
                      f"{r.get('command_s', r['wall_time_s']) / 60:.1f}", _fmt(cpu and cpu / 60, ".1f"),
-                     f"{r.get('dense_batch', FIRST_DENSE_BATCH):,}", str(r["steps"]), " / ".join(f"{mm[k]:.3f}" for k in ("mean", "p99", "p99_9", "max")),
+                     f"{r.get('dense_batch', FIRST_DENSE_BATCH):,}", str(r["steps"]),
+                     " / ".join(f"{mm[k]:.3f}" for k in ("mean", "p99", "p99_9", "max")),
                      "yes" if meets(mm) else "no", _reached(r), _card_says(r, mm),
                      f"{load['before'][0]:.1f} / {load['after'][0]:.1f}" if load else "–"])
     hw = "; ".join(sorted({r["hardware"] for r in doc["robots"]}))
@@ -147,7 +148,8 @@ def render_robots(doc: dict[str, Any]) -> str:
             + f"\n\nErrors against the exact model on {n:,} unseen configurations per robot (`ctrplan "
               f"eval-model --n {n}`); trained with `ctrplan train --robot ROBOT --time-limit 20m "
               f"--threads 1 [--clock cpu]` (default recipe; \"clock\": what the 20 minutes were read "
-              f"on; \"batch\": its supervised rows per step, `dense_batch`) on {hw}, two runs at once (one thread each: the pair "
+              f"on; \"batch\": its supervised rows per step, `dense_batch`) on {hw}, two runs at "
+              f"once (one thread each: the pair "
               f"holds `flock /work/heavy.lock`, no other timed job) but beside the other sessions' work "
               f"on the machine: \"CPU min\" is the CPU time the training command got (of the 20 "
               f"wall-clock minutes), the load average (1 min) before and after each run is in the last "
