@@ -340,8 +340,8 @@ def _report(console: Console, out: Path, result: TrainResult, budget: TimeBudget
                       f"the first training step and the smallest evaluation and calibration "
                       f"({MIN_EVAL_CONFIGURATIONS} configurations each) are never cut")
     if "time_to_target" in card:
-        console.print("accuracy: " + summary(card["time_to_target"], m["tip_error_mm"]["tube1"],
-                                             budget.limit_s))
+        judged = card.get("accuracy_target", {}).get("tip_mm", m["tip_error_mm"]["tube1"])
+        console.print("accuracy: " + summary(card["time_to_target"], judged, budget.limit_s))
         if not card.get("meets_target") and m.get("worst", {}).get("next_to_jump"):
             w = m["worst"]
             console.print(f"{w['next_to_jump']} of the {w['checked']} configurations with the largest tip "
@@ -364,7 +364,9 @@ def target_text(card: dict) -> str:
     got = t["measured"]
     parts = [f"{k.removeprefix('tube1_tip_').removesuffix('_mm').replace('_', '.')} {got[k]:.3g} mm "
              f"(target <= {t[k]:g} mm)" for k in ACCURACY_TARGET]
-    return f"tube-1 tip error {', '.join(parts)} on {t['configurations']} unseen configurations"
+    cut = t.get("judged_on") == "monitor"
+    on = " (the monitor's: the time limit cut the card's evaluation)" if cut else ""
+    return f"tube-1 tip error {', '.join(parts)} on {t['configurations']} unseen configurations{on}"
 
 
 def _how_to_resume(console: Console, out: Path) -> None:

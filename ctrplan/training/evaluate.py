@@ -178,15 +178,22 @@ def calibrate(model: Backend, robot: Robot, n: int = CALIBRATION_CONFIGURATIONS,
                        COVERAGES, seed)
 
 
-def accuracy_verdict(metrics: dict) -> dict:
-    """Whether ``metrics`` (`Comparison.metrics`) meet `ACCURACY_TARGET` (tube-1 tip error, mm):
-    ``{"meets_target": bool, "accuracy_target": {the target, "measured": the values compared,
-    "configurations"}}``."""
-    tip = metrics["tip_error_mm"]["tube1"]
+def accuracy_verdict(metrics: dict, monitor_tip_mm: dict | None = None,
+                     monitor_configurations: int = 0) -> dict:
+    """Whether the network meets `ACCURACY_TARGET` (tube-1 tip error, mm), judged on the larger of its
+    two unseen sets: the card's evaluation ``metrics`` (`Comparison.metrics`) or the monitor's last
+    measurement of the same network (``monitor_tip_mm``, a `tail` over ``monitor_configurations``) --
+    when a time limit cut the evaluation to a few configurations, their p99.9 is their max and says
+    little about the thousands the target is set on. ``{"meets_target": bool, "accuracy_target":
+    {the target, "measured": the values compared, "tip_mm": the tail judged, "configurations",
+    "judged_on": "evaluation" | "monitor"}}``."""
+    tip, n, source = metrics["tip_error_mm"]["tube1"], metrics["configurations"], "evaluation"
+    if monitor_tip_mm is not None and monitor_configurations > n:
+        tip, n, source = monitor_tip_mm, monitor_configurations, "monitor"
     measured = {k: tip[TARGET_STATISTIC[k]] for k in ACCURACY_TARGET}
     return {"meets_target": bool(meets(tip) and not metrics.get("nonfinite_predictions")),
-            "accuracy_target": {**ACCURACY_TARGET, "measured": measured,
-                                "configurations": metrics["configurations"]}}
+            "accuracy_target": {**ACCURACY_TARGET, "measured": measured, "tip_mm": dict(tip),
+                                "configurations": n, "judged_on": source}}
 
 
 #: Configurations with the largest tube-1 tip error that `worst_configurations` looks at.

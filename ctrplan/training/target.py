@@ -78,6 +78,11 @@ class Monitor:
         self.tips_mm = exact.tips_mm[ok, 0]
         self.curve: list[CurvePoint] = []
 
+    @property
+    def configurations(self) -> int:
+        """Monitor configurations the exact solver solved (the ones measured)."""
+        return len(self.q)
+
     def __call__(self, net: PinnNet, step: int, time_s: float) -> CurvePoint:
         dev = next(net.parameters()).device
         with torch.no_grad():

@@ -385,10 +385,14 @@ class Trainer:
         card |= {"mining": self._mining_record()} if self.data.hard is not None else {}
         card |= {"transferred_from": self.transferred_from} if self.transferred_from else {}
         card |= {ERROR_BOUND_KEY: calibrate(net)} if calibrate is not None else {}
+        last = self.monitor.curve[-1] if self.monitor is not None and self.monitor.curve else None
+        verdict = accuracy_verdict(metrics, last and last.tip_mm,
+                                   self.monitor.configurations if last else 0) if metrics else None
         if self.budget is not None:  # a run of `ctrplan train` (a fine-tuned model has its own table)
-            card |= {"time_limit": self.budget.to_json(), **accuracy_verdict(metrics)}
+            card |= {"time_limit": self.budget.to_json(), **(verdict or {})}
         if self.monitor is not None and metrics:
-            card |= {"time_to_target": time_to_target(self.monitor.curve, metrics["tip_error_mm"]["tube1"])}
+            judged = verdict["accuracy_target"]["tip_mm"]
+            card |= {"time_to_target": time_to_target(self.monitor.curve, judged)}
         save_model(net, self.robot, out, card)
         return TrainResult(net=net, steps=step, wall_time_s=wall, history=self.history, card=card)
 

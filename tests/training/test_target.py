@@ -18,6 +18,7 @@ from ctrplan.model.robot import Robot
 from ctrplan.training.evaluate import (
     JUMP_MM,
     Comparison,
+    accuracy_verdict,
     compare,
     exact_tip_steps,
     jumps_within,
@@ -37,6 +38,21 @@ def test_the_target_is_issue_40s_and_needs_both_statistics():
     assert ACCURACY_TARGET == {"tube1_tip_p99_9_mm": 0.5, "tube1_tip_max_mm": 1.0}
     assert meets(tip(0.5, 1.0)) and meets(tip(0.1, 0.2))
     assert not meets(tip(0.51, 0.9)) and not meets(tip(0.4, 1.01))
+
+
+def test_a_cut_evaluation_is_not_the_verdict():
+    """The hjhdog1 run of issue 40: a time limit cut the card's evaluation to 100 configurations, which
+    all met the target (max 0.27 mm), while the monitor's last measurement of the same network, on its
+    5,000, hit the robot's jump band (max 12.6 mm). The verdict is the larger set's."""
+    cut = {"tip_error_mm": {"tube1": tip(0.27, 0.27)}, "configurations": 100}
+    v = accuracy_verdict(cut, tip(0.45, 12.6), 5000)
+    assert v["meets_target"] is False and v["accuracy_target"]["judged_on"] == "monitor"
+    assert v["accuracy_target"]["configurations"] == 5000
+    assert v["accuracy_target"]["measured"] == {"tube1_tip_p99_9_mm": 0.45, "tube1_tip_max_mm": 12.6}
+    whole = {"tip_error_mm": {"tube1": tip(0.3, 0.6)}, "configurations": 5000}
+    v = accuracy_verdict(whole, tip(0.45, 12.6), 5000)     # as many: the card's own evaluation
+    assert v["meets_target"] is True and v["accuracy_target"]["judged_on"] == "evaluation"
+    assert accuracy_verdict(cut)["accuracy_target"]["judged_on"] == "evaluation"  # no monitor
 
 
 def test_time_to_target_is_the_first_point_of_the_curve_that_meets_it():

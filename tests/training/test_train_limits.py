@@ -77,9 +77,13 @@ def test_the_time_limit_cuts_the_exact_data_and_the_card_records_it(quick_model)
 
 def test_a_model_below_its_target_says_so_in_its_card_and_summary(quick_model):
     _, card, err = quick_model
-    tip = card["metrics"]["tip_error_mm"]["tube1"]
     target = card["accuracy_target"]
-    assert target["measured"] == {"tube1_tip_p99_9_mm": tip["p99_9"], "tube1_tip_max_mm": tip["max"]}
+    # the 3-s limit cut the card's evaluation below the monitor's 5,000: the verdict is the monitor's
+    # last measurement of the same network (`test_a_cut_evaluation_is_not_the_verdict` in test_target.py)
+    assert card["metrics"]["configurations"] < target["configurations"] and target["judged_on"] == "monitor"
+    tip = card["time_to_target"]["curve"][-1]["tip_mm"]
+    last = {"tube1_tip_p99_9_mm": tip["p99_9"], "tube1_tip_max_mm": tip["max"]}
+    assert target["measured"] == pytest.approx(last, abs=1e-4)
     assert {k: target[k] for k in ACCURACY_TARGET} == ACCURACY_TARGET == {
         "tube1_tip_p99_9_mm": 0.5, "tube1_tip_max_mm": 1.0}  # issue 40's target
     assert card["meets_target"] is (tip["p99_9"] <= 0.5 and tip["max"] <= 1.0) is False
