@@ -104,7 +104,8 @@ def time_to_target(curve: list[CurvePoint], final_tip_mm: dict | None = None) ->
     (``reached_at_s``, the run's clock) and, when it did not by the end, ``extrapolated_s``: the time
     at which power laws fitted to the last half of the curve (per target statistic) all meet it, at
     least the curve's end (None, with the ``reason``, when one of them does not fall or the curve is
-    too short). ``final_tip_mm``, the card's evaluation, decides ``meets_target`` at the end."""
+    too short). ``final_tip_mm``, the tail the verdict judged (`accuracy_verdict`), decides
+    ``meets_target`` at the end."""
     reached = next((p for p in curve if meets(p.tip_mm)), None)
     out = {"target_mm": dict(ACCURACY_TARGET), "monitor": {"configurations": MONITOR_CONFIGURATIONS,
                                                            "seed": MONITOR_SEED},

@@ -385,16 +385,24 @@ class Trainer:
         card |= {"mining": self._mining_record()} if self.data.hard is not None else {}
         card |= {"transferred_from": self.transferred_from} if self.transferred_from else {}
         card |= {ERROR_BOUND_KEY: calibrate(net)} if calibrate is not None else {}
-        last = self.monitor.curve[-1] if self.monitor is not None and self.monitor.curve else None
-        verdict = accuracy_verdict(metrics, last and last.tip_mm,
-                                   self.monitor.configurations if last else 0) if metrics else None
-        if self.budget is not None:  # a run of `ctrplan train` (a fine-tuned model has its own table)
-            card |= {"time_limit": self.budget.to_json(), **(verdict or {})}
-        if self.monitor is not None and metrics:
-            judged = verdict["accuracy_target"]["tip_mm"]
-            card |= {"time_to_target": time_to_target(self.monitor.curve, judged)}
+        card |= self._verdict(metrics)
         save_model(net, self.robot, out, card)
         return TrainResult(net=net, steps=step, wall_time_s=wall, history=self.history, card=card)
+
+    def _verdict(self, metrics: dict) -> dict:
+        """The card's ``time_limit``, accuracy verdict (`accuracy_verdict`: on the card's evaluation
+        ``metrics`` or the monitor's last measurement, the larger set) and ``time_to_target``."""
+        if not metrics:
+            return {"time_limit": self.budget.to_json()} if self.budget is not None else {}
+        last = self.monitor.curve[-1] if self.monitor is not None and self.monitor.curve else None
+        verdict = accuracy_verdict(metrics, last and last.tip_mm, self.monitor.configurations if last else 0)
+        card = {}
+        if self.budget is not None:  # a run of `ctrplan train` (a fine-tuned model has its own table)
+            card |= {"time_limit": self.budget.to_json(), **verdict}
+        if self.monitor is not None:
+            judged = verdict["accuracy_target"]["tip_mm"]
+            card |= {"time_to_target": time_to_target(self.monitor.curve, judged)}
+        return card
 
 
 def new_net(robot: Robot, recipe: Recipe, data: TrainingData, frame: int | None = None) -> PinnNet:
