@@ -119,8 +119,6 @@ def render_training(cards: list[dict[str, Any]]) -> str:
 
 
 ROBOTS_JSON = ROOT / "docs" / "training" / "robots.json"
-#: The default recipe's `dense_batch` before it became 1,024 (rows written before the column).
-FIRST_DENSE_BATCH = 4096
 
 
 def render_robots(doc: dict[str, Any]) -> str:
@@ -135,7 +133,7 @@ def render_robots(doc: dict[str, Any]) -> str:
         cpu = r.get("train_cpu_s")
         rows.append([f"`{r['robot']}`" if "/" in r["robot"] else r["robot"], start, r.get("clock", "wall"),
                      f"{r.get('command_s', r['wall_time_s']) / 60:.1f}", _fmt(cpu and cpu / 60, ".1f"),
-                     f"{r.get('dense_batch', FIRST_DENSE_BATCH):,}", str(r["steps"]),
+                     f"{r['dense_batch']:,}", str(r["steps"]),
                      " / ".join(f"{mm[k]:.3f}" for k in ("mean", "p99", "p99_9", "max")),
                      "yes" if meets(mm) else "no", _reached(r), _card_says(r, mm),
                      f"{load['before'][0]:.1f} / {load['after'][0]:.1f}" if load else "–"])

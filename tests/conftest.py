@@ -68,4 +68,3 @@ def private_cache(tmp_path, monkeypatch) -> Path:
     """Stability certificates and distance grids in this test's own cache, never the user's."""
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     return tmp_path / "cache"
-

@@ -92,7 +92,8 @@ def compile_kernels(model: PlanningModel, progress: Progress = no_progress) -> B
             bb = out
     compile_ik(model.space)
     # the collision checks' kernels (single and batched) and the world's grids, on throwaway checkers
-    # (their counters are no plan's): on a cold cache they took the whole time limit of a first plan
+    # (their counters are no plan's; two, since one's state cache would answer the batch from the single
+    # check): on a cold cache they took the whole time limit of a first plan
     ConfigurationChecker(model).is_valid(q)
     ConfigurationChecker(model).check(np.stack([q, q]))
     progress("compile", done=len(calls), total=len(calls))
