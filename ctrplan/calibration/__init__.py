@@ -21,6 +21,7 @@ from typing import Any
 
 _EXPORTS = {
     "CAUSES": "ctrplan.model.causes",
+    "DEFAULT_CAUSES": "ctrplan.model.causes",
     "Calibration": "ctrplan.model.measurement",
     "DiagnoseOptions": "options",
     "Diagnosis": "diagnosis",

@@ -6,14 +6,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ctrplan.calibration.split import Split, split_rows
-from ctrplan.model.causes import CAUSES
+from ctrplan.model.causes import DEFAULT_CAUSES
 
 
 @dataclass(frozen=True)
 class DiagnoseOptions:
     """Knobs of the diagnosis (defaults are what the CLI uses)."""
 
-    candidates: tuple[str, ...] = CAUSES
+    candidates: tuple[str, ...] = DEFAULT_CAUSES
     heldout: float = 0.25          # fraction of the rows held out ...
     heldout_last: bool = False     # ... the last ones in acquisition order (else contiguous blocks)
     seed: int = 0                  # seed of the held-out blocks

@@ -11,7 +11,7 @@ import typer
 
 from ctrplan.base.dataio import check_output_dir
 from ctrplan.base.errors import InputError
-from ctrplan.calibration import CAUSES
+from ctrplan.calibration import CAUSES, DEFAULT_CAUSES
 from ctrplan.cli.app import app
 from ctrplan.cli.options import heldout_split
 from ctrplan.cli.progress import StatusLine
@@ -31,8 +31,8 @@ OutOpt = Annotated[Path | None, typer.Option(
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON document on stdout, nothing else.")]
 CandidatesOpt = Annotated[str | None, typer.Option(
     "--candidates", show_default=False,
-    help=f"Comma-separated candidate causes to try (default: every cause of the library: "
-         f"{', '.join(CAUSES)}).")]
+    help=f"Comma-separated candidate causes to try (default: {', '.join(DEFAULT_CAUSES)}; also in the "
+         f"library, tried when named: {', '.join(c for c in CAUSES if c not in DEFAULT_CAUSES)}).")]
 HeldoutOpt = Annotated[float | None, typer.Option(
     "--heldout", metavar="FRACTION", show_default=False,
     help="Hold out this fraction of the rows in contiguous blocks drawn with --seed (default 0.25).")]
@@ -68,7 +68,8 @@ def diagnose(data: Data, robot: RobotOpt = None, out: OutOpt = None, json_: Json
     from ctrplan.calibration import diagnose as run_diagnosis
     from ctrplan.model.robot import Robot
 
-    names = CAUSES if candidates is None else tuple(c.strip() for c in candidates.split(",") if c.strip())
+    names = DEFAULT_CAUSES if candidates is None else tuple(
+        c.strip() for c in candidates.split(",") if c.strip())
     if not names:
         raise InputError("--candidates: give at least one cause")
     for c in names:

@@ -210,10 +210,11 @@ def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends, with_en
 
     ``intervals = 0``: the network at every point; otherwise Hermite interpolation between the
     network at ``intervals + 1`` nodes (see the module docstring). ``net`` is the weights tuple of
-    `infer`, ``rod`` the arrays ``(lengths, straight, kappa, EI, GJ, force, weight)`` of
-    `cosserat.RodArrays`, ``loaded`` whether the robot carries loads.
+    `infer`, ``rod`` the arrays ``(lengths, straight, kappa, EI, GJ, force, weight, follower)`` of
+    `cosserat.RodArrays`, ``loaded`` whether the robot carries loads. A follower force turns with the
+    network's tip frame of tube 1 (the last node, then always evaluated).
     """
-    lengths, straight, kappa, EI, GJ, force, weight = rod
+    lengths, straight, kappa, EI, GJ, force, weight, follower = rod
     if intervals == 0:
         _backbones_dense(q, out_frac, net, lengths, states, at_ends, with_ends)
         return
@@ -226,7 +227,11 @@ def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends, with_en
     # the network only at the nodes the requested points need (and with ``with_ends`` at `at_ends`')
     need, node_frac = _needed_nodes(q, out_frac, intervals, lengths, straight, EI, with_ends, first[0],
                                     first[5])
+    has_follower = np.any(follower != 0.0)
+    if has_follower:
+        need[:, intervals] = True
     y = _network_at_nodes(q, need, node_frac, net, ns)
+    row_force = force.copy()
     fl = np.empty((intervals, ns))
     fr_ = np.empty((intervals, ns))
     for b in range(nb):  # the layout again: cheaper than keeping ragged per-segment tables
@@ -236,15 +241,17 @@ def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends, with_en
             nodes, seg_of, present, kc, bend, end_node = node_layout(q[b], intervals, lengths, straight, EI)
         ends = q[b, :nt] + lengths
         yb = y[b]
+        if has_follower:
+            _turned_follower(yb[intervals, ns - 4:], force, follower, row_force)
         fl[:] = 0.0
         fr_[:] = 0.0
         for j in range(intervals):
             if not (need[b, j] and need[b, j + 1]):
                 continue
             k = seg_of[j]
-            rhs(nodes[j], yb[j], present[k], kc[k], kappa, bend[k], EI, GJ, ends, force, weight, loaded,
+            rhs(nodes[j], yb[j], present[k], kc[k], kappa, bend[k], EI, GJ, ends, row_force, weight, loaded,
                 True, fl[j])
-            rhs(nodes[j + 1], yb[j + 1], present[k], kc[k], kappa, bend[k], EI, GJ, ends, force, weight,
+            rhs(nodes[j + 1], yb[j + 1], present[k], kc[k], kappa, bend[k], EI, GJ, ends, row_force, weight,
                 loaded, True, fr_[j])
         fl[0, i_p] = 0.0
         fl[0, i_p + 1] = 0.0
@@ -254,6 +261,18 @@ def backbones(q, out_frac, intervals, net, rod, loaded, states, at_ends, with_en
             for i in range(nt):
                 at_ends[b, i] = yb[end_node[i]]
             at_ends[b, nt] = yb[0]
+
+
+@njit(cache=True)
+def _turned_follower(h, force, follower, out):
+    """``out`` (3,) = ``force`` + R(h) ``follower``: the robot-frame tip force of a follower force
+    (tip frame) at the tip orientation h (scalar-first quaternion, normalised here)."""
+    n = math.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2] + h[3] * h[3])
+    w, x, y, z = h[0] / n, h[1] / n, h[2] / n, h[3] / n
+    fx, fy, fz = follower[0], follower[1], follower[2]
+    out[0] = force[0] + (1 - 2 * (y * y + z * z)) * fx + 2 * (x * y - w * z) * fy + 2 * (x * z + w * y) * fz
+    out[1] = force[1] + 2 * (x * y + w * z) * fx + (1 - 2 * (x * x + z * z)) * fy + 2 * (y * z - w * x) * fz
+    out[2] = force[2] + 2 * (x * z - w * y) * fx + 2 * (y * z + w * x) * fy + (1 - 2 * (x * x + y * y)) * fz
 
 
 @njit(cache=True)

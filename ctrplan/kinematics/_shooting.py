@@ -689,9 +689,10 @@ def solve_one(q, x0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weig
 def solve_many(Q, X0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weight, loaded,
                h_multi, h_single, tol, max_iter, with_stability, retry_cold, states, tips, state0, X, conv,
                iters, resid, stab):
-    """`solve_one` over a batch (B, 2N) in parallel; outputs indexed by the batch row."""
+    """`solve_one` over a batch (B, 2N) in parallel; outputs indexed by the batch row. ``force`` (B, 3):
+    each row's tip force in the robot frame (a follower force differs from row to row)."""
     for b in prange(Q.shape[0]):
-        x, c, it, r, st = solve_one(Q[b], X0[b], warm, s_frac, lengths, straight, kappa, EI, GJ, force,
+        x, c, it, r, st = solve_one(Q[b], X0[b], warm, s_frac, lengths, straight, kappa, EI, GJ, force[b],
                                     weight, loaded, h_multi, h_single, tol, max_iter, with_stability,
                                     retry_cold, states[b], tips[b], state0[b])
         X[b, :] = x
@@ -708,7 +709,7 @@ def solve_chains(Q, X0, warm, starts, s_frac, lengths, straight, kappa, EI, GJ, 
     """`solve_one` along consecutive rows of a path (B, 2N), in chains ``starts[c]:starts[c + 1]``
     run in parallel: a chain's first row starts from ``X0`` (when ``warm``), every later row from the
     solution of the row before it (continuation; cold where that did not converge), extrapolated
-    linearly from the two rows before it where both converged."""
+    linearly from the two rows before it where both converged. ``force`` (B, 3) as in `solve_many`."""
     for c in prange(starts.shape[0] - 1):
         for b in range(starts[c], starts[c + 1]):
             follow = b > starts[c] and conv[b - 1]
@@ -716,7 +717,7 @@ def solve_chains(Q, X0, warm, starts, s_frac, lengths, straight, kappa, EI, GJ, 
             if follow and b - 1 > starts[c] and conv[b - 2]:
                 x0 = 2.0 * X[b - 1] - X[b - 2]    # extrapolated along the path
             x, cv, it, r, st = solve_one(Q[b], x0, follow or warm, s_frac, lengths, straight, kappa, EI,
-                                         GJ, force, weight, loaded, h_multi, h_single, tol, max_iter,
+                                         GJ, force[b], weight, loaded, h_multi, h_single, tol, max_iter,
                                          with_stability, retry_cold, states[b], tips[b], state0[b])
             X[b, :] = x
             conv[b] = cv

@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 import ctrplan.kinematics._shooting as kernel
-from ctrplan.kinematics.backbone import Backbone
+from ctrplan.kinematics.backbone import Backbone, quaternion_to_matrix
 from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Points, arc_fractions, outer_radius_along
 from ctrplan.model.robot import Robot
 
@@ -43,7 +43,8 @@ class SolverSettings:
 class RodArrays:
     """A `Robot` as the arrays of the numba kernels (`_shooting`) and the PINN's physics, per tube
     (N,): lengths and straight lengths (mm), curvatures (1/mm), EI and GJ (N*mm^2); the tip force (3,)
-    N and the weight per length of each tube (N, 3) N/mm. The one place tube parameters are packed."""
+    N in the robot frame, the weight per length of each tube (N, 3) N/mm and the follower force (3,)
+    N in the tip frame of tube 1. The one place tube parameters are packed."""
 
     lengths: np.ndarray
     straight: np.ndarray
@@ -52,17 +53,27 @@ class RodArrays:
     GJ: np.ndarray
     force: np.ndarray
     weight: np.ndarray
+    follower: np.ndarray
 
     def arrays(self) -> tuple[np.ndarray, ...]:
-        """The fields in kernel-argument order (lengths, straight, kappa, EI, GJ, force, weight)."""
-        return (self.lengths, self.straight, self.kappa, self.EI, self.GJ, self.force, self.weight)
+        """The fields in kernel-argument order (lengths, straight, kappa, EI, GJ, force, weight,
+        follower)."""
+        return (self.lengths, self.straight, self.kappa, self.EI, self.GJ, self.force, self.weight,
+                self.follower)
 
     def shooting_arrays(self) -> tuple:
-        """`arrays` with ``kappa`` as a tuple, for the shooting kernels: its length, the tube count, is
-        then part of the compiled type, so numba compiles one kernel per tube count with constant loop
-        bounds (as fast as hand-written three-tube code)."""
-        lengths, straight, kappa, *rest = self.arrays()
-        return (lengths, straight, tuple(float(k) for k in kappa), *rest)
+        """(lengths, straight, kappa, EI, GJ, force, weight) for the shooting kernels, ``kappa`` as a
+        tuple: its length, the tube count, is then part of the compiled type, so numba compiles one
+        kernel per tube count with constant loop bounds (as fast as hand-written three-tube code). The
+        follower force is not among them: `CosseratBackend` turns it into each row's ``force``."""
+        return (self.lengths, self.straight, tuple(float(k) for k in self.kappa), self.EI, self.GJ,
+                self.force, self.weight)
+
+    def tip_forces(self, tip_rotations: np.ndarray) -> np.ndarray:
+        """The tip force (B, 3) N in the robot frame of configurations whose tube-1 tip frames are
+        ``tip_rotations`` (B, 3, 3) (robot <- tip): the fixed force plus the follower force turned
+        with the tip."""
+        return self.force + np.einsum("bij,j->bi", tip_rotations, self.follower)
 
     @classmethod
     def of(cls, robot: Robot) -> RodArrays:
@@ -74,7 +85,8 @@ class RodArrays:
                    EI=np.array([t.bending_stiffness_nmm2 for t in tubes]),
                    GJ=np.array([t.torsional_stiffness_nmm2 for t in tubes]),
                    force=np.asarray(robot.loads.tip_force_n, dtype=float),
-                   weight=mass_per_mm[:, None] * np.asarray(robot.loads.gravity_m_s2, dtype=float)[None, :])
+                   weight=mass_per_mm[:, None] * np.asarray(robot.loads.gravity_m_s2, dtype=float)[None, :],
+                   follower=np.asarray(robot.loads.tip_follower_force_n, dtype=float))
 
 
 #: Chains `CosseratBackend.forward_path` splits a path into: a constant, so that the backbones (equal
@@ -83,9 +95,30 @@ class RodArrays:
 PATH_CHAINS = 4
 
 
+#: Iterations of a follower force at most, the turn of its robot-frame direction (rad, each row) below
+#: which it has converged (1e-8 rad of a 0.1 N force moves a tip by ~1e-8 mm), and the depth of the
+#: Anderson mixing: each iteration solves the rows again from the last solutions with the force turned
+#: to the last tip frames; rows that have not converged are reported so.
+FOLLOWER_ITERATIONS, FOLLOWER_TOLERANCE_RAD, ANDERSON_DEPTH = 30, 1e-8, 2
+
+
+def _anderson(history: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """The next iterate (B, 3) of the fixed point x = g(x) by Anderson mixing over ``history`` (the
+    last iterates x and g(x), each (B, 3), oldest first): g of the newest minus the combination of
+    differences of g that best cancels the newest residual g(x) - x, per row."""
+    x, g = (np.stack(v, -1) for v in zip(*history, strict=True))     # (B, 3, k)
+    f = g - x
+    if f.shape[-1] == 1:
+        return g[..., -1]
+    df, dg = np.diff(f, axis=-1), np.diff(g, axis=-1)                # (B, 3, k - 1)
+    a = np.einsum("bim,bin->bmn", df, df) + 1e-30 * np.eye(df.shape[-1])
+    gamma = np.linalg.solve(a, np.einsum("bim,bi->bm", df, f[..., -1])[..., None])[..., 0]
+    return g[..., -1] - np.einsum("bim,bm->bi", dg, gamma)
+
+
 class CosseratBackend(Backend):
-    """Shooting solver for the Cosserat-rod model of N = 1…4 tubes with gravity and a tip force from
-    ``robot.loads``.
+    """Shooting solver for the Cosserat-rod model of N = 1…4 tubes with gravity, a tip force and a
+    follower tip force from ``robot.loads``.
 
     ``forward(q, guess=...)`` warm-starts from initial states (B, 2N + 9) -- e.g.
     ``backbone.initial_state`` of a neighbouring configuration or a PINN prediction; rows that fail
@@ -96,6 +129,11 @@ class CosseratBackend(Backend):
     behind the plate: the kernels see tube i starting d_i further back (beta_i - d_i, length L_i + d_i,
     straight part + d_i), which changes only theta_i(0) = alpha_i - (beta_i - d_i) u_iz(0) -- everything
     in front of the plate is the same.
+
+    A follower force (fixed in the tip frame of tube 1) is solved by fixed-point iteration on that
+    frame: the kernels see a force fixed in the robot frame, per row, turned to the tip frame of the
+    previous solution until it no longer turns (`FOLLOWER_ITERATIONS`, `FOLLOWER_TOLERANCE_RAD`). The
+    stability measure is that of the force frozen at its solved direction.
     """
 
     name = "cosserat"
@@ -111,7 +149,9 @@ class CosseratBackend(Backend):
         d = self._transmission
         rod = replace(self.rod, lengths=self.rod.lengths + d, straight=self.rod.straight + d)
         st = self.settings
-        self._kernel_args = (*rod.shooting_arrays(), self.loaded, st.step_multi_mm, st.step_single_mm,
+        lengths, straight, kappa, EI, GJ, _, weight = rod.shooting_arrays()
+        self._kernel_head = (lengths, straight, kappa, EI, GJ)     # then the force, per row or not
+        self._kernel_tail = (weight, self.loaded, st.step_multi_mm, st.step_single_mm,
                              st.tolerance_per_m * 1e-3, st.max_iterations, st.stability, st.retry_cold)
 
     @property
@@ -155,13 +195,29 @@ class CosseratBackend(Backend):
         qk = qm.copy()
         qk[:, :self.robot.n_tubes] -= self._transmission   # the kernels' tube starts (see the class)
         frac = arc_fractions(points)
-        b, n = qm.shape[0], frac.size
+        b = qm.shape[0]
+        x0 = self.unknowns_from_state(guess) if guess is not None else np.zeros((b, self.n_unknowns))
+        x0 = np.ascontiguousarray(np.broadcast_to(x0, (b, self.n_unknowns)), dtype=float)
+        if self.robot.loads.has_follower:
+            solved = self._follower_solve(qk, frac, x0, guess is not None, chains)
+        else:
+            force = np.broadcast_to(self.rod.force, (b, 3))
+            solved = self._run(qk, frac, x0, guess is not None, force, chains)[:-1]
+        states, tips, conv, iters, resid, stab, initial = solved
+        ends = qm[:, :self.robot.n_tubes] + self.rod.lengths
+        s_mm = frac[None, :] * ends[:, :1]
+        return Backbone(q=q, s_mm=s_mm, state=states, tube_ends_mm=ends, tips_mm=tips,
+                        radius_mm=outer_radius_along(self.robot, s_mm, ends), converged=conv,
+                        initial_state=initial, iterations=iters, residual=resid, backend=self.name,
+                        stability=stab if self.settings.stability else None)
+
+    def _run(self, qk: np.ndarray, frac: np.ndarray, x0: np.ndarray, warm: bool, force: np.ndarray,
+             chains: int) -> tuple:
+        """One pass of the kernels over kernel joints ``qk`` (B, 2N) with each row's robot-frame tip
+        force ``force`` (B, 3): states (B, P, 2N + 9), tips, converged, iterations, residual,
+        stability, initial states and shooting unknowns."""
+        b, n = qk.shape[0], frac.size
         nt, ns = self.robot.n_tubes, self.robot.n_states
-        warm = guess is not None
-        x0 = self.unknowns_from_state(guess) if warm else np.zeros((b, self.n_unknowns))
-        if x0.shape[0] != b:
-            x0 = np.broadcast_to(x0, (b, self.n_unknowns))
-        x0 = np.ascontiguousarray(x0, dtype=float)
         states = np.empty((b, n, ns))
         tips = np.empty((b, nt, 3))
         conv = np.zeros(b, dtype=np.bool_)
@@ -170,19 +226,53 @@ class CosseratBackend(Backend):
         stab = np.full(b, np.nan)
         xs = np.empty_like(x0)
         initial = np.empty((b, ns))
-        args = (frac, *self._kernel_args)
+        force = np.ascontiguousarray(force, dtype=float)
+        head, tail = (frac, *self._kernel_head), self._kernel_tail
         if b == 1:
-            x, c, it, r, sb = kernel.solve_one(qk[0], x0[0], warm, *args, states[0], tips[0], initial[0])
+            x, c, it, r, sb = kernel.solve_one(qk[0], x0[0], warm, *head, force[0], *tail, states[0], tips[0],
+                                               initial[0])
             xs[0], conv[0], iters[0], resid[0], stab[0] = x, c, it, r, sb
         elif chains:
             starts = np.linspace(0, b, min(chains, b) + 1).round().astype(np.int64)
-            kernel.solve_chains(qk, x0, warm, starts, *args, states, tips, initial, xs, conv, iters, resid,
-                                stab)
+            kernel.solve_chains(qk, x0, warm, starts, *head, force, *tail, states, tips, initial, xs, conv,
+                                iters, resid, stab)
         else:
-            kernel.solve_many(qk, x0, warm, *args, states, tips, initial, xs, conv, iters, resid, stab)
-        ends = qm[:, :nt] + self.rod.lengths
-        s_mm = frac[None, :] * ends[:, :1]
-        return Backbone(q=q, s_mm=s_mm, state=states, tube_ends_mm=ends, tips_mm=tips,
-                        radius_mm=outer_radius_along(self.robot, s_mm, ends), converged=conv,
-                        initial_state=initial, iterations=iters, residual=resid, backend=self.name,
-                        stability=stab if self.settings.stability else None)
+            kernel.solve_many(qk, x0, warm, *head, force, *tail, states, tips, initial, xs, conv, iters,
+                              resid, stab)
+        return states, tips, conv, iters, resid, stab, initial, xs
+
+    def _follower_solve(self, qk: np.ndarray, frac: np.ndarray, x0: np.ndarray, warm: bool, chains: int
+                        ) -> tuple:
+        """`_run` under a follower force: the fixed point F = g(F) of the robot-frame tip force, g the
+        fixed force plus the follower force turned to the tip frame solved under F, by Anderson-mixed
+        iteration (see the class); the last pass is the answer (the tip is added to the requested
+        points while iterating). Rows whose force has not stopped turning are not converged (NaN)."""
+        with_tip = frac if frac[-1] == 1.0 else np.append(frac, 1.0)
+        b = qk.shape[0]
+        force = np.broadcast_to(self.rod.force, (b, 3)).copy()
+        history: list[tuple[np.ndarray, np.ndarray]] = []      # (force, g(force)) of the iterations
+        for _ in range(FOLLOWER_ITERATIONS):
+            states, tips, conv, iters, resid, stab, initial, xs = self._run(qk, with_tip, x0, warm, force,
+                                                                            chains)
+            g = self.rod.tip_forces(quaternion_to_matrix(states[:, -1, -4:]))
+            settled = conv & (self._follower_turn(force, g) <= FOLLOWER_TOLERANCE_RAD)
+            x0, warm = np.where(conv[:, None], xs, x0), True
+            if settled.all() or not conv.any():
+                break
+            history = [*history[-ANDERSON_DEPTH:], (force, g)]
+            step = _anderson(history)
+            moving = conv & ~settled & np.isfinite(step).all(axis=1)    # settled rows keep their force
+            force = np.where(moving[:, None], step, force)
+        states = states[:, :frac.size]
+        states[~settled], tips[~settled] = np.nan, np.nan
+        return states, tips, settled, iters, resid, stab, initial
+
+    @staticmethod
+    def _follower_turn(before: np.ndarray, after: np.ndarray) -> np.ndarray:
+        """The angle (B,) rad between two robot-frame forces (B, 3) of each row (inf where either
+        vanishes or is not finite, or they point apart)."""
+        cos = np.einsum("bi,bi->b", before, after)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            sin = np.linalg.norm(np.cross(before, after), axis=1) / (np.linalg.norm(before, axis=1)
+                                                                    * np.linalg.norm(after, axis=1))
+        return np.where(np.isfinite(sin) & (cos > 0), np.arcsin(np.clip(sin, 0.0, 1.0)), np.inf)

@@ -83,20 +83,29 @@ class Tube:
 
 @dataclass(frozen=True)
 class Loads:
-    """External loads in the robot frame: gravity (m/s^2) on tube material in front of the plate,
-    and a point force (N) at the tip of tube 1."""
+    """External loads: gravity (m/s^2, robot frame) on tube material in front of the plate, a point
+    force (N, robot frame) at the tip of tube 1, and a follower force (N) at that tip fixed in its tip
+    frame (x, y: across the tube, y in the plane tube 1's curvature bends it; z: along its tangent,
+    distal) -- a lead or tether pulling on the tip, which turns with it."""
 
     gravity_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
     tip_force_n: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    tip_follower_force_n: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @property
     def is_free(self) -> bool:
-        return not any(self.gravity_m_s2) and not any(self.tip_force_n)
+        return not any(self.gravity_m_s2) and not any(self.tip_force_n) and not self.has_follower
+
+    @property
+    def has_follower(self) -> bool:
+        """A follower force at the tip: the force in the robot frame depends on the solved tip frame."""
+        return any(self.tip_follower_force_n)
 
     @property
     def axisymmetric(self) -> bool:
-        """Loads along z only (or none): rotating every tube by the same angle then rotates the whole
-        robot about z, a symmetry the PINN's equivariant encoding builds in."""
+        """Loads along z only (or none) in the robot frame: rotating every tube by the same angle then
+        rotates the whole robot about z, a symmetry the PINN's equivariant encoding builds in. A follower
+        force turns with the tip, so it keeps the symmetry."""
         return not any(self.gravity_m_s2[:2]) and not any(self.tip_force_n[:2])
 
 
@@ -414,7 +423,9 @@ class Robot:
             "tubes": tubes,
             "domain": self.domain.to_dict(),
             "loads": {"gravity_m_s2": list(self.loads.gravity_m_s2),
-                      "tip_force_n": list(self.loads.tip_force_n)},
+                      "tip_force_n": list(self.loads.tip_force_n),
+                      **({"tip_follower_force_n": list(self.loads.tip_follower_force_n)}
+                         if self.loads.has_follower else {})},   # absent when 0: fingerprints unchanged
             "joint_offset": list(self.joint_offset),
         }
         if not self.calibration.is_identity:  # absent when unused: fingerprints stay stable
@@ -667,9 +678,10 @@ def robot_from_yaml(doc: YamlDoc) -> Robot:
         raw = d["loads"]
         if not isinstance(raw, dict):
             raise doc.error(("loads",), "expected a mapping")
-        _unknown(doc, ("loads",), raw, {"gravity_m_s2", "tip_force_n"})
+        _unknown(doc, ("loads",), raw, {"gravity_m_s2", "tip_force_n", "tip_follower_force_n"})
         loads = Loads(**{k: _vector(doc, ("loads", k), v, 3) for k, v in raw.items()})
-        for k, limit in (("gravity_m_s2", MAX_GRAVITY_M_S2), ("tip_force_n", MAX_TIP_FORCE_N)):
+        for k, limit in (("gravity_m_s2", MAX_GRAVITY_M_S2), ("tip_force_n", MAX_TIP_FORCE_N),
+                         ("tip_follower_force_n", MAX_TIP_FORCE_N)):
             if np.linalg.norm(getattr(loads, k)) > limit:
                 raise doc.error(("loads", k), f"magnitude above the physical range of a CTR ({limit:g})")
 

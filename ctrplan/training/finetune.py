@@ -5,7 +5,10 @@ Stages (each timed; the card and the printout say how long each took):
 
 1. **diagnose** the shots (`ctrplan.calibration.diagnose`, its own candidate selection holding out
    part of them): the extended robot -- mechanics (curvatures, stiffnesses, offsets, loads,
-   transmission lengths) and calibration (registration, sensor offset, backlash, windup).
+   transmission lengths) and calibration (registration, sensor offset, backlash, windup) -- or, when
+   the validation shots say it predicts better, a candidate the diagnosis fitted with one cause more,
+   one less or one swapped (`best_predictor`: naming is a claim about the robot, the few-shot model
+   wants the best predictor).
 2. **adapt** the PINN to the extended mechanics where they differ from the model's robot: the default
    recipe's supervised training on exact solutions of the extended mechanics, started from the given
    PINN, for `ADAPT_STEPS` optimiser steps (hard-example mining included; a step budget, not minutes,
@@ -157,6 +160,36 @@ def tube1_error_mm(tips: np.ndarray, fs: FewShot, rows: np.ndarray) -> float:
     return float(np.nanmean(np.linalg.norm(tips[:, 0] - fs.data.tips_mm[rows, 0], axis=1)))
 
 
+def best_predictor(diag: Diagnosis, fs: FewShot, val: np.ndarray, say) -> tuple[Robot, dict]:
+    """The extended robot of ``diag``, or a neighbour of it among the candidates the diagnosis fitted
+    -- one cause more, one less, or one swapped for another (plausible, nothing at a bound or
+    unresolved) -- whichever predicts the validation shots ``val`` best; and its record. `diagnose`
+    names causes only when they are significant and each gains at least ``min_gain`` (a claim about
+    the robot, judged on its own split of the fit shots); a few-shot model wants the best predictor, so
+    the shots no stage fitted choose among the close contenders."""
+    ext = diag.extended_robot
+    named = set(diag.causes)
+
+    def near(causes: set[str]) -> bool:   # one cause more, one less, or one swapped
+        return causes != named and len(causes - named) <= 1 and len(named - causes) <= 1
+
+    extensions = [c for c in diag.selection.candidates if near(set(c.causes))
+                  and not (c.fit.implausible or c.fit.at_bound() or c.fit.unresolved())]
+    label = "+".join(diag.causes) or "nothing named"
+    if not extensions or not len(val):
+        return ext, {"kept": label, "validation_mean_mm": {}}
+    errors = {label: tube1_error_mm(cosserat_tips(ext, fs, val), fs, val)}
+    robots = {label: ext}
+    for c in extensions:
+        errors[c.name] = tube1_error_mm(cosserat_tips(c.fit.robot, fs, val), fs, val)
+        robots[c.name] = c.fit.robot.with_changes(name=f"{diag.robot.name}-{c.name}")
+    best = min(errors, key=lambda k: (errors[k], k != label))
+    say("predictor: " + ", ".join(f"{k} {v:.3f}" for k, v in errors.items())
+        + f" mm on the {len(val)} validation shots; kept {best}"
+        + ("" if best == label else " (a cause diagnose did not name, kept as a predictor)"))
+    return robots[best], {"kept": best, "validation_mean_mm": {k: round(v, 4) for k, v in errors.items()}}
+
+
 def learn_lag(ext: Robot, fs: FewShot, fit: np.ndarray, val: np.ndarray, say) -> tuple[Robot, dict]:
     """The extended robot with the `friction` of its joints fitted on the ``fit`` shots
     (`ctrplan.training.lag`) when that lowers the extended Cosserat model's error on the validation
@@ -204,7 +237,7 @@ def finetune(fs: FewShot, start: PinnBackend, out: Path, recipe: Recipe, *, init
     t0 = time.perf_counter()
     say(f"stage 1/3: diagnose on {len(fit)} shots (the last {len(val)} shots validate the stages)")
     diag = diagnose(fs.data.subset(fit), start.robot, diagnose_options, motion=fs.motion.subset(fit))
-    ext = diag.extended_robot
+    ext, predictor = best_predictor(diag, fs, val, say)
     seconds["diagnose_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     say(f"stage 2/3: adapt the PINN to the extended mechanics (named: {diag.cause})")
@@ -227,7 +260,8 @@ def finetune(fs: FewShot, start: PinnBackend, out: Path, recipe: Recipe, *, init
         exact = compare(PinnBackend(model.mechanics, net), model.mechanics).metrics()
         return {**exact, "measured_heldout": table}
 
-    card = {"finetuned_on": {**_data_record(fs, diag, fit, val), "learned_lag": lag_record,
+    card = {"finetuned_on": {**_data_record(fs, diag, fit, val), "predictor": predictor,
+                             "learned_lag": lag_record,
                              "init_model": init_model,
                              "init_weights_sha256": start.card.get("weights_sha256")},
             "note": f"fine-tuned from {init_model} on measured tips (paper stage b) as a model of the "

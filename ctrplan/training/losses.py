@@ -35,7 +35,11 @@ def ode_residual(net: PinnNet, sigma: torch.Tensor, q: torch.Tensor, tt: TubeTen
     l1 = q[:, 0] + tt.lengths[0]
     x, dx_dsigma = torch.func.jvp(lambda sg: net(sg, q), (sigma,), (torch.ones_like(sigma),))
     dxds = dx_dsigma / l1[:, None]
-    r = dxds - rhs(x, sigma * l1, q, tt)
+    tip_rotation = None
+    if tt.has_follower:    # the follower force turns with the network's own tip frame (held fixed here)
+        with torch.no_grad():
+            tip_rotation = quat_to_matrix(net(torch.ones_like(sigma), q)[:, -4:])
+    r = dxds - rhs(x, sigma * l1, q, tt, tip_rotation)
     e = torch.cat([r[:, :ip] * (P_REF_MM / net.scales[:ip]),
                    r[:, ip:ip + 3] * 100.0,                   # tangent error, percent
                    r[:, ip + 3:] * P_REF_MM], -1)

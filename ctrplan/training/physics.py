@@ -20,7 +20,8 @@ from ctrplan.model.robot import Robot
 @dataclass(frozen=True)
 class TubeTensors:
     """`RodArrays` as tensors on one device/dtype: per tube (N,) lengths and straight lengths (mm),
-    kappa (1/mm), EI and GJ (N*mm^2); ``weight`` (N, 3) N/mm, ``force`` (3,) N; ``transmission``
+    kappa (1/mm), EI and GJ (N*mm^2); ``weight`` (N, 3) N/mm, ``force`` (3,) N (robot frame),
+    ``follower`` (3,) N (tip frame of tube 1); ``transmission``
     (N,) mm, how far behind the plate beyond -beta_i each tube twists (`Tube.transmission_length_mm`:
     it changes only the twist at s = 0)."""
 
@@ -31,11 +32,23 @@ class TubeTensors:
     GJ: torch.Tensor
     weight: torch.Tensor
     force: torch.Tensor
+    follower: torch.Tensor
     transmission: torch.Tensor
 
     @property
     def n_tubes(self) -> int:
         return self.lengths.shape[0]
+
+    @property
+    def has_follower(self) -> bool:
+        return bool(self.follower.abs().sum() > 0)
+
+    def tip_force(self, tip_rotation: torch.Tensor | None) -> torch.Tensor:
+        """The tip force (B, 3) or (3,) N in the robot frame: the fixed force plus the follower force
+        turned with the tip frames ``tip_rotation`` (B, 3, 3) (robot <- tip; None without a follower)."""
+        if tip_rotation is None:
+            return self.force
+        return self.force + tip_rotation @ self.follower
 
     @classmethod
     def from_robot(cls, robot: Robot, device: torch.device | str = "cpu",
@@ -66,8 +79,10 @@ def quat_to_matrix(h: torch.Tensor) -> torch.Tensor:
     ], -2)
 
 
-def rhs(x: torch.Tensor, s: torch.Tensor, q: torch.Tensor, tt: TubeTensors) -> torch.Tensor:
-    """dx/ds (B, 2N + 9) of the state x (B, 2N + 9) at arc lengths s (B,) mm for joints q (B, 2N)."""
+def rhs(x: torch.Tensor, s: torch.Tensor, q: torch.Tensor, tt: TubeTensors,
+        tip_rotation: torch.Tensor | None = None) -> torch.Tensor:
+    """dx/ds (B, 2N + 9) of the state x (B, 2N + 9) at arc lengths s (B,) mm for joints q (B, 2N);
+    ``tip_rotation`` (B, 3, 3): the tip frames of tube 1 (robot <- tip) a follower force turns with."""
     n = tt.n_tubes
     present, curved = segment_flags(s, q, tt)
     mb = x[:, 0:2]
@@ -93,7 +108,7 @@ def rhs(x: torch.Tensor, s: torch.Tensor, q: torch.Tensor, tt: TubeTensors) -> t
     R = quat_to_matrix(h)
     dp = R[:, :, 2]
     ends = q[:, :n] + tt.lengths
-    force = tt.force + ((ends - s[:, None]).clamp(min=0)[:, :, None] * tt.weight).sum(1)  # robot frame, N
+    force = tt.tip_force(tip_rotation) + ((ends - s[:, None]).clamp(min=0)[:, :, None] * tt.weight).sum(1)
     nb = torch.einsum("bji,bj->bi", R, force)                                              # body frame
     mz = (present * tt.GJ * uz).sum(-1)
     # m_b' = -u x m_b - e3 x R^T n

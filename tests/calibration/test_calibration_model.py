@@ -121,7 +121,7 @@ def test_plausible_ranges_follow_the_material_of_the_robot_file():
                                           for t in nylon.tubes))
     force = make_effect("tip_force")
     tool = 9.81 * 7900 * math.pi / 4 * 0.006 ** 2 * 0.03             # a 6 mm steel tool, 30 mm long
-    assert math.isclose(force.max_force(wide), 0.02 + tool)
+    assert math.isclose(force.max_magnitude(wide), 0.02 + tool)
     weight = np.array([0.0, -0.04, 0.0])                               # 40 mN
     assert force.implausible(wide, weight) == {} and force.implausible(nitinol, weight) != {}
     assert "tool" in force.params(wide)[0].plausible.source

@@ -61,7 +61,7 @@ def test_a_magnitude_is_judged_on_its_propagated_uncertainty():
     below c -> at the edge; sigma 0.2 mN -> implausible. Off the axis, F = (c + 1) (1, 1, 0) / sqrt(2):
     the same |F|, std sqrt(0.5 * 1 + 0.5 * 1) = 1 mN as well."""
     robot, e = Robot.nominal(), make_effect("tip_force")
-    top = e.max_force(robot) + 0.001
+    top = e.max_magnitude(robot) + 0.001
     for f in (np.array([top, 0.0, 0.0]), np.array([top, top, 0.0]) / np.sqrt(2)):
         v = e.plausibility(robot, f, np.eye(3) * 0.001 ** 2)["tip_force_magnitude_n"]
         assert v.std == pytest.approx(0.001, rel=1e-3) and not v.implausible

@@ -12,7 +12,7 @@ import json
 
 import numpy as np
 
-from ctrplan.calibration import CAUSES, DiagnoseOptions, diagnose, read_measured
+from ctrplan.calibration import DEFAULT_CAUSES, DiagnoseOptions, diagnose, read_measured
 from ctrplan.cli.app import main
 from ctrplan.model.robot import Robot
 from tests.independent.cosserat import Tubes, solve
@@ -55,7 +55,7 @@ def test_no_effect_none_and_noise_estimated_from_the_data(tmp_path):
     assert j["parameters"] == {} and j["gain_pct"] == 0.0 and j["ties"] == []
     assert j["extended"]["mean_mm"] == j["nominal"]["mean_mm"]
     assert not any(c["significant"] for c in j["candidates"])
-    assert {c["cause"] for c in j["candidates"]} | set(j["not_fitted"]) == set(CAUSES)
+    assert {c["cause"] for c in j["candidates"]} | set(j["not_fitted"]) == set(DEFAULT_CAUSES)
 
 
 def test_single_joint_offset_is_named_on_random_rows(tmp_path):

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from ctrplan.kinematics import _shooting
+from ctrplan.kinematics.backbone import quaternion_to_matrix
 from ctrplan.kinematics.cosserat import RodArrays
 from ctrplan.model.robot import JointDomain, Loads, Robot, Tube
 from ctrplan.training.physics import TubeTensors, rhs
@@ -58,17 +59,20 @@ def random_states(robot: Robot, count: int, rng: np.random.Generator, free: bool
     return q, s, y
 
 
-def numba_rhs(robot: Robot, q: np.ndarray, s: np.ndarray, y: np.ndarray, loaded: bool) -> np.ndarray:
-    """`_shooting.rhs` at each (q, s, y), with the solver's arguments (`RodArrays.shooting_arrays`)."""
+def numba_rhs(robot: Robot, q: np.ndarray, s: np.ndarray, y: np.ndarray, loaded: bool,
+              forces: np.ndarray | None = None) -> np.ndarray:
+    """`_shooting.rhs` at each (q, s, y), with the solver's arguments (`RodArrays.shooting_arrays`;
+    ``forces`` (B, 3): each row's robot-frame tip force instead of the fixed one)."""
     n = robot.n_tubes
     lengths, straight, kappa, EI, GJ, force, weight = RodArrays.of(robot).shooting_arrays()
+    forces = np.broadcast_to(force, (len(q), 3)) if forces is None else forces
     out = np.empty_like(y)
     for b in range(len(q)):
         beta = q[b, :n].copy()
         breaks, present, kc, bend, _ = _shooting.segments(beta, lengths, straight, EI)
         k = min(int(np.searchsorted(breaks, s[b])) - 1, len(bend) - 1)
-        _shooting.rhs(s[b], y[b], present[k], kc[k], kappa, bend[k], EI, GJ, beta + lengths, force,
-                      weight, loaded, True, out[b])
+        _shooting.rhs(s[b], y[b], present[k], kc[k], kappa, bend[k], EI, GJ, beta + lengths,
+                      np.ascontiguousarray(forces[b]), weight, loaded, True, out[b])
     return out
 
 
@@ -101,3 +105,19 @@ def test_rhs_agree_in_free_space(n):
     assert np.abs(got[:, 0:2]).max() < 1e-12  # m_b stays 0 where the total moment vanishes
     if n > 1:
         assert np.abs(ref[:, 2:2 + n]).max() > 1e-6  # torsion is generated (the test has content)
+
+
+def test_rhs_agree_with_a_follower_force():
+    """A follower force turns with the tip frame: the torch rhs given the tip rotations and the kernel
+    given each row's robot-frame force (`RodArrays.tip_forces`) agree, and the follower acts."""
+    robot = robot_of(3, Loads(tip_force_n=(0.02, 0.0, -0.01), tip_follower_force_n=(0.05, -0.03, 0.1)))
+    rng = np.random.default_rng(7)
+    q, s, y = random_states(robot, 200, rng, free=False)
+    h = rng.normal(size=(len(q), 4))
+    tip_rotation = quaternion_to_matrix(h / np.linalg.norm(h, axis=1, keepdims=True))
+    ref = numba_rhs(robot, q, s, y, True, RodArrays.of(robot).tip_forces(tip_rotation))
+    tt = TubeTensors.from_robot(robot, dtype=torch.float64)
+    got = rhs(torch.tensor(y), torch.tensor(s), torch.tensor(q), tt, torch.tensor(tip_rotation)).numpy()
+    np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-12)
+    fixed = numba_rhs(robot, q, s, y, True)                  # the follower left out: m_b' differs
+    assert np.abs(fixed[:, 0:2] - ref[:, 0:2]).max() > 1e-3

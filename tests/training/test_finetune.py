@@ -83,6 +83,11 @@ def test_card_records_data_and_model_loads(finetuned, measured):
     assert extended.calibration.is_identity                  # a robot file `plan` accepts
     kappa1 = extended.tubes[0].curvature_per_mm / Robot.nominal().tubes[0].curvature_per_mm
     assert 1.05 < kappa1 < 1.15                                  # the hidden 10 % found
+    predictor = on["predictor"]   # the named causes, or one cause more where the validation shots say so
+    assert "curvature" in predictor["kept"].split("+")
+    if predictor["validation_mean_mm"]:
+        errors = predictor["validation_mean_mm"]
+        assert errors[predictor["kept"]] == min(errors.values()) and "curvature" in errors
     kept = on["kept"]
     assert kept["stage"] in ("pinn_start", "pinn_adapted", "pinn_finetuned")
     if kept["stage"] != "pinn_start":   # the model of the extended mechanics

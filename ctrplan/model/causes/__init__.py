@@ -35,6 +35,8 @@ from ctrplan.model.causes.base import EFFECTS, cause_table
 
 #: Every cause name, in definition order.
 CAUSES = tuple(EFFECTS)
+#: The causes `diagnose` tries unless told which (`Effect.tried_by_default`).
+DEFAULT_CAUSES = tuple(name for name, effect in EFFECTS.items() if effect.tried_by_default)
 
 if __doc__ is not None:  # the package's table of causes (absent under python -OO)
     __doc__ += cause_table()

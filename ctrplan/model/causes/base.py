@@ -138,6 +138,9 @@ class Effect(ABC):
     #: Whether its values may differ between measurement sessions (a tracker registered anew, a curvature
     #: that relaxed, a robot mounted anew): data of several sessions also try ``<name>@sessions``.
     between_sessions: ClassVar[bool] = False
+    #: Whether `diagnose` tries it unless ``--candidates`` names the causes (`DEFAULT_CAUSES`); a cause
+    #: that costs many times the others' solves is tried when asked for.
+    tried_by_default: ClassVar[bool] = True
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -225,11 +225,37 @@ class JointOffset(Effect):
         return {f"alpha{i + 1}_offset_deg": float(np.degrees(x[n + i])) for i in range(n)}
 
 
-class Gravity(Effect):
+class LoadVector(Effect):
+    """A 3-vector of `Robot.loads` fitted whole: the field ``load``, its magnitude checked as
+    ``magnitude`` (``unit``) against `max_magnitude`, the range's source from `source`."""
+
+    load: ClassVar[str] = ""
+    magnitude: ClassVar[str] = ""
+    unit: ClassVar[str] = ""
+
+    def max_magnitude(self, robot: Robot) -> float:
+        raise NotImplementedError
+
+    def source(self, robot: Robot) -> str:
+        raise NotImplementedError
+
+    def values(self, robot):
+        return np.asarray(getattr(robot.loads, self.load), dtype=float)
+
+    def with_values(self, robot, x):
+        return robot.with_changes(loads=replace(robot.loads, **{self.load: tuple(float(v) for v in x)}))
+
+    def checks(self, robot):
+        return super().checks(robot) + [Check(self.magnitude, self.unit, _norm,
+                                              Plausible(0.0, self.max_magnitude(robot), self.source(robot)))]
+
+
+class Gravity(LoadVector):
     name = "gravity"
     between_sessions = True
     key = "loads.gravity_m_s2"
     description = "gravity vector (m/s^2) with the file's density and E: only rho*g/E matters"
+    load, magnitude, unit = "gravity_m_s2", "gravity_magnitude_m_s2", "m/s^2"
 
     def source(self, robot: Robot) -> str:
         m = material_of(robot.tubes[0])
@@ -244,20 +270,10 @@ class Gravity(Effect):
         return [Param(f"gravity_{a}_m_s2", "m/s^2", 5.0, -hard, hard, Plausible(-g, g, source))
                 for a in "xyz"]
 
-    def values(self, robot):
-        return np.asarray(robot.loads.gravity_m_s2, dtype=float)
-
-    def with_values(self, robot, x):
-        return robot.with_changes(loads=replace(robot.loads, gravity_m_s2=tuple(float(v) for v in x)))
-
     def max_magnitude(self, robot: Robot) -> float:
         """The largest |g| a fit may need (m/s^2): 9.81 x how much larger rho g / E of the tubes'
         material can be than the file's (`materials.max_load_ratio`; the largest over the tubes)."""
         return STANDARD_GRAVITY * max(max_load_ratio(t) for t in robot.tubes)
-
-    def checks(self, robot):
-        return super().checks(robot) + [Check("gravity_magnitude_m_s2", "m/s^2", _norm,
-                                              Plausible(0.0, self.max_magnitude(robot), self.source(robot)))]
 
     def draw(self, robot, rng):
         # the robot lies horizontal (insertion axis level within 5 deg), rho*g/E within +-20 %
@@ -276,10 +292,11 @@ class Gravity(Effect):
         return out
 
 
-class TipForce(Effect):
+class TipForce(LoadVector):
     name = "tip_force"
     key = "loads.tip_force_n"
     description = "point force at the tip of tube 1 (N), robot frame"
+    load, magnitude, unit = "tip_force_n", "tip_force_magnitude_n", "N"
     CABLE_N = 0.02
     #: The heaviest tool a robot carries on its tip: a solid steel cylinder of the robot's largest outer
     #: diameter and this length (mm), density (kg/m^3).
@@ -288,28 +305,59 @@ class TipForce(Effect):
               "and a tracked tool on the tip weighs at most a solid steel cylinder of the robot's largest "
               "outer diameter and 30 mm length: |F| <= 20 mN + that weight")
 
-    def max_force(self, robot: Robot) -> float:
+    def max_magnitude(self, robot: Robot) -> float:
         """The largest tip force (N) a robot of this file plausibly carries: a cable's pull plus the
         weight of the heaviest tool of its diameter (a soft robot's tool deflects it visibly)."""
         od = max(t.outer_diameter_mm for t in robot.tubes)
         tool_kg = self.TOOL_DENSITY * math.pi / 4 * (od * 1e-3) ** 2 * self.TOOL_LENGTH_MM * 1e-3
         return self.CABLE_N + STANDARD_GRAVITY * tool_kg
 
+    def source(self, robot: Robot) -> str:
+        return self.SOURCE
+
     def params(self, robot):
-        f = self.max_force(robot)
+        f = self.max_magnitude(robot)
         hard = max(0.05, 2.0 * f)
         return [Param(f"tip_force_{a}_n", "N", 2e-3, -hard, hard, Plausible(-f, f, self.SOURCE))
                 for a in "xyz"]
 
-    def values(self, robot):
-        return np.asarray(robot.loads.tip_force_n, dtype=float)
-
-    def with_values(self, robot, x):
-        return robot.with_changes(loads=replace(robot.loads, tip_force_n=tuple(float(v) for v in x)))
-
-    def checks(self, robot):
-        return super().checks(robot) + [Check("tip_force_magnitude_n", "N", _norm,
-                                              Plausible(0.0, self.max_force(robot), self.SOURCE))]
-
     def derived(self, robot, x):
         return {"tip_force_magnitude_mn": 1e3 * float(np.linalg.norm(x))}
+
+
+class FollowerForce(LoadVector):
+    """A force at the tip of tube 1 that turns with it: fixed in its tip frame (x, y across the tube,
+    y in the plane its curvature bends it; z along the tangent, distal) -- a tracked sensor's lead or a
+    tether running through the lumen and pulling on the tip, a contact that moves with the tip. Unlike
+    `TipForce` (fixed in the robot frame, a weight) its direction follows every rotation of the tip."""
+
+    name = "follower_force"
+    key = "loads.tip_follower_force_n"
+    #: asked for with ``--candidates``: every solve iterates on the tip frame (about 4x the solves of a
+    #: fixed force), and on the real data here its held-out gain changes sign with the split
+    tried_by_default = False
+    description = "point force at the tip of tube 1 (N), tip frame: it turns with the tip (a lead, a tether)"
+    load, magnitude, unit = "tip_follower_force_n", "follower_force_magnitude_n", "N"
+    MAX_N = 0.1
+    SOURCE = ("a tracked sensor's lead or a tether through the lumen, held by the cable management behind "
+              "the robot: slack, it pulls a few mN (`tip_force`'s 20 mN cable ceiling); taut, the capstan "
+              "friction of the lumen's bends (e^(mu theta), mu 0.1-0.3) and the inner tube's travel add to "
+              "it: 0.1 N ceiling -- an engineering estimate, no measurement of lead tension in CTRs known")
+
+    def max_magnitude(self, robot: Robot) -> float:
+        return self.MAX_N
+
+    def source(self, robot: Robot) -> str:
+        return self.SOURCE
+
+    def params(self, robot):
+        return [Param(f"follower_{a}_n", "N", 2e-3, -3.0 * self.MAX_N, 3.0 * self.MAX_N,
+                      Plausible(-self.MAX_N, self.MAX_N, self.SOURCE)) for a in "xyz"]
+
+    def draw(self, robot, rng):
+        """A lead's pull: 10-40 mN, mostly along the tangent."""
+        d = np.array([rng.normal(0, 0.3), rng.normal(0, 0.3), -1.0])
+        return rng.uniform(0.01, 0.04) * d / np.linalg.norm(d)
+
+    def derived(self, robot, x):
+        return {"follower_force_magnitude_mn": 1e3 * float(np.linalg.norm(x))}
