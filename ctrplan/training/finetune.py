@@ -173,20 +173,20 @@ def best_predictor(diag: Diagnosis, fs: FewShot, val: np.ndarray, say) -> tuple[
     def near(causes: set[str]) -> bool:   # one cause more, one less, or one swapped
         return causes != named and len(causes - named) <= 1 and len(named - causes) <= 1
 
-    extensions = [c for c in diag.selection.candidates if near(set(c.causes))
+    contenders = [c for c in diag.selection.candidates if near(set(c.causes))
                   and not (c.fit.implausible or c.fit.at_bound() or c.fit.unresolved())]
     label = "+".join(diag.causes) or "nothing named"
-    if not extensions or not len(val):
+    if not contenders or not len(val):
         return ext, {"kept": label, "validation_mean_mm": {}}
     errors = {label: tube1_error_mm(cosserat_tips(ext, fs, val), fs, val)}
     robots = {label: ext}
-    for c in extensions:
+    for c in contenders:
         errors[c.name] = tube1_error_mm(cosserat_tips(c.fit.robot, fs, val), fs, val)
         robots[c.name] = c.fit.robot.with_changes(name=f"{diag.robot.name}-{c.name}")
     best = min(errors, key=lambda k: (errors[k], k != label))
     say("predictor: " + ", ".join(f"{k} {v:.3f}" for k, v in errors.items())
         + f" mm on the {len(val)} validation shots; kept {best}"
-        + ("" if best == label else " (a cause diagnose did not name, kept as a predictor)"))
+        + ("" if best == label else " (not the set diagnose named: the better predictor)"))
     return robots[best], {"kept": best, "validation_mean_mm": {k: round(v, 4) for k, v in errors.items()}}
 
 
@@ -240,7 +240,7 @@ def finetune(fs: FewShot, start: PinnBackend, out: Path, recipe: Recipe, *, init
     ext, predictor = best_predictor(diag, fs, val, say)
     seconds["diagnose_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    say(f"stage 2/3: adapt the PINN to the extended mechanics (named: {diag.cause})")
+    say(f"stage 2/3: adapt the PINN to the extended mechanics ({predictor['kept']})")
     adapt_kwargs = {k: v for k, v in train_kwargs.items() if k in ("seed", "device", "progress")}
     adapted = adapt(start, ext.mechanics, out.with_name(out.name + "_adapted"), adapt_steps, **adapt_kwargs)
     seconds["adapt_s"] = time.perf_counter() - t0
