@@ -34,14 +34,11 @@ class TubeTensors:
     force: torch.Tensor
     follower: torch.Tensor
     transmission: torch.Tensor
+    has_follower: bool = False     # the robot's `Loads.has_follower`: known once, not read off a tensor
 
     @property
     def n_tubes(self) -> int:
         return self.lengths.shape[0]
-
-    @property
-    def has_follower(self) -> bool:
-        return bool(self.follower.abs().sum() > 0)
 
     def tip_force(self, tip_rotation: torch.Tensor | None) -> torch.Tensor:
         """The tip force (B, 3) or (3,) N in the robot frame: the fixed force plus the follower force
@@ -54,10 +51,11 @@ class TubeTensors:
     def from_robot(cls, robot: Robot, device: torch.device | str = "cpu",
                    dtype: torch.dtype = torch.float32) -> TubeTensors:
         rod = RodArrays.of(robot)
-        arrays = {f.name: getattr(rod, f.name) for f in fields(cls) if f.name != "transmission"}
+        arrays = {f.name: getattr(rod, f.name) for f in fields(cls)
+                  if f.name not in ("transmission", "has_follower")}
         arrays["transmission"] = [t.transmission_length_mm for t in robot.tubes]
         return cls(**{k: torch.as_tensor(np.asarray(v, dtype=float), dtype=dtype, device=device)
-                      for k, v in arrays.items()})
+                      for k, v in arrays.items()}, has_follower=robot.loads.has_follower)
 
 
 def segment_flags(s: torch.Tensor, q: torch.Tensor, tt: TubeTensors) -> tuple[torch.Tensor, torch.Tensor]:

@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import math
+from abc import abstractmethod
 from dataclasses import replace
 from typing import TYPE_CHECKING, ClassVar
 
@@ -233,11 +234,13 @@ class LoadVector(Effect):
     magnitude: ClassVar[str] = ""
     unit: ClassVar[str] = ""
 
+    @abstractmethod
     def max_magnitude(self, robot: Robot) -> float:
-        raise NotImplementedError
+        """The largest plausible magnitude (``unit``) of the load on a robot of this file."""
 
+    @abstractmethod
     def source(self, robot: Robot) -> str:
-        raise NotImplementedError
+        """Where the plausible magnitude comes from (cited in reports)."""
 
     def values(self, robot):
         return np.asarray(getattr(robot.loads, self.load), dtype=float)
