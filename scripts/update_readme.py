@@ -133,20 +133,21 @@ def render_robots(doc: dict[str, Any]) -> str:
         cpu = r.get("train_cpu_s")
         rows.append([f"`{r['robot']}`" if "/" in r["robot"] else r["robot"], start, r.get("clock", "wall"),
                      f"{r.get('command_s', r['wall_time_s']) / 60:.1f}", _fmt(cpu and cpu / 60, ".1f"),
-                     f"{r['dense_batch']:,}", str(r["steps"]),
+                     f"{r['dense_batch']:,}", _fmt(r.get("mining_share"), ".2f"), str(r["steps"]),
                      " / ".join(f"{mm[k]:.3f}" for k in ("mean", "p99", "p99_9", "max")),
                      "yes" if meets(mm) else "no", _reached(r), _card_says(r, mm),
                      f"{load['before'][0]:.1f} / {load['after'][0]:.1f}" if load else "–"])
     hw = "; ".join(sorted({r["hardware"] for r in doc["robots"]}))
     n = doc["robots"][0]["configurations"] if doc["robots"] else 0
-    header = ["robot", "started from", "clock", "wall minutes", "CPU min", "batch", "steps",
+    header = ["robot", "started from", "clock", "wall minutes", "CPU min", "batch", "mining share", "steps",
               f"tube-1 tip mean / p99 / p99.9 / max mm ({n:,} unseen)", "meets the target",
               "monitor met the target at", "the card says", "load before / after"]
     return (markdown_table(header, rows)
             + f"\n\nErrors against the exact model on {n:,} unseen configurations per robot (`ctrplan "
               f"eval-model --n {n}`); trained with `ctrplan train --robot ROBOT --time-limit 20m "
               f"--threads 1 [--clock cpu]` (default recipe; \"clock\": what the 20 minutes were read "
-              f"on; \"batch\": its supervised rows per step, `dense_batch`) on {hw}, two runs at "
+              f"on; \"batch\": its supervised rows per step, `dense_batch`; \"mining share\": the part of each "
+              f"batch from the mined hard examples, `Mining.share`, – where the card is gone) on {hw}, two runs at "
               f"once (one thread each: the pair "
               f"holds `flock /work/heavy.lock`, no other timed job) but beside the other sessions' work "
               f"on the machine: \"CPU min\" is the CPU time the training command got (of the 20 "
