@@ -31,6 +31,10 @@ class DiagnoseOptions:
     resample_nfev: int = 10        # their fits start from the main fit: a few steps suffice
     stable_fraction: float = 2 / 3  # stable: significant on at least this share of the splits
     experiment_rows: int = 20      # configurations that separate tied explanations (experiment.csv)
+    # causes also fitted as one more cause of the chosen set and of its best subset one cause smaller;
+    # never named: contenders for a caller that chooses among them on rows of its own (the few-shot
+    # stage's `best_predictor`)
+    also_fit: tuple[str, ...] = ()
 
     def split(self, n: int) -> Split:
         """The main split of ``n`` rows."""

@@ -298,8 +298,32 @@ class Selector:
         choose(sel, opt)
         if sel.chosen is None:
             sel.undetermined = self._undetermined(sel)
+        elif opt.also_fit:
+            self._also_fit(sel, nom_err, nom_bic)
         self.previous = {c.key: c.fit.x for c in sel.candidates}
         return sel
+
+    def _also_fit(self, sel: Selection, nom_err: np.ndarray, nom_bic: float) -> None:
+        """Fit each of ``opt.also_fit`` as one more cause of the chosen set and of its best subset one
+        cause smaller, on the main split, and add them to the candidates after the choice (they are
+        never named)."""
+        chosen, split, g = sel.chosen, sel.split, self.groups[sel.split.heldout]
+        fitted = {c.key: c for c in sel.candidates}
+        smaller = sorted((c for c in sel.candidates if c.key < chosen.key
+                          and len(c.key) == len(chosen.key) - 1), key=lambda c: c.heldout_mean(None))
+        for base in [chosen, *smaller[:1]]:
+            for name in self.opt.also_fit:
+                partner = make_effect(name, self.data.sessions)
+                key = base.key | frozenset(partner.causes)
+                if key in fitted:
+                    continue
+                fit = self._fit(Combined([base.fit.effect, partner]), split,
+                                np.concatenate([base.fit.x, partner.values(self.robot)]), self.opt.max_nfev)
+                err = self._heldout_err(fit, split.heldout)
+                fitted[key] = Candidate(fit=fit, reference=base.name,
+                                        main=judge(fit, err, base.heldout_err, base.fit.bic, self.opt, g),
+                                        nominal=judge(fit, err, nom_err, nom_bic, self.opt, g))
+                sel.candidates.append(fitted[key])
 
     def _names(self) -> list[str]:
         """The candidate causes: the options', and with data of several measurement sessions each that

@@ -49,6 +49,7 @@ from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.model_file import file_sha256, read_card, save_model, write_card_field
 from ctrplan.kinematics.pinn import PinnBackend
 from ctrplan.kinematics.pinn_net import PinnNet
+from ctrplan.model.causes import CAUSES, DEFAULT_CAUSES
 from ctrplan.model.causes.base import make_effect
 from ctrplan.model.robot import Robot
 from ctrplan.training.checkpoints import remove_checkpoint
@@ -63,6 +64,10 @@ from ctrplan.training.trainer import TrainResult, train
 MODELS = {"nominal": "nominal Cosserat", "extended": "extended Cosserat",
           "extended_lag": "extended + learned friction", "pinn_start": "PINN before",
           "pinn_adapted": "PINN adapted", "pinn_finetuned": "PINN fine-tuned"}
+#: The diagnosis of the shots also fits the causes `diagnose` tries only when named (`follower_force`)
+#: as one more cause of the set it names and of that set's best subset: naming stays `diagnose`'s claim,
+#: the few-shot model wants the best predictor, and the validation shots choose (`best_predictor`).
+FEWSHOT_DIAGNOSIS = DiagnoseOptions(also_fit=tuple(c for c in CAUSES if c not in DEFAULT_CAUSES))
 #: The PINN stages one of which is written as the model (the best on the validation shots).
 STAGES = ("pinn_start", "pinn_adapted", "pinn_finetuned")
 
@@ -236,7 +241,8 @@ def finetune(fs: FewShot, start: PinnBackend, out: Path, recipe: Recipe, *, init
     fit, val = validation_split(fs)
     t0 = time.perf_counter()
     say(f"stage 1/3: diagnose on {len(fit)} shots (the last {len(val)} shots validate the stages)")
-    diag = diagnose(fs.data.subset(fit), start.robot, diagnose_options, motion=fs.motion.subset(fit))
+    diag = diagnose(fs.data.subset(fit), start.robot, diagnose_options or FEWSHOT_DIAGNOSIS,
+                    motion=fs.motion.subset(fit))
     ext, predictor = best_predictor(diag, fs, val, say)
     seconds["diagnose_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
