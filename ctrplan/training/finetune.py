@@ -7,8 +7,9 @@ Stages (each timed; the card and the printout say how long each took):
    part of them): the extended robot -- mechanics (curvatures, stiffnesses, offsets, loads,
    transmission lengths) and calibration (registration, sensor offset, backlash, windup) -- or, when
    the validation shots say it predicts better, a candidate the diagnosis fitted with one cause more,
-   one less or one swapped (`best_predictor`: naming is a claim about the robot, the few-shot model
-   wants the best predictor).
+   one less or one swapped, the opt-in causes (`follower_force`) fitted for it as one more cause of the
+   named set and of its best subset (`best_predictor`, `FEWSHOT_DIAGNOSIS`: naming is a claim about
+   the robot, the few-shot model wants the best predictor).
 2. **adapt** the PINN to the extended mechanics where they differ from the model's robot: the default
    recipe's supervised training on exact solutions of the extended mechanics, started from the given
    PINN, for `ADAPT_STEPS` optimiser steps (hard-example mining included; a step budget, not minutes,
