@@ -20,7 +20,7 @@ SHIFT_MM = np.array([1.5, -1.0, 0.5])      # the tracker's origin, off the robot
 
 def lab_data(tmp_path):
     rng = np.random.default_rng(5)
-    q = np.column_stack([rng.uniform(-20.0, 0.0, 100), rng.uniform(-math.pi, math.pi, 100)])
+    q = np.column_stack([rng.uniform(-20.0, 0.0, 60), rng.uniform(-math.pi, math.pi, 60)])
     tips = np.array([lab_tip(b, a) for b, a in q]) + SHIFT_MM + rng.normal(0.0, 0.05, (len(q), 3))
     path = tmp_path / "lab.csv"
     write_measured_csv(path, q, tips[:, None, :])
