@@ -245,24 +245,31 @@ class CosseratBackend(Backend):
                         ) -> tuple:
         """`_run` under a follower force: the fixed point F = g(F) of the robot-frame tip force, g the
         fixed force plus the follower force turned to the tip frame solved under F, by Anderson-mixed
-        iteration (see the class); the last pass is the answer (the tip is added to the requested
-        points while iterating). Rows whose force has not stopped turning are not converged (NaN)."""
+        iteration (see the class); each pass solves the rows not yet settled (a path's chains whole), the
+        tip added to the requested points. Rows whose force has not stopped turning are not converged
+        (NaN)."""
         with_tip = frac if frac[-1] == 1.0 else np.append(frac, 1.0)
         b = qk.shape[0]
         force = np.broadcast_to(self.rod.force, (b, 3)).copy()
+        x0, settled, out = x0.copy(), np.zeros(b, dtype=bool), None
         history: list[tuple[np.ndarray, np.ndarray]] = []      # (force, g(force)) of the iterations
         for _ in range(FOLLOWER_ITERATIONS):
-            states, tips, conv, iters, resid, stab, initial, xs = self._run(qk, with_tip, x0, warm, force,
-                                                                            chains)
+            rows = np.arange(b) if chains else np.flatnonzero(~settled)
+            *solved, xs = self._run(qk[rows], with_tip, x0[rows], warm, force[rows], chains)
+            out = out or [np.empty((b, *a.shape[1:]), dtype=a.dtype) for a in solved]
+            for whole, part in zip(out, solved, strict=True):
+                whole[rows] = part
+            states, conv = out[0], out[2]
             g = self.rod.tip_forces(quaternion_to_matrix(states[:, -1, -4:]))
             settled = conv & (self._follower_turn(force, g) <= FOLLOWER_TOLERANCE_RAD)
-            x0, warm = np.where(conv[:, None], xs, x0), True
-            if settled.all() or not conv.any():
+            x0[rows], warm = np.where(conv[rows, None], xs, x0[rows]), True
+            if settled.all() or not conv[rows].any():
                 break
             history = [*history[-ANDERSON_DEPTH:], (force, g)]
             step = _anderson(history)
             moving = conv & ~settled & np.isfinite(step).all(axis=1)    # settled rows keep their force
             force = np.where(moving[:, None], step, force)
+        states, tips, _, iters, resid, stab, initial = out
         states = states[:, :frac.size]
         states[~settled], tips[~settled] = np.nan, np.nan
         return states, tips, settled, iters, resid, stab, initial
