@@ -73,7 +73,9 @@ ClockOpt = Annotated[str, typer.Option(
          "of this process (all its threads; for a machine shared with other jobs).")]
 SeedOpt = seed_option()
 DeviceOpt = Annotated[str, typer.Option("--device", help="cpu | cuda | cuda:N")]
-ThreadsOpt = Annotated[int | None, typer.Option("--threads", min=1, help="CPU threads for torch.")]
+ThreadsOpt = Annotated[int | None, typer.Option(
+    "--threads", min=1, help="CPU cores to use (default: all): with 2 or more, one solves the mining "
+                             "rounds in a worker process and torch gets the rest.")]
 ResumeOpt = Annotated[bool, typer.Option("--resume", help="Continue from the last checkpoint of NAME.")]
 InitOpt = Annotated[str | None, typer.Option(
     "--init", help=f"Start from a model's weights (e.g. `--recipe polish --init NAME`; with "
@@ -144,8 +146,7 @@ def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None
         raise InputError(f"--device: {device} requested but no CUDA device is available")
     if measured is None and shots is not None:
         raise InputError("--shots: needs --measured DATA.csv")
-    if threads is not None:
-        torch.set_num_threads(threads)
+    mining_worker = _use_cores(threads)
     model_robot = Robot.load(robot)
     if measured is None:
         model_robot.calibration.refuse(model_robot.name, "train")
@@ -172,7 +173,8 @@ def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None
         source = _resumed_transfer(meta, model_robot)
     try:
         result = _run(model_robot, rec, out, start, fewshot, budget, console,
-                      dict(seed=seed, device=device, resume=resume), init=init, adapt_steps=adapt_steps,
+                      dict(seed=seed, device=device, resume=resume, mining_worker=mining_worker),
+                      init=init, adapt_steps=adapt_steps,
                       transfer=source)
     except KeyboardInterrupt:
         _how_to_resume(console, out)
@@ -184,6 +186,22 @@ def train(name: NameOpt = None, robot: RobotOpt = None, recipe: RecipeOpt = None
         _report_finetune(console, out, card)
     if as_json:
         typer.echo(out.with_suffix(".json").read_text())  # the card as written, with robot and hash
+
+
+def _use_cores(threads: int | None) -> bool:
+    """Share the cores (``--threads``, default: all this process may use) between torch and a
+    mining worker: with two or more, one solves the mining rounds (`ctrplan.training.rounds`) and
+    torch gets the rest (a second torch thread buys nothing at the default recipe's batch); returns
+    whether a worker mines."""
+    import torch
+
+    from ctrplan.base.parallel import available_cores
+
+    cores = threads or len(available_cores())
+    worker = cores >= 2
+    if threads is not None or worker:
+        torch.set_num_threads(cores - 1 if worker else cores)
+    return worker
 
 
 def _recipe(name: str, settings: list[str], steps: int | None) -> Recipe:

@@ -248,7 +248,8 @@ def finetune(fs: FewShot, start: PinnBackend, out: Path, recipe: Recipe, *, init
     seconds["diagnose_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     say(f"stage 2/3: adapt the PINN to the extended mechanics ({predictor['kept']})")
-    adapt_kwargs = {k: v for k, v in train_kwargs.items() if k in ("seed", "device", "progress")}
+    adapt_kwargs = {k: v for k, v in train_kwargs.items()
+                    if k in ("seed", "device", "progress", "mining_worker")}
     adapted = adapt(start, ext.mechanics, out.with_name(out.name + "_adapted"), adapt_steps, **adapt_kwargs)
     seconds["adapt_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()

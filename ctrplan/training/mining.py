@@ -2,9 +2,11 @@
 
 DeepXDE's residual-based adaptive refinement adds collocation points where the PDE residual is
 largest. Here the exact solver is cheap enough to score the network by its real error instead: every
-`Mining.every` optimiser steps, `Mining.candidates` fresh random configurations are solved (tips only),
-the network's tube-1 tip is compared with the exact one, and the worst `Mining.keep` of them are
-solved densely and join a pool that supplies `Mining.share` of every supervised batch. Where a CTR is
+`Mining.every` optimiser steps, `Mining.candidates` fresh random configurations are solved densely
+(`ctrplan.training.rounds`: here, or ahead on a second core), the network's tube-1 tip is compared
+with the exact one, and the worst `Mining.keep` of them join a pool that supplies `Mining.share` of
+every supervised batch (all candidates solved densely cost 4.7 CPU-s a round of 20,000 on design_1,
+tips first and the worst densely after 4.9). Where a CTR is
 hardest to learn -- tubes nearly opposed at their largest overlap, next to the elastic-stability
 boundary, where the shape changes over a few hundredths of a radian -- is found, not guessed.
 
@@ -15,16 +17,17 @@ round is also an honest running estimate of the tail on unseen configurations (`
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.pinn_net import PinnNet
 from ctrplan.model.robot import Robot
 from ctrplan.training import target
-from ctrplan.training.samples import solve_dense
+from ctrplan.training.rounds import RoundSolver, RoundSource
 
 #: A tip orientation error of this many degrees scores like 1 mm of tip position error.
 DEG_PER_MM = 3.0
@@ -85,37 +88,54 @@ def tip_errors(net: PinnNet, q: np.ndarray, tips_mm: np.ndarray, quats: np.ndarr
 
 class HardExamples:
     """The pool of hard configurations (joints (H, 2N) and dense exact states (H, P, 2N + 9) on the
-    training device) and the rounds that filled it."""
+    training device) and the rounds that filled it. Inside `solving` the rounds' candidates come
+    from a `RoundSource` (with ``worker``: solved ahead in a process of its own)."""
 
-    def __init__(self, robot: Robot, mining: Mining, points: int, seed: int, device: torch.device):
+    def __init__(self, robot: Robot, mining: Mining, points: int, seed: int, device: torch.device,
+                 worker: bool = False):
         self.robot, self.mining, self.points, self.device = robot, mining, points, device
-        self.rng = np.random.default_rng([seed, 20_251_125])
+        self.solver = RoundSolver(robot, mining.candidates, points, seed)
+        self.worker = worker
+        self.source: RoundSource | None = None
         self.q = torch.empty((0, 2 * robot.n_tubes), device=device)
         self.x = torch.empty((0, points, robot.n_states), device=device)
         self.rounds: list[Round] = []
-        self.seconds = 0.0
+        self.seconds = 0.0     # wall seconds the optimiser spent on mining (waiting included)
+        self.solve_cpu_s = 0.0  # CPU seconds the rounds took to solve, wherever they ran
+        self.waited_s = 0.0    # wall seconds the optimiser waited for rounds (inline: solving them)
 
     def __len__(self) -> int:
         return self.q.shape[0]
 
+    @contextmanager
+    def solving(self, step: int) -> Iterator[HardExamples]:
+        """Mining rounds available inside, the first the one due after optimiser step ``step``;
+        a worker (if any) is stopped on leaving."""
+        self.source = RoundSource(self.solver, step // self.mining.every + 1, self.worker)
+        try:
+            yield self
+        finally:
+            self.waited_s += self.source.waited_s
+            self.source.close()
+            self.source = None
+
     def mine(self, net: PinnNet, step: int) -> Round:
-        """Score fresh candidates, add the worst to the pool, return the round's statistics."""
+        """Score the next round's fresh candidates, add the worst to the pool, return the round's
+        statistics (inside `solving`)."""
         t0 = time.perf_counter()
-        m, robot = self.mining, self.robot
-        cand = robot.sample_joints(m.candidates, self.rng)
-        exact = CosseratBackend(robot).forward(cand, points=2, check=False)  # s = 0 and the tip
-        ok = exact.converged
-        qm = robot.apply_offset(cand[ok])
-        pos, ang = tip_errors(net, qm, exact.tips_mm[ok, 0], exact.state[ok, -1, net.i_p + 3:net.i_p + 7])
-        score = pos + ang / DEG_PER_MM
-        worst = cand[ok][np.argsort(score)[-max(1, int(m.keep * len(score))):]]
-        dense = solve_dense(robot, worst, self.points)
-        q = torch.as_tensor(robot.apply_offset(dense.q), dtype=torch.float32, device=self.device)
-        x = torch.as_tensor(dense.states, dtype=torch.float32, device=self.device)
-        self.q = torch.cat([q, self.q])[:m.pool]
-        self.x = torch.cat([x, self.x])[:m.pool]
-        rnd = Round(step=step, candidates=int(ok.sum()), tip_mm=tail(pos), orientation_deg=tail(ang),
-                    unsolved=int((~ok).sum()))
+        solved = self.source.next()
+        if solved.index != step // self.mining.every:
+            raise RuntimeError(f"mining: round {solved.index} came at step {step}")
+        self.solve_cpu_s += solved.cpu_s
+        ip, tip = net.i_p, solved.states[:, -1].astype(np.float64)
+        q = self.robot.apply_offset(solved.q)
+        pos, ang = tip_errors(net, q, tip[:, ip:ip + 3], tip[:, ip + 3:ip + 7])
+        worst = np.argsort(pos + ang / DEG_PER_MM)[-max(1, int(self.mining.keep * len(pos))):]
+        pool, dev = self.mining.pool, self.device
+        self.q = torch.cat([torch.as_tensor(q[worst], dtype=torch.float32, device=dev), self.q])[:pool]
+        self.x = torch.cat([torch.as_tensor(solved.states[worst], device=dev), self.x])[:pool]
+        rnd = Round(step=step, candidates=len(pos), tip_mm=tail(pos), orientation_deg=tail(ang),
+                    unsolved=solved.unsolved)
         self.rounds.append(rnd)
         self.seconds += time.perf_counter() - t0
         return rnd

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -139,10 +140,12 @@ class TrainingData:
     def build(cls, robot: Robot, recipe: Recipe, seed: int, device: torch.device,
               observations: Observations | None = None,
               progress: Callable[[int, int], None] | None = None,
-              deadline: float | None = None, budget: TimeBudget | None = None) -> TrainingData:
+              deadline: float | None = None, budget: TimeBudget | None = None,
+              mining_worker: bool = False) -> TrainingData:
         """Solve the exact pool (its size: `pool_size`; ``progress(done, total)`` while it is solved;
         cut short at ``deadline``, see `solve_dense`, and then recorded in ``budget``) and draw the
-        fixed sets; ``observations`` (see `train`) replace the pool's tips."""
+        fixed sets; ``observations`` (see `train`) replace the pool's tips. With ``mining_worker``
+        the mining rounds are solved ahead in a process of their own (`ctrplan.training.rounds`)."""
         n_exact = pool_size(recipe)
         joints = pool_joints(robot, n_exact, np.random.default_rng(seed), recipe.edge_share)
         pool = solve_dense(robot, joints, recipe.dense_points, progress, deadline)
@@ -162,7 +165,7 @@ class TrainingData:
         fixed_colloc = None if recipe.resample else sampler.collocation(recipe.collocation,
                                                                         sampler.generator(0, 1))
         fixed_bc = None if recipe.resample else sampler.joints(recipe.boundary, sampler.generator(0, 2))
-        hard = (HardExamples(robot, recipe.mining, recipe.dense_points, seed, device)
+        hard = (HardExamples(robot, recipe.mining, recipe.dense_points, seed, device, mining_worker)
                 if recipe.mining else None)
         return cls(pool=pool, sampler=sampler, dense_q=to_dev(q_model), dense_x=to_dev(pool.states),
                    sigma_grid=to_dev(pool.sigma), obs_q=to_dev(obs.q), obs_tips=to_dev(obs.tips_mm),
@@ -212,11 +215,12 @@ class Trainer:
     then ``finish(out)`` writes the model and its card. `train` below is the one-call form."""
 
     def __init__(self, robot: Robot, data: TrainingData, net: PinnNet, *, data_time_s: float = 0.0,
-                 budget: TimeBudget | None = None):
+                 budget: TimeBudget | None = None, transfer: Transfer | None = None):
         self.robot, self.data, self.net, self.data_time_s = robot, data, net, data_time_s
         self.device = data.dense_q.device
         self.budget = budget
-        self.transferred_from: dict | None = None  # `Transfer.to_json` of the model it started from
+        # `Transfer.to_json` of the model it started from
+        self.transferred_from: dict | None = transfer.to_json() if transfer is not None else None
 
     def compile(self, recipe: Recipe, *, seed: int = 0, time_limit_s: float | None = None) -> Trainer:
         """Set the recipe's losses, optimiser and learning-rate schedule; start at step 0."""
@@ -303,14 +307,16 @@ class Trainer:
         one_step = self._adam_step if self.recipe.optimizer == "adam" else self._lbfgs_step
         self._t0 = self._last_ckpt = self._last_watch = now()
         self._fresh: dict = {}
-        first = self.step
-        while self.step < self.recipe.steps and (self.step < first + min_steps or not self._out_of_time()):
-            total = one_step()
-            self.step += 1
-            self._fresh |= self._mine()
-            last = self.step == self.recipe.steps or self._out_of_time()
-            if self.step % 10 == 0 or last:  # host-device syncs only every 10 steps
-                self._log(float(total.detach()), last, out, checkpoint_every_s, progress)
+        first, hard = self.step, self.data.hard
+        with hard.solving(first) if hard is not None else nullcontext():
+            while self.step < self.recipe.steps and (self.step < first + min_steps
+                                                     or not self._out_of_time()):
+                total = one_step()
+                self.step += 1
+                self._fresh |= self._mine()
+                last = self.step == self.recipe.steps or self._out_of_time()
+                if self.step % 10 == 0 or last:  # host-device syncs only every 10 steps
+                    self._log(float(total.detach()), last, out, checkpoint_every_s, progress)
         self.wall_time_s = self._elapsed_s() + self.data_time_s
         self._checkpoint(out, self.wall_time_s - self.data_time_s)
         return self
@@ -348,6 +354,8 @@ class Trainer:
         """The card's record of hard-example mining: rounds, pool, time and their history."""
         hard = self.data.hard
         return {"rounds": len(hard.rounds), "hard_pool": len(hard), "seconds": round(hard.seconds, 1),
+                "solved_in": "a worker process" if hard.worker else "the training process",
+                "solve_cpu_s": round(hard.solve_cpu_s, 1), "waited_s": round(hard.waited_s, 1),
                 "unsolved_candidates": sum(r.unsolved for r in hard.rounds),
                 "history": [r.to_json() for r in hard.rounds[::max(1, len(hard.rounds) // 20)]],
                 "last": hard.rounds[-1].to_json() if hard.rounds else None}
@@ -425,7 +433,7 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
           calibrate: Callable[[PinnNet], dict] | None = None,
           observations: Observations | None = None, extra_card: dict | None = None,
           budget: TimeBudget | None = None, monitor: Monitor | None = None,
-          transfer: Transfer | None = None) -> TrainResult:
+          transfer: Transfer | None = None, mining_worker: bool = False) -> TrainResult:
     """Train a PINN for ``robot`` with ``recipe`` from `start_net`; write ``out.safetensors`` + ``.json``.
     ``data_progress(done, total)`` reports while the exact pool is solved, ``progress(step, total,
     stats)`` every few steps; ``evaluate(net) -> metrics`` and ``calibrate(net) -> error bound`` run
@@ -434,7 +442,8 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
     recipe's ``minutes``), or when the ``budget`` (`TimeBudget`, then recorded in the card with the
     `accuracy_verdict`) of the whole run, exact pool included, runs out. ``observations`` (measured
     tips, paper stage b) replace the Cosserat tip observations; ``extra_card``: more card fields (its
-    ``stages``: those of the ``init_from`` model, then this one is added)."""
+    ``stages``: those of ``init_from``, then this one's). ``mining_worker``: solve the mining rounds
+    ahead on another core (`ctrplan.training.rounds`; the same rounds either way)."""
     dev = torch.device(device)
     torch.manual_seed(seed)
     recipe = transfer.recipe(recipe) if transfer is not None else recipe
@@ -443,12 +452,12 @@ def train(robot: Robot, recipe: Recipe, out: Path, *, seed: int = 0, device: str
     budget = budget or TimeBudget(time_limit_s if time_limit_s is not None
                                   else (recipe.minutes * 60 if recipe.minutes else None))
     data = TrainingData.build(robot, recipe, seed, dev, observations, data_progress,
-                              deadline=None if own else budget.data_deadline(), budget=budget)
-    net = start_net(robot, recipe, data, init_from, transfer, out if resume else None).to(dev).train()
-    net.requires_grad_(True)
-    data_time_s = now() - t_start
-    trainer = Trainer(robot, data, net, data_time_s=data_time_s, budget=None if own else budget)
-    trainer.transferred_from = transfer.to_json() if transfer is not None else None
+                              deadline=None if own else budget.data_deadline(), budget=budget,
+                              mining_worker=mining_worker)
+    net = start_net(robot, recipe, data, init_from, transfer, out if resume else None)
+    net = net.to(dev).train().requires_grad_(True)
+    trainer = Trainer(robot, data, net, data_time_s=now() - t_start, budget=None if own else budget,
+                      transfer=transfer)
     trainer.compile(recipe, seed=seed).watch(monitor)  # the first optimiser loads torch's compiler: seconds
     trainer.limit(budget.training_s(data.pool.solved_per_s))
     if resume:

@@ -79,3 +79,18 @@ def test_cli_train_with_a_time_limit_reports_its_last_step_and_leaves_no_checkpo
     shown = re.findall(r"(\d+) steps in \d+:\d\d of 0:03", err)
     assert shown and int(shown[-1]) == card["steps"] > 0
     assert sorted(p.name for p in (tmp_path / "models").iterdir()) == ["tiny.json", "tiny.safetensors"]
+
+
+def test_a_mining_worker_trains_the_same_network(tmp_path, robot):
+    """Mining rounds solved ahead in a worker process (a real spawned process) are the rounds solved
+    inline: the same candidates, the same hard examples, the same network bit for bit."""
+    recipe = get_recipe("fast", **TINY, mining={"every": 5, "candidates": 300})
+    inline = train(robot, recipe, tmp_path / "a", seed=4)
+    worker = train(robot, recipe, tmp_path / "b", seed=4, mining_worker=True)
+    for (k, v), w in zip(worker.net.state_dict().items(), inline.net.state_dict().values(), strict=True):
+        assert torch.equal(v, w), k
+    mined = worker.card["mining"]
+    assert mined["solved_in"] == "a worker process"
+    assert inline.card["mining"]["solved_in"] == "the training process"
+    assert mined["rounds"] == 4 and mined["hard_pool"] == 4 * 30 and mined["solve_cpu_s"] > 0
+    assert mined["history"] == inline.card["mining"]["history"]
