@@ -359,7 +359,7 @@ def _report(console: Console, out: Path, result: TrainResult, budget: TimeBudget
                       f"({MIN_EVAL_CONFIGURATIONS} configurations each) are never cut")
     if "time_to_target" in card:
         judged = card.get("accuracy_target", {}).get("tip_mm", m["tip_error_mm"]["tube1"])
-        console.print("accuracy: " + summary(card["time_to_target"], judged, budget.limit_s))
+        console.print("accuracy: " + summary(card["time_to_target"], judged, budget.elapsed_s()))
         if not card.get("meets_target") and m.get("worst", {}).get("next_to_jump"):
             w = m["worst"]
             console.print(f"{w['next_to_jump']} of the {w['checked']} configurations with the largest tip "

@@ -138,8 +138,9 @@ def time_to_target(curve: list[CurvePoint], final_tip_mm: dict | None = None) ->
     return out
 
 
-def summary(card_time_to_target: dict, final_tip_mm: dict, limit_s: float | None) -> str:
-    """One sentence for the terminal: reached (when), or how far it got and the extrapolation."""
+def summary(card_time_to_target: dict, final_tip_mm: dict, run_s: float | None) -> str:
+    """One sentence for the terminal: reached (when), or how far it got in the ``run_s`` seconds
+    the run took (on the training clock) and the extrapolation."""
     t = card_time_to_target
     target = ", ".join(f"{TARGET_STATISTIC[k].replace('_', '.')} <= {v:g} mm"
                        for k, v in t["target_mm"].items())
@@ -154,6 +155,6 @@ def summary(card_time_to_target: dict, final_tip_mm: dict, limit_s: float | None
     else:
         rate = (f"EXTRAPOLATED at the rate measured over the last half of the run (power law), it "
                 f"would take about {ex['extrapolated_s'] / 60:.0f} min in all")
-    limit = f" in {limit_s / 60:g} min" if limit_s else ""
-    return f"misses the accuracy target (tube-1 tip {target}){limit}: got {got}; {rate}"
+    took = f" in {run_s / 60:.1f} min" if run_s else ""
+    return f"misses the accuracy target (tube-1 tip {target}){took}: got {got}; {rate}"
 
