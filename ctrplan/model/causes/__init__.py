@@ -13,8 +13,9 @@ An effect acts on one side of the model (``Effect.side``), in the order a predic
 * ``tip``       -- the tracked point relative to the solved tip of tube 1 (sensor offset);
 * ``frame``     -- robot frame -> tracker frame (registration).
 
-The measurement-side effects (joints, tip, frame: `MeasurementEffect`) live in the robot's
-`ctrplan.model.measurement.Calibration`, under the robot file's ``calibration`` key.
+The measurement-side effects (`MeasurementEffect`; a cause derives from the class of its side,
+`JointsEffect`, `TipEffect` or `FrameEffect`, which declares the one map it must define) live in the
+robot's `ctrplan.model.measurement.Calibration`, under the robot file's ``calibration`` key.
 
 The table of causes (cause, side, parameters) follows, rendered from the registered classes
 (`base.cause_table`). Adding a cause is one `Effect` subclass (in `mechanics` or

@@ -24,8 +24,9 @@ class MeasurementEffect(Effect):
     """An effect of the measurement side (joints, tip or frame): a term of the robot's
     `ctrplan.model.measurement.Calibration`, kept under ``calibration.<key>`` in the robot file.
 
-    Subclasses define the map of their side: `joints` (reported joints -> the joints the mechanics
-    sees), `tips` (tip side: solved tips -> tracked point) or `frame` (robot -> tracker frame)."""
+    A cause derives from the class of its side, which declares the map it defines: `JointsEffect`
+    (reported joints -> the joints the mechanics sees), `TipEffect` (solved tips -> tracked point) or
+    `FrameEffect` (robot -> tracker frame)."""
 
     @abstractmethod
     def size(self, n_tubes: int) -> int:
@@ -46,29 +47,46 @@ class MeasurementEffect(Effect):
         """Validated values from the file form ``raw`` at ``keys`` of a robot of ``n_tubes`` tubes."""
         return numbers(doc, keys, raw, self.size(n_tubes))
 
-    # ---- the maps of each side ------------------------------------------------------------------
-    def joints(self, values: np.ndarray, q: np.ndarray, motion: Motion) -> np.ndarray:
-        """Joints side: joints q (B, 2N) -- the reported ones, or what the terms before this one made of
-        them -- of rows with the motion history ``motion`` (of the reported joints) -> the joints the
-        mechanics sees (B, 2N)."""
-        raise NotImplementedError
-
-    def tips(self, values: np.ndarray, tips_mm: np.ndarray, tip_rotation: np.ndarray) -> np.ndarray:
-        """Tip side: solved tips (B, T, 3) mm and the tip frame of tube 1 (B, 3, 3) -> tracked tips."""
-        raise NotImplementedError
-
-    def frame(self, values: np.ndarray, points_mm: np.ndarray, inverse: bool = False) -> np.ndarray:
-        """Frame side: robot-frame points (..., 3) -> tracker frame (or back, with ``inverse``)."""
-        raise NotImplementedError
-
-    def frame_rotation(self, values: np.ndarray) -> np.ndarray:
-        """Frame side: the rotation (3, 3) of the frame map (for orientations)."""
-        raise NotImplementedError
 
 
-class Latency(MeasurementEffect):
-    name = "latency"
+class JointsEffect(MeasurementEffect):
+    """An effect on the reported joints (`Calibration.joints`)."""
+
     side = "joints"
+
+    @abstractmethod
+    def joints(self, values: np.ndarray, q: np.ndarray, motion: Motion) -> np.ndarray:
+        """Joints q (B, 2N) -- the reported ones, or what the terms before this one made of them -- of
+        rows with the motion history ``motion`` (of the reported joints) -> the joints the mechanics
+        sees (B, 2N)."""
+
+
+class TipEffect(MeasurementEffect):
+    """An effect on the tracked point (`Calibration.tips`)."""
+
+    side = "tip"
+
+    @abstractmethod
+    def tips(self, values: np.ndarray, tips_mm: np.ndarray, tip_rotation: np.ndarray) -> np.ndarray:
+        """Solved tips (B, T, 3) mm and the tip frame of tube 1 (B, 3, 3) -> tracked tips."""
+
+
+class FrameEffect(MeasurementEffect):
+    """An effect on the tracker frame (`Calibration.to_tracker`, `Calibration.from_tracker`)."""
+
+    side = "frame"
+
+    @abstractmethod
+    def frame(self, values: np.ndarray, points_mm: np.ndarray, inverse: bool = False) -> np.ndarray:
+        """Robot-frame points (..., 3) -> tracker frame (or back, with ``inverse``)."""
+
+    @abstractmethod
+    def frame_rotation(self, values: np.ndarray) -> np.ndarray:
+        """The rotation (3, 3) of the frame map (for orientations)."""
+
+
+class Latency(JointsEffect):
+    name = "latency"
     key = "latency_rows"
     description = ("the tracker sees the robot where it was t sample intervals (rows) earlier: the joints "
                    "the mechanics sees are q - t (q - q_previous row)")
@@ -97,9 +115,8 @@ class Latency(MeasurementEffect):
         return np.array([rng.uniform(0.3, 1.0)])
 
 
-class Backlash(MeasurementEffect):
+class Backlash(JointsEffect):
     name = "backlash"
-    side = "joints"
     key = "backlash_rad"
     description = "lag of alpha_i (rad) in the direction of its latest motion"
     SOURCE = ("gear, belt and collet transmissions of rotary stages: a fraction of a degree to a few "
@@ -125,7 +142,7 @@ class Backlash(MeasurementEffect):
         return {f"backlash{i + 1}_deg": float(np.degrees(v)) for i, v in enumerate(x)}
 
 
-class Friction(MeasurementEffect):
+class Friction(JointsEffect):
     """Coulomb friction in the drives and between the tubes as Maxwell-slip elements (a spring and a
     Coulomb slider each; together a Prandtl-Ishlinskii operator set, the standard model of frictional
     hysteresis): joint j reaches its command minus ``sum_k w_jk phi_k``, with ``phi_k`` the normalised
@@ -135,7 +152,6 @@ class Friction(MeasurementEffect):
     the history of the motion. Weights >= 0 (a slip element only ever lags)."""
 
     name = "friction"
-    side = "joints"
     key = "friction"
     description = ("Coulomb friction in the drives and between the tubes (Maxwell-slip elements): after a "
                    "reversal joint j lags by up to sum_k w_jk (rad or mm), each element building up over "
@@ -262,9 +278,8 @@ def _total(joint: int, k: int):
     return lambda x: float(np.sum(x[joint * k:(joint + 1) * k]))
 
 
-class TorsionalWindup(MeasurementEffect):
+class TorsionalWindup(JointsEffect):
     name = "torsional_windup"
-    side = "joints"
     key = "windup_rad_per_mm"
     description = ("friction twists tube i behind the plate: a lag of alpha_i growing with -beta_i, windup_i"
                    " (rad/mm) = friction torque / (G J_i)")
@@ -303,10 +318,9 @@ class TorsionalWindup(MeasurementEffect):
                 for i, (t, v) in enumerate(zip(robot.tubes, x, strict=True))}
 
 
-class SensorOffset(MeasurementEffect):
+class SensorOffset(TipEffect):
     name = "sensor_offset"
     between_sessions = True
-    side = "tip"
     key = "sensor_offset_mm"
     description = "tracked point relative to the tip of tube 1, in its tip frame R(l1) (mm)"
     #: A coil sensor (NDI Aurora: 0.3-0.8 mm diameter, 8-13 mm long) inside or on the tip of tube 1.
@@ -345,10 +359,9 @@ class SensorOffset(MeasurementEffect):
                 "sensor_offset_side_mm": float(np.hypot(x[0], x[1]))}
 
 
-class Registration(MeasurementEffect):
+class Registration(FrameEffect):
     name = "registration"
     between_sessions = True
-    side = "frame"
     key = "registration"
     description = "rotation vector (rad) and translation (mm), robot -> tracker frame"
     KEYS = ("rotation_vector_rad", "translation_mm")
