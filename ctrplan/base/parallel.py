@@ -16,10 +16,12 @@ builds once per worker from a ``context`` factory and passes to every job: ``fn(
 
 from __future__ import annotations
 
+import ctypes
 import gc
 import multiprocessing as mp
 import os
 import signal
+import sys
 from abc import ABC, abstractmethod
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
@@ -54,13 +56,24 @@ class _Worker:
 #: This process's `_Worker` when it is a worker of a `LocalPool` with a context (set by
 #: `_pin_worker`): a pool process has no other place to keep state from one job to the next.
 _local_worker: _Worker | None = None
+#: prctl(2) option: the signal a process gets when its parent dies.
+PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent() -> None:
+    """Linux: have the kernel stop this process when the one that started it dies -- killed, not
+    only interrupted (a worker would otherwise wait for jobs forever)."""
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def _pin_worker(cores: Any, context: Callable[[], Any] | None) -> None:
-    """Process-pool initializer: ignore Ctrl-C (the parent stops the pool), take one core off the
-    queue, pin to it, go single-threaded; build this worker's context (if the pool has one)."""
+    """Process-pool initializer: ignore Ctrl-C (the parent stops the pool), die with the parent,
+    take one core off the queue, pin to it, go single-threaded; build this worker's context (if the
+    pool has one)."""
     global _local_worker
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _die_with_parent()
     core = cores.get()
     if core is not None and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {core})

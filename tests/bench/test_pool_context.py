@@ -46,3 +46,41 @@ def test_each_worker_process_builds_its_context_once():
     assert 1 <= len(per_worker) <= 2
     for counts in per_worker.values():  # one context per worker, kept from job to job
         assert sorted(counts) == list(range(1, len(counts) + 1))
+
+
+STARTER = """
+import sys
+from ctrplan.base.parallel import LocalPool
+pool = LocalPool(1)
+pool.submit(abs, -1)
+pool.next_done()  # the worker is up
+print(*pool.executor._processes, flush=True)
+sys.stdin.read()  # until killed
+"""
+
+
+def test_a_worker_dies_with_the_process_that_started_it():
+    """A process killed outright (no Ctrl-C, no cleanup) takes its pool's worker with it: the kernel
+    stops the worker (Linux), which would otherwise wait for jobs forever."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the parent-death signal is Linux's")
+    starter = subprocess.Popen([sys.executable, "-c", STARTER], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                               text=True)
+    worker = int(starter.stdout.readline())
+    os.kill(worker, 0)  # alive
+    starter.send_signal(signal.SIGKILL)
+    starter.wait()
+    for _ in range(100):
+        try:
+            os.kill(worker, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        os.kill(worker, signal.SIGKILL)
+        pytest.fail(f"worker {worker} outlived the process that started it")
