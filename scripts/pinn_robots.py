@@ -93,6 +93,8 @@ def measure(item: str, ns: argparse.Namespace) -> dict:
             "transferred_from": card.get("transferred_from"), "frame_tube": card["network"].get("frame_tube"),
             "meets_target": card.get("meets_target"), "time_to_target": card.get("time_to_target"),
             "card_worst": card["metrics"].get("worst"),
+            "mining_worker": {k: (card.get("mining") or {}).get(k) for k in ("solved_in", "solve_cpu_s",
+                                                                            "waited_s")},
             "unsolved_in_training": card["unsolved_configurations"]["count"], **metrics}
 
 

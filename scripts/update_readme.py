@@ -121,6 +121,14 @@ def render_training(cards: list[dict[str, Any]]) -> str:
 ROBOTS_JSON = ROOT / "docs" / "training" / "robots.json"
 
 
+def _cores(row: dict[str, Any]) -> str:
+    """The cores a robots-table run used: its threads, and the mining worker's CPU minutes."""
+    worker = row.get("mining_worker") or {}
+    if worker.get("solved_in") == "a worker process":
+        return f"{row['threads']} (worker {worker['solve_cpu_s'] / 60:.1f} CPU-min)"
+    return str(row.get("threads", "–"))
+
+
 def render_robots(doc: dict[str, Any]) -> str:
     """Time to the accuracy target per robot, from `scripts/pinn_robots.py`'s JSON (issue 40)."""
     rows = []
@@ -133,20 +141,24 @@ def render_robots(doc: dict[str, Any]) -> str:
         cpu = r.get("train_cpu_s")
         rows.append([f"`{r['robot']}`" if "/" in r["robot"] else r["robot"], start, r.get("clock", "wall"),
                      f"{r.get('command_s', r['wall_time_s']) / 60:.1f}", _fmt(cpu and cpu / 60, ".1f"),
+                     _cores(r),
                      f"{r['dense_batch']:,}", _fmt(r.get("mining_share"), ".2f"), str(r["steps"]),
                      " / ".join(f"{mm[k]:.3f}" for k in ("mean", "p99", "p99_9", "max")),
                      "yes" if meets(mm) else "no", _reached(r), _card_says(r, mm),
                      f"{load['before'][0]:.1f} / {load['after'][0]:.1f}" if load else "–"])
     hw = "; ".join(sorted({r["hardware"] for r in doc["robots"]}))
     n = doc["robots"][0]["configurations"] if doc["robots"] else 0
-    header = ["robot", "started from", "clock", "wall minutes", "CPU min", "batch", "mining share", "steps",
+    header = ["robot", "started from", "clock", "wall minutes", "CPU min", "cores", "batch", "mining share",
+              "steps",
               f"tube-1 tip mean / p99 / p99.9 / max mm ({n:,} unseen)", "meets the target",
               "monitor met the target at", "the card says", "load before / after"]
     return (markdown_table(header, rows)
             + f"\n\nErrors against the exact model on {n:,} unseen configurations per robot (`ctrplan "
               f"eval-model --n {n}`); trained with `ctrplan train --robot ROBOT --time-limit 20m "
               f"--threads 1 [--clock cpu]` (default recipe; \"clock\": what the 20 minutes were read "
-              f"on; \"batch\": its supervised rows per step, `dense_batch`; \"mining share\": the part "
+              f"on; \"cores\": `--threads`, with 2 one of them a mining worker whose CPU minutes "
+              f"follow, the training process's CPU clock then reading the other; \"batch\": its "
+              f"supervised rows per step, `dense_batch`; \"mining share\": the part "
               f"of each batch from the mined hard examples, `Mining.share`, – where the card is gone) on "
               f"{hw}, two or three runs at once, one thread each. \"CPU min\" is the CPU time the "
               f"training command got, the load average (1 min) before and after each run is in the last "

@@ -36,8 +36,10 @@ DEG_PER_MM = 3.0
 @dataclass(frozen=True)
 class Mining:
     """How hard examples are found: rounds ``every`` optimiser steps, ``candidates`` fresh
-    configurations scored per round, the worst fraction ``keep`` solved densely into a pool of at
-    most ``pool`` configurations (newest kept), which supplies ``share`` of every supervised batch.
+    configurations scored per round (a share ``edge_share`` of them with translations drawn near
+    their limits, as the exact pool's; then a round's tail is no longer one of uniform configurations),
+    the worst fraction ``keep`` kept in a pool of at most ``pool`` configurations (newest kept), which
+    supplies ``share`` of every supervised batch.
 
     ``share`` 0.97: on design_3, 20 CPU-minutes of one thread, tube-1 tip p99.9 / max on
     `eval-model --n 5000` fell monotonically with it -- 0.657 / 1.052 mm (0.5), 0.626 / 1.024 (0.75),
@@ -48,6 +50,7 @@ class Mining:
     keep: float = 0.1
     pool: int = 40_000
     share: float = 0.97
+    edge_share: float = 0.0  # candidates with translations near their limits (`samples.pool_joints`)
 
 
 @dataclass(frozen=True)
@@ -94,7 +97,7 @@ class HardExamples:
     def __init__(self, robot: Robot, mining: Mining, points: int, seed: int, device: torch.device,
                  worker: bool = False):
         self.robot, self.mining, self.points, self.device = robot, mining, points, device
-        self.solver = RoundSolver(robot, mining.candidates, points, seed)
+        self.solver = RoundSolver(robot, mining.candidates, points, seed, mining.edge_share)
         self.worker = worker
         self.source: RoundSource | None = None
         self.q = torch.empty((0, 2 * robot.n_tubes), device=device)

@@ -18,7 +18,7 @@ import numpy as np
 
 from ctrplan.base.parallel import InlinePool, LocalPool, Pool
 from ctrplan.model.robot import Robot
-from ctrplan.training.samples import solve_dense
+from ctrplan.training.samples import pool_joints, solve_dense
 
 #: Seed of the rounds' random streams (with the run's seed and the round's number).
 ROUND_SEED = 20_251_125
@@ -42,17 +42,20 @@ class SolvedRound:
 @dataclass(frozen=True)
 class RoundSolver:
     """What every round is solved for: ``candidates`` configurations of ``robot`` at ``points`` arc
-    fractions, drawn from the stream of ``seed``."""
+    fractions, drawn from the stream of ``seed`` (`samples.pool_joints`: a share ``edge_share`` with
+    translations near their limits)."""
 
     robot: Robot
     candidates: int
     points: int
     seed: int
+    edge_share: float = 0.0
 
     def __call__(self, index: int) -> SolvedRound:
         t0 = time.process_time()
         rng = np.random.default_rng([self.seed, ROUND_SEED, index])
-        dense = solve_dense(self.robot, self.robot.sample_joints(self.candidates, rng), self.points)
+        q = pool_joints(self.robot, self.candidates, rng, self.edge_share)
+        dense = solve_dense(self.robot, q, self.points)
         return SolvedRound(index=index, q=dense.q, states=dense.states.astype(np.float32),
                            unsolved=len(dense.unsolved), cpu_s=time.process_time() - t0)
 
