@@ -100,7 +100,7 @@ def get_recipe(name: str, /, **overrides) -> Recipe:
     if isinstance(values.get("mining"), dict):
         try:
             values["mining"] = Mining(**{**asdict(RECIPES[name].mining or Mining()), **values["mining"]})
-        except TypeError as exc:
+        except (TypeError, ValueError) as exc:
             raise InputError(f"overrides: mining: {exc} (fields: {', '.join(Mining.__dataclass_fields__)})"
                              ) from None
     return replace(RECIPES[name], **values)

@@ -3,10 +3,11 @@ round is due, or ahead of time in a worker process on a core of its own.
 
 Round k's candidates are drawn from their own random stream (``seed``, k), so a round is the same
 configurations whoever solves it and whenever: the worker changes where the exact solver runs, not
-what the network is trained on. With one core the rounds are solved inline; with two or more the
-worker solves the next rounds while the optimiser steps (the exact solver and a small network each
-keep a core busy: on design_1 a quarter of a 20-minute one-core run was mining), and a round the
-optimiser reaches before the worker has solved it is waited for (`RoundSource.waited_s`).
+what the network is trained on (the recipe may give a worker more candidates per round,
+`Mining.worker_candidates`). With one core the rounds are solved inline; with two or more the worker
+solves the next rounds while the optimiser steps (on design_1 a quarter of a 20-minute one-core run
+was mining), and a round the optimiser reaches before the worker has solved it is waited for
+(`RoundSource.waited_s`).
 """
 
 from __future__ import annotations

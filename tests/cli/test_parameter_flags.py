@@ -26,6 +26,9 @@ def test_library_errors_name_the_parameter_not_a_flag(call, message):
 @pytest.mark.parametrize(("args", "start"), [
     (["train", "--recipe", "nope"], "ctrplan: error: --recipe: unknown recipe 'nope'"),
     (["train", "--set", "colour=1"], "ctrplan: error: --set: unknown recipe field(s) colour"),
+    (["train", "--set", 'mining={"keep": 0.2}'],
+     "ctrplan: error: --set: mining: keep must be a whole number >= 1, got 0.2"),
+    (["train", "--set", 'mining={"share": 2}'], "ctrplan: error: --set: mining: share must be in [0, 1]"),
     (["bench", "kinematics", "--backend", "nope"], "ctrplan: error: --backend: unknown backend 'nope'"),
 ])
 def test_cli_maps_parameters_to_flags(tmp_path, capsys, monkeypatch, args, start):

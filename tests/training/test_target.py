@@ -124,7 +124,7 @@ def test_a_short_run_on_a_small_robot_meets_a_proportionally_loose_target(tmp_pa
     the 500 monitor configurations first met that."""
     robot = Robot.load(REPO / "examples" / "robots" / "two_tube.yaml")
     recipe = get_recipe("fast", steps=300, dense_configs=4000, dense_batch=1024, collocation=256, boundary=64,
-                        mining={"every": 100, "candidates": 2000})
+                        mining={"every": 100, "candidates": 2000, "keep": 200})
     result = train(robot, recipe, tmp_path / "two", seed=0, monitor=Monitor(robot, n=500),
                    evaluate=lambda net: compare(PinnBackend(robot, net), robot, n=1000, points=2).metrics())
     tip1 = result.card["metrics"]["tip_error_mm"]["tube1"]

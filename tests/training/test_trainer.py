@@ -84,7 +84,8 @@ def test_cli_train_with_a_time_limit_reports_its_last_step_and_leaves_no_checkpo
 def test_a_mining_worker_trains_the_same_network(tmp_path, robot):
     """Mining rounds solved ahead in a worker process (a real spawned process) are the rounds solved
     inline: the same candidates, the same hard examples, the same network bit for bit."""
-    recipe = get_recipe("fast", **TINY, mining={"every": 5, "candidates": 300})
+    recipe = get_recipe("fast", **TINY, mining={"every": 5, "candidates": 300, "worker_candidates": 300,
+                                                 "keep": 30})
     inline = train(robot, recipe, tmp_path / "a", seed=4)
     worker = train(robot, recipe, tmp_path / "b", seed=4, mining_worker=True)
     for (k, v), w in zip(worker.net.state_dict().items(), inline.net.state_dict().values(), strict=True):
