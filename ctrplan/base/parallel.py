@@ -147,6 +147,11 @@ class Pool(ABC):
     @abstractmethod
     def _finish_one(self) -> tuple[int, dict]: ...
 
+    @abstractmethod
+    def close(self, ok: bool) -> None:
+        """Release the executor: after a normal end (``ok``) let it finish, else stop what is in
+        flight."""
+
 
 class InlinePool(Pool):
     """Jobs run in this process, one at a time, when their result is asked for."""
@@ -162,6 +167,10 @@ class InlinePool(Pool):
     def _finish_one(self) -> tuple[int, dict]:
         number, fn, spec = self._queue.popleft()
         return number, fn(spec) if self._worker is None else self._worker.run(fn, spec)
+
+    def close(self, ok: bool) -> None:
+        """Nothing to release: the jobs not asked for were never run."""
+        self._queue.clear()
 
 
 class LocalPool(Pool):
@@ -316,8 +325,7 @@ def open_pool(workers: int = 1, ray_address: str | None = None,
             yield pool
             ok = True
         finally:
-            if isinstance(pool, LocalPool | RayPool):
-                pool.close(ok)
+            pool.close(ok)
 
 
 def run_jobs(fn: Callable[..., dict], specs: Sequence[Spec], *, workers: int = 1,

@@ -131,12 +131,12 @@ class HardExamples:
         return self.q.shape[0]
 
     @contextmanager
-    def solving(self, step: int) -> Iterator[HardExamples]:
+    def solving(self, step: int) -> Iterator[None]:
         """Mining rounds available inside, the first the one due after optimiser step ``step``;
         a worker (if any) is stopped on leaving."""
         self.source = RoundSource(self.solver, step // self.mining.every + 1, self.worker)
         try:
-            yield self
+            yield
         finally:
             self.waited_s += self.source.waited_s
             self.source.close()

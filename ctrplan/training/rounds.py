@@ -87,5 +87,4 @@ class RoundSource:
         return solved
 
     def close(self) -> None:
-        if isinstance(self.pool, LocalPool):
-            self.pool.close(ok=False)  # the rounds solved ahead are not needed
+        self.pool.close(ok=False)  # the rounds solved ahead are not needed

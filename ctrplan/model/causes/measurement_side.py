@@ -48,7 +48,6 @@ class MeasurementEffect(Effect):
         return numbers(doc, keys, raw, self.size(n_tubes))
 
 
-
 class JointsEffect(MeasurementEffect):
     """An effect on the reported joints (`Calibration.joints`)."""
 
