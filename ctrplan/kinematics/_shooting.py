@@ -686,30 +686,16 @@ def solve_one(q, x0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weig
 
 
 @njit(cache=True, parallel=True)
-def solve_many(Q, X0, warm, s_frac, lengths, straight, kappa, EI, GJ, force, weight, loaded,
-               h_multi, h_single, tol, max_iter, with_stability, retry_cold, states, tips, state0, X, conv,
-               iters, resid, stab):
-    """`solve_one` over a batch (B, 2N) in parallel; outputs indexed by the batch row. ``force`` (B, 3):
-    each row's tip force in the robot frame (a follower force differs from row to row)."""
-    for b in prange(Q.shape[0]):
-        x, c, it, r, st = solve_one(Q[b], X0[b], warm, s_frac, lengths, straight, kappa, EI, GJ, force[b],
-                                    weight, loaded, h_multi, h_single, tol, max_iter, with_stability,
-                                    retry_cold, states[b], tips[b], state0[b])
-        X[b, :] = x
-        conv[b] = c
-        iters[b] = it
-        resid[b] = r
-        stab[b] = st
-
-
-@njit(cache=True, parallel=True)
 def solve_chains(Q, X0, warm, starts, s_frac, lengths, straight, kappa, EI, GJ, force, weight, loaded,
                  h_multi, h_single, tol, max_iter, with_stability, retry_cold, states, tips, state0, X, conv,
                  iters, resid, stab):
-    """`solve_one` along consecutive rows of a path (B, 2N), in chains ``starts[c]:starts[c + 1]``
-    run in parallel: a chain's first row starts from ``X0`` (when ``warm``), every later row from the
-    solution of the row before it (continuation; cold where that did not converge), extrapolated
-    linearly from the two rows before it where both converged. ``force`` (B, 3) as in `solve_many`."""
+    """`solve_one` over rows (B, 2N) in chains ``starts[c]:starts[c + 1]`` run in parallel: a chain's
+    first row starts from ``X0`` (when ``warm``), every later row from the solution of the row before
+    it (continuation along a path; cold where that did not converge), extrapolated linearly from the
+    two rows before it where both converged. Chains of one row (``starts = 0, 1, …, B``) solve a batch
+    of independent rows: the one parallel kernel for both (each one compiles for ~17 s per tube count on
+    a first run). ``force`` (B, 3): each row's tip force in the robot frame (a follower force differs
+    from row to row); outputs indexed by the row."""
     for c in prange(starts.shape[0] - 1):
         for b in range(starts[c], starts[c + 1]):
             follow = b > starts[c] and conv[b - 1]

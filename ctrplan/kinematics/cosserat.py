@@ -18,6 +18,15 @@ from ctrplan.model.robot import Robot
 G_TO_N_PER_MM = 1e-9  # rho [kg/m^3] * A [mm^2] * g [m/s^2] * 1e-9 = N/mm
 
 
+def kernel_array(a: np.ndarray) -> np.ndarray:
+    """``a`` as the kernels take every array: float64, C-contiguous and writable (a copy where it is
+    not). numba compiles a kernel once per argument type, and a read-only array (a broadcast view, the
+    cached arc fractions) is another type: without this one kernel compiled up to five times a tube
+    count, minutes on a first run."""
+    a = np.asarray(a, dtype=float)
+    return a if a.flags.writeable and a.flags.c_contiguous else np.array(a, order="C")
+
+
 @dataclass(frozen=True)
 class SolverSettings:
     """Numerical settings. Steps in mm; tolerance on the normalised boundary residual in 1/m.
@@ -150,9 +159,11 @@ class CosseratBackend(Backend):
         rod = replace(self.rod, lengths=self.rod.lengths + d, straight=self.rod.straight + d)
         st = self.settings
         lengths, straight, kappa, EI, GJ, _, weight = rod.shooting_arrays()
+        lengths, straight, EI, GJ, weight = (kernel_array(a) for a in (lengths, straight, EI, GJ, weight))
         self._kernel_head = (lengths, straight, kappa, EI, GJ)     # then the force, per row or not
-        self._kernel_tail = (weight, self.loaded, st.step_multi_mm, st.step_single_mm,
-                             st.tolerance_per_m * 1e-3, st.max_iterations, st.stability, st.retry_cold)
+        self._kernel_tail = (weight, bool(self.loaded), float(st.step_multi_mm), float(st.step_single_mm),
+                             float(st.tolerance_per_m * 1e-3), int(st.max_iterations), bool(st.stability),
+                             bool(st.retry_cold))   # one type each, whatever the caller passed
 
     @property
     def n_unknowns(self) -> int:
@@ -226,19 +237,17 @@ class CosseratBackend(Backend):
         stab = np.full(b, np.nan)
         xs = np.empty_like(x0)
         initial = np.empty((b, ns))
-        force = np.ascontiguousarray(force, dtype=float)
+        qk, frac, x0, force = (kernel_array(a) for a in (qk, frac, x0, force))
         head, tail = (frac, *self._kernel_head), self._kernel_tail
         if b == 1:
             x, c, it, r, sb = kernel.solve_one(qk[0], x0[0], warm, *head, force[0], *tail, states[0], tips[0],
                                                initial[0])
             xs[0], conv[0], iters[0], resid[0], stab[0] = x, c, it, r, sb
-        elif chains:
-            starts = np.linspace(0, b, min(chains, b) + 1).round().astype(np.int64)
+        else:      # a batch is chains of one row each
+            starts = np.linspace(0, b, min(chains, b) + 1).round() if chains else np.arange(b + 1)
+            starts = starts.astype(np.int64)
             kernel.solve_chains(qk, x0, warm, starts, *head, force, *tail, states, tips, initial, xs, conv,
                                 iters, resid, stab)
-        else:
-            kernel.solve_many(qk, x0, warm, *head, force, *tail, states, tips, initial, xs, conv, iters,
-                              resid, stab)
         return states, tips, conv, iters, resid, stab, initial, xs
 
     def _follower_solve(self, qk: np.ndarray, frac: np.ndarray, x0: np.ndarray, warm: bool, chains: int
