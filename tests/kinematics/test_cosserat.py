@@ -162,3 +162,26 @@ def test_backbone_geometry(cosserat, robot):
     outer = robot.outer_radii_mm
     assert bb.radius_mm[:, 0].tolist() == [outer[2]] * 5
     assert bb.radius_mm[:, -1].tolist() == [outer[0]] * 5
+
+
+def test_each_kernel_compiles_once_per_tube_count(robot):
+    """Read-only inputs (a broadcast view, a frozen guess, cached arc fractions), integer settings,
+    single rows, batches, paths and warm starts all reach one compiled kernel per tube count: numba
+    compiles one per argument type, ~20-30 s each on a cold cache."""
+    import ctrplan.kinematics._shooting as kernel
+    from ctrplan.kinematics.base import ArcFractions
+
+    q = robot.sample_joints(3, rng=5)
+    frozen = q.copy()
+    frozen.flags.writeable = False
+    backend = CosseratBackend(robot)
+    solved = backend.forward(frozen, 10)
+    guess = solved.initial_state.copy()
+    guess.flags.writeable = False
+    backend.forward(np.broadcast_to(q[0], (3, 6)), ArcFractions(12), guess=guess)
+    backend.forward(frozen[0], 10, guess=guess[:1])
+    backend.forward_path(frozen, 10)
+    CosseratBackend(robot, SolverSettings(step_multi_mm=2, max_iterations=40)).forward(q, 10)
+    for dispatcher, kappa_at in ((kernel.solve_chains, 7), (kernel.solve_one, 6)):
+        three_tubes = [s for s in dispatcher.signatures if s[kappa_at].count == robot.n_tubes]
+        assert len(three_tubes) == 1, three_tubes
