@@ -361,7 +361,7 @@ def backbones_chunked(q, out_frac, intervals, net, rod, loaded, states, at_ends,
     for c in prange((nb + chunk - 1) // chunk):
         a = c * chunk
         b = min(nb, a + chunk)
-        backbones(q[a:b], out_frac, intervals, net, rod, loaded, states[a:b], at_ends[a:b], True)
+        backbones(q[a:b], out_frac, intervals, net, rod, loaded, states[a:b], at_ends[a:b], np.bool_(True))
 
 
 @njit(cache=True)
@@ -417,7 +417,7 @@ def body_points(q, out_frac, intervals, net, rod, loaded, outer_radii):
     ends, no s = 0): positions (B, P, 3) mm and outer radius (B, P) mm at arc fractions ``out_frac``
     (P,) of l1, and whether each row is finite (B,). Arguments as `backbones`."""
     states = np.empty((q.shape[0], out_frac.shape[0], 2 * rod[0].shape[0] + 9))
-    backbones(q, out_frac, intervals, net, rod, loaded, states, states, False)
+    backbones(q, out_frac, intervals, net, rod, loaded, states, states, np.bool_(False))
     return _body_fields(q, out_frac, rod, outer_radii, states)
 
 
@@ -439,7 +439,8 @@ def body_points_blocks(q, out_frac, intervals, net, rod, loaded, outer_radii, bl
     for c in prange(blocks):
         a, b = _block(nb, blocks, c)
         if a < b:
-            backbones(q[a:b], out_frac, intervals, net, rod, loaded, states[a:b], states[a:b], False)
+            backbones(q[a:b], out_frac, intervals, net, rod, loaded, states[a:b], states[a:b],
+                      np.bool_(False))
     return _body_fields(q, out_frac, rod, outer_radii, states)
 
 

@@ -151,6 +151,18 @@ def test_single_and_batched_calls_agree(robot, pinn):
         np.testing.assert_allclose(one.residual[0], batch.residual[i], rtol=1e-3, atol=1e-3)
 
 
+def test_backbones_compile_once_whoever_calls_them(robot, pinn):
+    """Single rows, chunked batches and the planner's body queries reach one compiled `backbones`:
+    a literal True or False from another kernel would be another numba type (another compile)."""
+    from numba.core.types import Literal
+
+    from ctrplan.kinematics._pinn_infer import backbones
+
+    q = robot.sample_joints(3000, rng=3)
+    pinn.forward(q[:1], 20), pinn.forward(q, 20), pinn.body(q[:1], 20), pinn.body(q, 20)
+    assert backbones.signatures and not [s for s in backbones.signatures if isinstance(s[-1], Literal)]
+
+
 def test_blocked_batches_are_the_same_on_any_number_of_threads(robot, pinn):
     """A planner's batched calls run in `ROW_BLOCKS` blocks, in parallel where numba has threads: the
     result must not depend on the threads (a seeded plan is the same everywhere), and it must be the
