@@ -44,6 +44,15 @@ def arc_fractions(points: Points) -> np.ndarray:
     return frac
 
 
+def kernel_array(a: np.ndarray) -> np.ndarray:
+    """``a`` as the kernels take every array: float64, C-contiguous and writable (a copy where it is
+    not). numba compiles a kernel once per argument type, and a read-only array (a broadcast view, the
+    cached arc fractions) is another type: without this one kernel compiled up to five times a tube
+    count, minutes on a first run. Both backends pass their arrays through it."""
+    a = np.asarray(a, dtype=float)
+    return a if a.flags.writeable and a.flags.c_contiguous else np.array(a, order="C")
+
+
 class ArcFractions:
     """Backbone output points as arc fractions of l1, checked once (`arc_fractions`): ``values``, a
     read-only ascending (P,) array in [0, 1]. A backend takes one as ``points`` without checking

@@ -12,19 +12,17 @@ import numpy as np
 
 import ctrplan.kinematics._shooting as kernel
 from ctrplan.kinematics.backbone import Backbone, quaternion_to_matrix
-from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Points, arc_fractions, outer_radius_along
+from ctrplan.kinematics.base import (
+    DEFAULT_POINTS,
+    Backend,
+    Points,
+    arc_fractions,
+    kernel_array,
+    outer_radius_along,
+)
 from ctrplan.model.robot import Robot
 
 G_TO_N_PER_MM = 1e-9  # rho [kg/m^3] * A [mm^2] * g [m/s^2] * 1e-9 = N/mm
-
-
-def kernel_array(a: np.ndarray) -> np.ndarray:
-    """``a`` as the kernels take every array: float64, C-contiguous and writable (a copy where it is
-    not). numba compiles a kernel once per argument type, and a read-only array (a broadcast view, the
-    cached arc fractions) is another type: without this one kernel compiled up to five times a tube
-    count, minutes on a first run."""
-    a = np.asarray(a, dtype=float)
-    return a if a.flags.writeable and a.flags.c_contiguous else np.array(a, order="C")
 
 
 @dataclass(frozen=True)
@@ -235,9 +233,9 @@ class CosseratBackend(Backend):
         iters = np.zeros(b, dtype=np.int64)
         resid = np.zeros(b)
         stab = np.full(b, np.nan)
+        qk, frac, x0, force = (kernel_array(a) for a in (qk, frac, x0, force))
         xs = np.empty_like(x0)
         initial = np.empty((b, ns))
-        qk, frac, x0, force = (kernel_array(a) for a in (qk, frac, x0, force))
         head, tail = (frac, *self._kernel_head), self._kernel_tail
         if b == 1:
             x, c, it, r, sb = kernel.solve_one(qk[0], x0[0], warm, *head, force[0], *tail, states[0], tips[0],

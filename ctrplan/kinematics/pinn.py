@@ -23,7 +23,15 @@ from ctrplan.kinematics._pinn_infer import (
     infer_blocks,
 )
 from ctrplan.kinematics.backbone import Backbone
-from ctrplan.kinematics.base import DEFAULT_POINTS, Backend, Body, Points, arc_fractions, tangent_of
+from ctrplan.kinematics.base import (
+    DEFAULT_POINTS,
+    Backend,
+    Body,
+    Points,
+    arc_fractions,
+    kernel_array,
+    tangent_of,
+)
 from ctrplan.kinematics.blas import one_blas_thread
 from ctrplan.kinematics.cosserat import RodArrays
 from ctrplan.kinematics.model_file import load_model
@@ -143,18 +151,18 @@ class PinnBackend(Backend):
         """Joints (B, 2N) as given (checked against the robot with ``check``) and as the model sees
         them (offsets applied, contiguous)."""
         q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
-        return q, np.ascontiguousarray(q + self._offset if self._has_offset else q, dtype=float)
+        return q, kernel_array(q + self._offset if self._has_offset else q)
 
     @staticmethod
     def _writable_fractions(points: Points) -> np.ndarray:
-        """`arc_fractions` as a writable array: one compiled kernel type."""
-        return arc_fractions(points).copy()
+        """`arc_fractions` as a writable array (`kernel_array`): one compiled kernel type."""
+        return kernel_array(arc_fractions(points))
 
     def _evaluate(self, q: np.ndarray, frac: np.ndarray) -> np.ndarray:
         """The network's states (B, F, 2N + 9) at arc fractions frac (B, F) for joints q (B, 2N) with
         offsets applied."""
         out = np.empty((frac.shape[0], frac.shape[1], self.robot.n_states))
-        q, frac = np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(frac, dtype=float)
+        q, frac = kernel_array(q), kernel_array(frac)
         with one_blas_thread():
             if len(q) >= BLOCKED_ROWS:
                 infer_blocks(q, frac, self._compiled, out, ROW_BLOCKS)
@@ -204,7 +212,7 @@ class PinnBackend(Backend):
         offset = self._offset if self._has_offset else None
 
         def query(q: np.ndarray) -> Body:
-            qm = np.ascontiguousarray(q if offset is None else q + offset, dtype=float)
+            qm = kernel_array(q if offset is None else q + offset)
             with one_blas_thread():
                 if len(qm) >= BLOCKED_ROWS:
                     return Body(*body_points_blocks(qm, *args, ROW_BLOCKS))
