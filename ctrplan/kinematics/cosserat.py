@@ -64,17 +64,17 @@ class RodArrays:
 
     def arrays(self) -> tuple[np.ndarray, ...]:
         """The fields in kernel-argument order (lengths, straight, kappa, EI, GJ, force, weight,
-        follower)."""
-        return (self.lengths, self.straight, self.kappa, self.EI, self.GJ, self.force, self.weight,
-                self.follower)
+        follower), each as the kernels take it (`kernel_array`)."""
+        return tuple(kernel_array(a) for a in (self.lengths, self.straight, self.kappa, self.EI, self.GJ,
+                                               self.force, self.weight, self.follower))
 
     def shooting_arrays(self) -> tuple:
         """(lengths, straight, kappa, EI, GJ, force, weight) for the shooting kernels, ``kappa`` as a
         tuple: its length, the tube count, is then part of the compiled type, so numba compiles one
         kernel per tube count with constant loop bounds (as fast as hand-written three-tube code). The
         follower force is not among them: `CosseratBackend` turns it into each row's ``force``."""
-        return (self.lengths, self.straight, tuple(float(k) for k in self.kappa), self.EI, self.GJ,
-                self.force, self.weight)
+        lengths, straight, kappa, EI, GJ, force, weight, _ = self.arrays()
+        return lengths, straight, tuple(float(k) for k in kappa), EI, GJ, force, weight
 
     def tip_forces(self, tip_rotations: np.ndarray) -> np.ndarray:
         """The tip force (B, 3) N in the robot frame of configurations whose tube-1 tip frames are
@@ -157,7 +157,6 @@ class CosseratBackend(Backend):
         rod = replace(self.rod, lengths=self.rod.lengths + d, straight=self.rod.straight + d)
         st = self.settings
         lengths, straight, kappa, EI, GJ, _, weight = rod.shooting_arrays()
-        lengths, straight, EI, GJ, weight = (kernel_array(a) for a in (lengths, straight, EI, GJ, weight))
         self._kernel_head = (lengths, straight, kappa, EI, GJ)     # then the force, per row or not
         self._kernel_tail = (weight, bool(self.loaded), float(st.step_multi_mm), float(st.step_single_mm),
                              float(st.tolerance_per_m * 1e-3), int(st.max_iterations), bool(st.stability),
@@ -206,7 +205,7 @@ class CosseratBackend(Backend):
         frac = arc_fractions(points)
         b = qm.shape[0]
         x0 = self.unknowns_from_state(guess) if guess is not None else np.zeros((b, self.n_unknowns))
-        x0 = np.ascontiguousarray(np.broadcast_to(x0, (b, self.n_unknowns)), dtype=float)
+        x0 = np.broadcast_to(x0, (b, self.n_unknowns))      # `_run` makes it a kernel array
         if self.robot.loads.has_follower:
             solved = self._follower_solve(qk, frac, x0, guess is not None, chains)
         else:

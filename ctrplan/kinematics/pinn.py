@@ -153,11 +153,6 @@ class PinnBackend(Backend):
         q = np.atleast_2d(self.robot.check_joints(q) if check else np.asarray(q, dtype=float))
         return q, kernel_array(q + self._offset if self._has_offset else q)
 
-    @staticmethod
-    def _writable_fractions(points: Points) -> np.ndarray:
-        """`arc_fractions` as a writable array (`kernel_array`): one compiled kernel type."""
-        return kernel_array(arc_fractions(points))
-
     def _evaluate(self, q: np.ndarray, frac: np.ndarray) -> np.ndarray:
         """The network's states (B, F, 2N + 9) at arc fractions frac (B, F) for joints q (B, 2N) with
         offsets applied."""
@@ -173,7 +168,7 @@ class PinnBackend(Backend):
     def forward(self, q: np.ndarray, points: Points = DEFAULT_POINTS, *,
                 guess: np.ndarray | None = None, check: bool = True) -> Backbone:
         q, qm = self._joints(q, check)
-        frac = self._writable_fractions(points)
+        frac = kernel_array(arc_fractions(points))
         n = frac.size
         nt, ns = self.robot.n_tubes, self.robot.n_states
         # network rows per backbone: at most the nodes, or every point plus the N tube ends and s = 0
@@ -207,7 +202,7 @@ class PinnBackend(Backend):
 
     def body_query(self, points: Points) -> Callable[[np.ndarray], Body]:
         """`body` with the fractions, weights and rod arrays bound once (the planner's hot path)."""
-        args = (self._writable_fractions(points), self._intervals, self._compiled, self._rod, self._loaded,
+        args = (kernel_array(arc_fractions(points)), self._intervals, self._compiled, self._rod, self._loaded,
                 self.robot.outer_radii_mm)
         offset = self._offset if self._has_offset else None
 
