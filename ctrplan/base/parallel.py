@@ -1,9 +1,10 @@
 """Run independent jobs in this process, over local worker processes, or on a Ray cluster.
 
 Each job is a picklable spec handed to a module-level function. `open_pool` gives an executor that
-takes jobs one at a time (`Pool.submit`) and hands back whichever finishes first (`Pool.next_done`),
-for callers that choose the next job from earlier results (an optimiser); `run_jobs` runs a fixed list
-and returns the results in spec order, so a run is the same document whichever executor ran it.
+takes jobs one at a time (`Pool.submit`) and hands back whichever finishes first (`Pool.next_done`;
+`Pool.ready` says whether one has, without waiting), for callers that choose the next job from
+earlier results (an optimiser); `run_jobs` runs a fixed list and returns the results in spec order,
+so a run is the same document whichever executor ran it.
 Every worker runs single-threaded (numba, torch, BLAS) and local workers are pinned one per core, so
 per-job timings are one-core timings; a single local worker may be given more cores (``threads``:
 numba's blocked kernels use them, the latency of a job alone on the machine). Workers ignore Ctrl-C:
@@ -142,6 +143,11 @@ class Pool(ABC):
         return number, result
 
     @abstractmethod
+    def ready(self) -> bool:
+        """Whether `next_done` would return without waiting for another process (False with nothing in
+        flight)."""
+
+    @abstractmethod
     def _start(self, number: int, fn: Job, spec: Any) -> None: ...
 
     @abstractmethod
@@ -160,6 +166,10 @@ class InlinePool(Pool):
         super().__init__()
         self._queue: deque[tuple[int, Job, Any]] = deque()
         self._worker = None if context is None else _Worker(context)
+
+    def ready(self) -> bool:
+        """A queued job is always ready: it runs here when asked for."""
+        return bool(self._queue)
 
     def _start(self, number: int, fn: Job, spec: Any) -> None:
         self._queue.append((number, fn, spec))
@@ -188,6 +198,9 @@ class LocalPool(Pool):
                                             initargs=(cores_queue, context))
         self._futures: dict[Future, int] = {}
         self._with_context = context is not None
+
+    def ready(self) -> bool:
+        return any(job.done() for job in self._futures)
 
     def _start(self, number: int, fn: Job, spec: Any) -> None:
         job = self.executor.submit(_run_with_context, fn, spec) if self._with_context else \
@@ -239,6 +252,9 @@ class RayPool(Pool):
         k = min(range(len(self.actors)), key=self._in_flight.__getitem__)
         self._in_flight[k] += 1
         self._refs[self.actors[k].run.remote(fn, spec)] = (number, k)
+
+    def ready(self) -> bool:
+        return bool(self._refs) and bool(self.ray.wait(list(self._refs), num_returns=1, timeout=0)[0])
 
     def _finish_one(self) -> tuple[int, dict]:
         ready, _ = self.ray.wait(list(self._refs), num_returns=1)

@@ -35,9 +35,10 @@ DEG_PER_MM = 3.0
 
 @dataclass(frozen=True)
 class Mining:
-    """How hard examples are found: rounds ``every`` optimiser steps, ``candidates`` fresh
-    configurations scored per round -- ``worker_candidates`` when a worker process on a core of its
-    own solves them (`ctrplan.training.rounds`) -- (a share ``edge_share`` of them with translations
+    """How hard examples are found: rounds ``every`` optimiser steps (with a worker process on a core of
+    its own solving them, `ctrplan.training.rounds`: at least ``every`` steps apart, a round taken when
+    the worker has solved it, unless ``wait_for_worker``), ``candidates`` fresh configurations scored
+    per round -- ``worker_candidates`` with the worker -- (a share ``edge_share`` of them with translations
     drawn near their limits, as the exact pool's; then a round's tail is no longer one of uniform
     configurations), the worst ``keep`` of them kept in a pool of at most ``pool`` configurations
     (newest kept), which supplies ``share`` of every supervised batch.
@@ -58,6 +59,7 @@ class Mining:
     pool: int = 40_000
     share: float = 0.97
     edge_share: float = 0.0  # candidates with translations near their limits (`samples.pool_joints`)
+    wait_for_worker: bool = False  # wait for a round the worker has not solved (else take it when ready)
 
     def __post_init__(self) -> None:
         counts = {"every": self.every, "candidates": self.candidates,
@@ -142,13 +144,16 @@ class HardExamples:
             self.source.close()
             self.source = None
 
+    def ready(self) -> bool:
+        """Whether the next round can be mined without waiting for the worker (or `Mining.wait_for_worker`
+        says to wait; inside `solving`)."""
+        return self.mining.wait_for_worker or self.source.ready()
+
     def mine(self, net: PinnNet, step: int) -> Round:
-        """Score the next round's fresh candidates, add the worst to the pool, return the round's
-        statistics (inside `solving`)."""
+        """Score the next round's fresh candidates (at optimiser ``step``), add the worst to the pool,
+        return the round's statistics (inside `solving`)."""
         t0 = time.perf_counter()
         solved = self.source.next()
-        if solved.index != step // self.mining.every:
-            raise RuntimeError(f"mining: round {solved.index} came at step {step}")
         self.solve_cpu_s += solved.cpu_s
         ip, tip = net.i_p, solved.states[:, -1].astype(np.float64)
         q = self.robot.apply_offset(solved.q)

@@ -6,8 +6,9 @@ configurations whoever solves it and whenever: the worker changes where the exac
 what the network is trained on (the recipe may give a worker more candidates per round,
 `Mining.worker_candidates`). With one core the rounds are solved inline; with two or more the worker
 solves the next rounds while the optimiser steps (on design_1 a quarter of a 20-minute one-core run
-was mining), and a round the optimiser reaches before the worker has solved it is waited for
-(`RoundSource.waited_s`).
+was mining). A round the optimiser reaches before the worker has solved it is taken when it is ready
+(`RoundSource.ready`), so a machine whose exact solver is slow against its torch steps mines less often
+instead of idling the optimiser; `Mining.wait_for_worker` waits for it instead (`RoundSource.waited_s`).
 """
 
 from __future__ import annotations
@@ -69,7 +70,7 @@ class RoundSource:
     def __init__(self, solver: RoundSolver, first: int, worker: bool):
         self.solver, self.worker = solver, worker
         self.pool: Pool = LocalPool(1) if worker else InlinePool()
-        self.next_index = first
+        self.next_index = self.taken = first
         self.waited_s = 0.0
         for _ in range(AHEAD if worker else 1):
             self._submit()
@@ -78,11 +79,18 @@ class RoundSource:
         self.pool.submit(self.solver, self.next_index)
         self.next_index += 1
 
+    def ready(self) -> bool:
+        """Whether `next` would return without waiting for the worker (inline: always)."""
+        return self.pool.ready()
+
     def next(self) -> SolvedRound:
         """The next round (waiting for the worker if it has not solved it yet)."""
         t0 = time.perf_counter()
         _, solved = self.pool.next_done()
         self.waited_s += time.perf_counter() - t0
+        if solved.index != self.taken:
+            raise RuntimeError(f"mining: round {solved.index} came where round {self.taken} was due")
+        self.taken += 1
         self._submit()
         return solved
 

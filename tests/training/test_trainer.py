@@ -83,9 +83,10 @@ def test_cli_train_with_a_time_limit_reports_its_last_step_and_leaves_no_checkpo
 
 def test_a_mining_worker_trains_the_same_network(tmp_path, robot):
     """Mining rounds solved ahead in a worker process (a real spawned process) are the rounds solved
-    inline: the same candidates, the same hard examples, the same network bit for bit."""
+    inline: the same candidates, the same hard examples, the same network bit for bit (when the
+    optimiser waits for the worker's rounds)."""
     recipe = get_recipe("fast", **TINY, mining={"every": 5, "candidates": 300, "worker_candidates": 300,
-                                                 "keep": 30})
+                                                 "keep": 30, "wait_for_worker": True})
     inline = train(robot, recipe, tmp_path / "a", seed=4)
     worker = train(robot, recipe, tmp_path / "b", seed=4, mining_worker=True)
     for (k, v), w in zip(worker.net.state_dict().items(), inline.net.state_dict().values(), strict=True):
@@ -95,3 +96,17 @@ def test_a_mining_worker_trains_the_same_network(tmp_path, robot):
     assert inline.card["mining"]["solved_in"] == "the training process"
     assert mined["rounds"] == 4 and mined["hard_pool"] == 4 * 30 and mined["solve_cpu_s"] > 0
     assert mined["history"] == inline.card["mining"]["history"]
+
+
+def test_rounds_the_worker_has_not_solved_are_taken_late_never_early(tmp_path, robot):
+    """By default the optimiser does not wait for the worker: each round is mined once it is due and
+    solved -- in order, never before its step, at least `Mining.every` steps after the one before --
+    and inline (always solved) exactly every `Mining.every` steps."""
+    mining = {"every": 5, "candidates": 300, "worker_candidates": 2000, "keep": 30}
+    recipe = get_recipe("fast", **{**TINY, "steps": 60}, mining=mining)
+    inline = train(robot, recipe, tmp_path / "a", seed=4).card["mining"]
+    assert [r["step"] for r in inline["history"]] == list(range(5, 61, 5))
+    worker = train(robot, recipe, tmp_path / "b", seed=4, mining_worker=True).card["mining"]
+    steps = [r["step"] for r in worker["history"]]
+    assert worker["rounds"] == len(steps) <= 12 and worker["hard_pool"] == 30 * len(steps)
+    assert all(b - a >= 5 for a, b in zip([0, *steps], steps, strict=False))
