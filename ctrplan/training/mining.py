@@ -168,7 +168,6 @@ class HardExamples:
         self.seconds += time.perf_counter() - t0
         return rnd
 
-    def draw(self, n: int, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-        """``n`` pool rows (with replacement): joints (n, 2N) and their dense states (n, P, 2N + 9)."""
-        i = torch.randint(0, len(self), (n,), generator=g, device=self.device)
-        return self.q[i], self.x[i]
+    def draw(self, n: int, g: torch.Generator) -> torch.Tensor:
+        """``n`` pool rows (with replacement): indices (n,) into ``q`` and ``x``."""
+        return torch.randint(0, len(self), (n,), generator=g, device=self.device)

@@ -108,21 +108,25 @@ class DenseSupervision(LossTerm):
     @staticmethod
     def batch(r: Recipe, d: TrainingData, g: torch.Generator
               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Arc fractions (R,), joints (R, 2N) and exact states (R, 2N + 9) of one supervised batch."""
+        """Arc fractions (R,), joints (R, 2N) and exact states (R, 2N + 9) of one supervised batch: rows of
+        the exact pool, then of the hard examples, each at a random point of the grid; then the first
+        ``tip_rows`` of them again at the tip. Only the states used are gathered."""
         dev = d.dense_q.device
         n_hard = int(r.mining.share * r.dense_batch) if d.hard is not None and len(d.hard) else 0
         ci = torch.randint(0, d.dense_q.shape[0], (r.dense_batch - n_hard,), generator=g, device=dev)
-        q, x = d.dense_q[ci], d.dense_x[ci]
+        sources = [(d.dense_q, d.dense_x, ci)]
         if n_hard:
-            hq, hx = d.hard.draw(n_hard, g)
-            q, x = torch.cat([q, hq]), torch.cat([x, hx])
-        pi = torch.randint(0, d.sigma_grid.shape[0], (len(q),), generator=g, device=dev)
-        rows = torch.arange(len(q), device=dev)
-        sigma, xs = d.sigma_grid[pi], x[rows, pi]
+            sources.append((d.hard.q, d.hard.x, d.hard.draw(n_hard, g)))
+        pi = torch.randint(0, d.sigma_grid.shape[0], (r.dense_batch,), generator=g, device=dev)
+        points = pi.split([len(i) for _, _, i in sources])
+        q = torch.cat([qs[i] for qs, _, i in sources])
+        xs = torch.cat([xx[i, p] for (_, xx, i), p in zip(sources, points, strict=True)])
+        sigma = d.sigma_grid[pi]
         n_tip = int(r.tip_rows * len(q))
         if n_tip:
+            tips = torch.cat([xx[i, -1] for _, xx, i in sources])[:n_tip]
             sigma = torch.cat([sigma, torch.ones(n_tip, device=dev)])
-            xs = torch.cat([xs, x[:n_tip, -1]])
+            xs = torch.cat([xs, tips])
             q = torch.cat([q, q[:n_tip]])
         return sigma, q, xs
 
