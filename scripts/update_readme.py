@@ -125,8 +125,15 @@ def _cores(row: dict[str, Any]) -> str:
     """The cores a robots-table run used: its threads, and the mining worker's CPU minutes."""
     worker = row.get("mining_worker") or {}
     if worker.get("solved_in") == "a worker process":
-        return f"{row['threads']} (worker {worker['solve_cpu_s'] / 60:.1f} CPU-min)"
+        waited = worker.get("waited_s")
+        waited = f", optimiser waited {waited / 60:.1f} min" if waited is not None else ""
+        return f"{row['threads']} (worker {worker['solve_cpu_s'] / 60:.1f} CPU-min{waited})"
     return str(row.get("threads", "–"))
+
+
+def _machine(row: dict[str, Any]) -> str:
+    """The CPU (or GPU) a robots-table run trained on, from its card's hardware: "AMD EPYC"."""
+    return row["hardware"].split(",")[0].replace("(R)", "").replace(" Processor", "")
 
 
 def render_robots(doc: dict[str, Any]) -> str:
@@ -139,7 +146,8 @@ def render_robots(doc: dict[str, Any]) -> str:
         start = start if "transferred_from" in r else "– (before transfer)"
         load = r.get("load_average")
         cpu = r.get("train_cpu_s")
-        rows.append([f"`{r['robot']}`" if "/" in r["robot"] else r["robot"], start, r.get("clock", "wall"),
+        rows.append([f"`{r['robot']}`" if "/" in r["robot"] else r["robot"], start, _machine(r),
+                     r.get("clock", "wall"),
                      f"{r.get('command_s', r['wall_time_s']) / 60:.1f}", _fmt(cpu and cpu / 60, ".1f"),
                      _cores(r),
                      f"{r['dense_batch']:,}", _fmt(r.get("mining_share"), ".2f"), str(r["steps"]),
@@ -148,7 +156,7 @@ def render_robots(doc: dict[str, Any]) -> str:
                      f"{load['before'][0]:.1f} / {load['after'][0]:.1f}" if load else "–"])
     hw = "; ".join(sorted({r["hardware"] for r in doc["robots"]}))
     n = doc["robots"][0]["configurations"] if doc["robots"] else 0
-    header = ["robot", "started from", "clock", "wall minutes", "CPU min", "cores", "batch", "mining share",
+    header = ["robot", "started from", "machine", "clock", "wall minutes", "CPU min", "cores", "batch", "mining share",
               "steps",
               f"tube-1 tip mean / p99 / p99.9 / max mm ({n:,} unseen)", "meets the target",
               "monitor met the target at", "the card says", "load before / after"]

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import os
+import time
 from collections import defaultdict
 
 import pytest
 
-from ctrplan.base.parallel import available_cores, run_jobs
+from ctrplan.base.parallel import InlinePool, LocalPool, available_cores, run_jobs
 
 
 class Tally:
@@ -84,3 +85,26 @@ def test_a_worker_dies_with_the_process_that_started_it():
     else:
         os.kill(worker, signal.SIGKILL)
         pytest.fail(f"worker {worker} outlived the process that started it")
+
+
+def test_ready_says_whether_a_result_waits_without_blocking():
+    """`Pool.ready`: False with nothing in flight; an inline job is ready once queued; a worker's job
+    once the worker has finished it (then `next_done` hands it over)."""
+    inline = InlinePool()
+    assert not inline.ready()
+    inline.submit(tally_free, 3)
+    assert inline.ready() and inline.next_done() == (0, {"spec": 3}) and not inline.ready()
+    local = LocalPool(1)
+    try:
+        assert not local.ready()
+        local.submit(tally_free, 4)
+        deadline = time.monotonic() + 300   # a guard, not a timing: spawning the worker takes seconds
+        while not local.ready() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert local.ready() and local.next_done() == (0, {"spec": 4}) and not local.ready()
+    finally:
+        local.close(ok=True)
+
+
+def tally_free(spec: int) -> dict:
+    return {"spec": spec}
