@@ -156,8 +156,8 @@ def render_robots(doc: dict[str, Any]) -> str:
                      f"{load['before'][0]:.1f} / {load['after'][0]:.1f}" if load else "–"])
     hw = "; ".join(sorted({r["hardware"] for r in doc["robots"]}))
     n = doc["robots"][0]["configurations"] if doc["robots"] else 0
-    header = ["robot", "started from", "machine", "clock", "wall minutes", "CPU min", "cores", "batch", "mining share",
-              "steps",
+    header = ["robot", "started from", "machine", "clock", "wall minutes", "CPU min", "cores", "batch",
+              "mining share", "steps",
               f"tube-1 tip mean / p99 / p99.9 / max mm ({n:,} unseen)", "meets the target",
               "monitor met the target at", "the card says", "load before / after"]
     return (markdown_table(header, rows)
