@@ -122,6 +122,7 @@ class HardExamples:
         self.solver = RoundSolver(robot, candidates, points, seed, mining.edge_share)
         self.worker = worker
         self.source: RoundSource | None = None
+        self._due = 0          # the first optimiser step at which the next round may be mined
         self.q = torch.empty((0, 2 * robot.n_tubes), device=device)
         self.x = torch.empty((0, points, robot.n_states), device=device)
         self.rounds: list[Round] = []
@@ -136,7 +137,9 @@ class HardExamples:
     def solving(self, step: int) -> Iterator[None]:
         """Mining rounds available inside, the first the one due after optimiser step ``step``;
         a worker (if any) is stopped on leaving."""
-        self.source = RoundSource(self.solver, step // self.mining.every + 1, self.worker)
+        first = step // self.mining.every + 1
+        self.source = RoundSource(self.solver, first, self.worker)
+        self._due = first * self.mining.every
         try:
             yield
         finally:
@@ -144,10 +147,11 @@ class HardExamples:
             self.source.close()
             self.source = None
 
-    def ready(self) -> bool:
-        """Whether the next round can be mined without waiting for the worker (or `Mining.wait_for_worker`
-        says to wait; inside `solving`)."""
-        return self.mining.wait_for_worker or self.source.ready()
+    def due(self, step: int) -> bool:
+        """Whether a round is to be mined at optimiser ``step``: at least `Mining.every` steps after the
+        last one (the first at the multiple after `solving`'s step) and ready -- solved, or
+        `Mining.wait_for_worker` says to wait for it (inside `solving`)."""
+        return step >= self._due and (self.mining.wait_for_worker or self.source.ready())
 
     def mine(self, net: PinnNet, step: int) -> Round:
         """Score the next round's fresh candidates (at optimiser ``step``), add the worst to the pool,
@@ -165,6 +169,7 @@ class HardExamples:
         rnd = Round(step=step, candidates=len(pos), tip_mm=tail(pos), orientation_deg=tail(ang),
                     unsolved=solved.unsolved)
         self.rounds.append(rnd)
+        self._due = step + self.mining.every
         self.seconds += time.perf_counter() - t0
         return rnd
 

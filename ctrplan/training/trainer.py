@@ -291,10 +291,9 @@ class Trainer:
     def _mine(self) -> dict:
         """A mining round (`HardExamples.mine`) when one is due and ready; its fresh-configuration tail."""
         hard = self.data.hard
-        if hard is None or self.step < self._mine_due or not hard.ready():
+        if hard is None or not hard.due(self.step):
             return {}
         rnd = hard.mine(self.net, self.step)
-        self._mine_due = self.step + self.recipe.mining.every
         return {"fresh_tip_p99_9_mm": rnd.tip_mm["p99_9"], "fresh_tip_max_mm": rnd.tip_mm["max"],
                 "fresh_orientation_max_deg": rnd.orientation_deg["max"]}
 
@@ -310,8 +309,6 @@ class Trainer:
         self._t0 = self._last_ckpt = self._last_watch = now()
         self._fresh: dict = {}
         first, hard = self.step, self.data.hard
-        if hard is not None:
-            self._mine_due = (first // self.recipe.mining.every + 1) * self.recipe.mining.every
         with hard.solving(first) if hard is not None else nullcontext():
             while self.step < self.recipe.steps and (self.step < first + min_steps
                                                      or not self._out_of_time()):
