@@ -9,7 +9,8 @@ While it trains, `ctrplan train` measures the network every `MONITOR_EVERY_S` se
 evaluation or calibration uses it, and nothing is selected by it), so the card holds a time-to-target
 curve. When the run ends short of the target, `time_to_target` says how far it got and, at the rate
 measured over the last half of the run (a power law fitted to the curve there), how long it would
-take -- an extrapolation, and labelled as one; none when the error stopped falling.
+take -- an extrapolation, and labelled as one (likely short: the learning rate's cosine decay
+steepens the last half of every run); none when the error stopped falling.
 """
 
 from __future__ import annotations
@@ -117,7 +118,8 @@ def time_to_target(curve: list[CurvePoint], final_tip_mm: dict | None = None) ->
     half = [p for p in curve if p.time_s >= curve[-1].time_s / 2] if curve else []
     ex = {"extrapolated_s": None, "exponents": {},
           "method": "power law err = c t^b fitted per target statistic to the last half of the curve; "
-                    "an extrapolation at the rate measured, not a measurement"}
+                    "an extrapolation at the rate measured, not a measurement, and likely short: the "
+                    "learning rate decays over that half, which steepens the curve there"}
     out["extrapolation"] = ex
     if len(half) < MIN_FIT_POINTS:
         ex["reason"] = f"{len(half)} measurement(s) in the last half of the run: too few to fit a rate"
@@ -154,7 +156,8 @@ def summary(card_time_to_target: dict, final_tip_mm: dict, run_s: float | None) 
         rate = f"{ex.get('reason', 'no rate measured')}: no estimate of when it would"
     else:
         rate = (f"EXTRAPOLATED at the rate measured over the last half of the run (power law), it "
-                f"would take about {ex['extrapolated_s'] / 60:.0f} min in all")
+                f"would take about {ex['extrapolated_s'] / 60:.0f} min in all, likely more (the learning "
+                f"rate decays over that half, which steepens the curve there)")
     took = f" in {run_s / 60:.1f} min" if run_s else ""
     return f"misses the accuracy target (tube-1 tip {target}){took}: got {got}; {rate}"
 
