@@ -34,6 +34,8 @@ MONITOR_SEED = 731_406_225
 MONITOR_CONFIGURATIONS = 5000
 #: Seconds of training between two measurements of the curve.
 MONITOR_EVERY_S = 30.0
+#: Why an extrapolation from the last half of a run is likely short (the card and the terminal say it).
+WHY_SHORT = "learning rate decays over that half, which steepens the curve there"
 #: A power-law exponent above this (error ~ t^b) counts as "not falling": no extrapolation.
 FLAT_EXPONENT = -0.05
 #: Measurements in the last half of a run needed to fit its rate.
@@ -118,8 +120,8 @@ def time_to_target(curve: list[CurvePoint], final_tip_mm: dict | None = None) ->
     half = [p for p in curve if p.time_s >= curve[-1].time_s / 2] if curve else []
     ex = {"extrapolated_s": None, "exponents": {},
           "method": "power law err = c t^b fitted per target statistic to the last half of the curve; "
-                    "an extrapolation at the rate measured, not a measurement, and likely short: the "
-                    "learning rate decays over that half, which steepens the curve there"}
+                    f"an extrapolation at the rate measured, not a measurement, and likely short: the "
+                    f"{WHY_SHORT}"}
     out["extrapolation"] = ex
     if len(half) < MIN_FIT_POINTS:
         ex["reason"] = f"{len(half)} measurement(s) in the last half of the run: too few to fit a rate"
@@ -156,8 +158,7 @@ def summary(card_time_to_target: dict, final_tip_mm: dict, run_s: float | None) 
         rate = f"{ex.get('reason', 'no rate measured')}: no estimate of when it would"
     else:
         rate = (f"EXTRAPOLATED at the rate measured over the last half of the run (power law), it "
-                f"would take about {ex['extrapolated_s'] / 60:.0f} min in all, likely more (the learning "
-                f"rate decays over that half, which steepens the curve there)")
+                f"would take about {ex['extrapolated_s'] / 60:.0f} min in all, likely more (the {WHY_SHORT})")
     took = f" in {run_s / 60:.1f} min" if run_s else ""
     return f"misses the accuracy target (tube-1 tip {target}){took}: got {got}; {rate}"
 
