@@ -120,7 +120,7 @@ def time_to_target(curve: list[CurvePoint], final_tip_mm: dict | None = None) ->
     half = [p for p in curve if p.time_s >= curve[-1].time_s / 2] if curve else []
     ex = {"extrapolated_s": None, "exponents": {},
           "method": "power law err = c t^b fitted per target statistic to the last half of the curve; "
-                    f"an extrapolation at the rate measured, not a measurement, and likely short: the "
+                    "an extrapolation at the rate measured, not a measurement, and likely short: the "
                     f"{WHY_SHORT}"}
     out["extrapolation"] = ex
     if len(half) < MIN_FIT_POINTS:
