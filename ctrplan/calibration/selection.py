@@ -482,7 +482,7 @@ def judge(fit: FitResult, err: np.ndarray, ref_err: np.ndarray, ref_bic: float,
     d_bic = fit.bic - ref_bic
     ok = held_ok and d_bic < -opt.bic_margin
     return Score(heldout_err=err, delta_bic=d_bic, p_value=p, gain=gain, beats=ok, groups=groups,
-                 significant=ok and not fit.implausible and not off_limits(fit) and not fit.unresolved())
+                 significant=ok and not unsupported(fit))
 
 
 def choose(sel: Selection, opt: DiagnoseOptions) -> None:
@@ -554,6 +554,16 @@ def beats(a: Candidate, b: Candidate, opt: DiagnoseOptions, pooled: bool = True)
         return False
     groups = a.pooled_groups() if pooled else a.main.groups
     return compare(ea[:, None], eb[:, None], opt.alpha, opt.min_gain, groups)[2]
+
+
+def unsupported(fit: FitResult) -> list[str]:
+    """Why the rows do not support ``fit`` as a claim about the robot, one reason per parameter (empty:
+    nothing against it): implausible values, parameters `off_limits`, parameters the rows do not
+    resolve. A cause is named only without any (`judge`); the few-shot stage keeps a learned lag only
+    without any (`ctrplan.training.finetune.learn_lag`)."""
+    return ([f"{k} implausible ({v})" for k, v in fit.implausible.items()]
+            + [f"{k} at a bound" for k in off_limits(fit)]
+            + [f"{k} not resolved by the rows" for k in fit.unresolved()])
 
 
 def off_limits(fit: FitResult) -> list[str]:

@@ -14,11 +14,13 @@ Stages (each timed; the card and the printout say how long each took):
    recipe's supervised training on exact solutions of the extended mechanics, started from the given
    PINN, for `ADAPT_STEPS` optimiser steps (hard-example mining included; a step budget, not minutes,
    so that a loaded machine takes longer instead of stopping early). This PINN is as good a model of the
-   extended robot as the start PINN was of its own.
+   extended robot as the start PINN was of its own (measured: `ADAPT_STEPS`).
 3. **learn from the shots** what the physics does not explain: first the lag of the joints after a
    reversal (`ctrplan.training.lag`: the cause library's `friction`, Maxwell-slip elements on the
-   travel of each joint, fitted on all the fit shots when the diagnosis did not name it), kept when it
-   lowers the validation error; then
+   travel of each joint, fitted on all the fit shots when the diagnosis did not name it), kept when the
+   fit shots support it as `diagnose` requires of a cause it names (every fitted element resolved,
+   plausible, off its bounds: `ctrplan.calibration.selection.unsupported`) and it lowers the
+   validation error; then
    the network (with absolute-angle inputs added at zero weight, so it can learn what breaks the
    rotation symmetry -- a tracker offset fixed in the base frame, an encoder error) is fitted to the
    shots through the extended robot's calibration, with exact solutions of the extended mechanics
@@ -46,6 +48,7 @@ import torch
 
 from ctrplan.calibration.diagnosis import Diagnosis, diagnose, error_stats
 from ctrplan.calibration.options import DiagnoseOptions
+from ctrplan.calibration.selection import unsupported
 from ctrplan.kinematics.cosserat import CosseratBackend
 from ctrplan.kinematics.model_file import file_sha256, read_card, save_model, write_card_field
 from ctrplan.kinematics.pinn import PinnBackend
@@ -198,21 +201,24 @@ def best_predictor(diag: Diagnosis, fs: FewShot, val: np.ndarray, say) -> tuple[
 
 def learn_lag(ext: Robot, fs: FewShot, fit: np.ndarray, val: np.ndarray, say) -> tuple[Robot, dict]:
     """The extended robot with the `friction` of its joints fitted on the ``fit`` shots
-    (`ctrplan.training.lag`) when that lowers the extended Cosserat model's error on the validation
-    shots ``val``; its record (the fitted friction, in its robot-file form)."""
-    model = fit_friction(ext, fs.data.q[fit], fs.motion.subset(fit), fs.data.tubes, fs.data.tips_mm[fit])
-    if model is None or not len(val):
+    (`ctrplan.training.lag`) when the shots support it as `diagnose` requires of a cause it names
+    (`unsupported`) and it lowers the extended Cosserat model's error on the validation shots ``val``;
+    its record (the fitted friction, in its robot-file form)."""
+    learned = fit_friction(ext, fs.data.q[fit], fs.motion.subset(fit), fs.data.tubes, fs.data.tips_mm[fit])
+    if learned is None or not len(val):
         say("learned lag: none (no joint reverses in the shots, or no validation shots)")
         return ext, {"kept": False, "reason": "no joint reverses in the shots, or no validation shots"}
+    model, doubts = learned.robot, unsupported(learned)
     before = tube1_error_mm(cosserat_tips(ext, fs, val), fs, val)
     after = tube1_error_mm(cosserat_tips(model, fs, val), fs, val)
-    keep = after < before
+    keep = after < before and not doubts
     say(f"learned friction of the joints (Maxwell-slip elements on the travel): validation mean "
-        f"{before:.3f} -> {after:.3f} mm, {'kept' if keep else 'not kept'}")
+        f"{before:.3f} -> {after:.3f} mm, {'kept' if keep else 'not kept'}"
+        + (f" (the shots do not support it: {', '.join(doubts)})" if doubts else ""))
     friction = make_effect("friction")
-    return (model if keep else ext), {"kept": bool(keep), "validation_mean_mm": {"without": round(before, 4),
-                                                                             "with": round(after, 4)},
-                                      "friction": friction.write(friction.values(model))}
+    record = {"kept": bool(keep), "friction": friction.write(friction.values(model)),
+              "validation_mean_mm": {"without": round(before, 4), "with": round(after, 4)}}
+    return (model if keep else ext), ({**record, "unsupported": doubts} if doubts else record)
 
 
 def choose_stage(fs: FewShot, val: np.ndarray, stages: dict[str, tuple[PinnNet, Robot]]) -> dict:

@@ -5,15 +5,16 @@ Prandtl-Ishlinskii operator set: `ctrplan.model.causes.measurement_side.Friction
 
 `diagnose` names friction only when it is significant on its own held-out rows; here it is fitted on
 all the fit shots (least squares through the extended robot's Cosserat model, its calibration kept
-underneath) and `ctrplan.training.finetune` keeps it only when it lowers the error on the validation
-shots.
+underneath) and `ctrplan.training.finetune` keeps it only when the fit shots support it as `diagnose`
+requires of a cause it names (`ctrplan.calibration.selection.unsupported`: every fitted element
+resolved, plausible, off its bounds) and it lowers the error on the validation shots.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ctrplan.calibration.fit import fit_effect
+from ctrplan.calibration.fit import FitResult, fit_effect
 from ctrplan.calibration.predict import Evaluator
 from ctrplan.model.causes.base import make_effect
 from ctrplan.model.motion import Motion
@@ -24,10 +25,11 @@ MAX_NFEV = 12
 
 
 def fit_friction(robot: Robot, q: np.ndarray, motion: Motion, tubes: tuple[int, ...],
-                 measured_mm: np.ndarray) -> Robot | None:
-    """``robot`` with the `friction` of its joints fitted to the measured tips ``measured_mm`` (R, T, 3)
-    of rows with joints q (R, 2N) and their ``motion`` history (from its current friction, or none);
-    None when no joint reverses in those rows (nothing to learn)."""
+                 measured_mm: np.ndarray) -> FitResult | None:
+    """The fit of the `friction` of ``robot``'s joints to the measured tips ``measured_mm`` (R, T, 3) of
+    rows with joints q (R, 2N) and their ``motion`` history (from its current friction, or none); its
+    ``robot`` is ``robot`` with that friction. None when no joint reverses in those rows (nothing to
+    learn)."""
     effect = make_effect("friction")
     fixed = effect.unseen(q, motion.direction, robot)
     if all(p.name in fixed for p in effect.params(robot)):
@@ -37,6 +39,5 @@ def fit_friction(robot: Robot, q: np.ndarray, motion: Motion, tubes: tuple[int, 
         return None
     ev = Evaluator(q[solved], motion.subset(solved))
     start = ev.predict([robot])[0]
-    fit = fit_effect(effect, robot, ev, measured_mm[solved], tubes, start, x_start=effect.values(robot),
-                     max_nfev=MAX_NFEV, fixed=fixed)
-    return fit.robot
+    return fit_effect(effect, robot, ev, measured_mm[solved], tubes, start, x_start=effect.values(robot),
+                      max_nfev=MAX_NFEV, fixed=fixed)

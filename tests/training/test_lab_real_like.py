@@ -112,29 +112,36 @@ def test_friction_joints_and_robot_file(tmp_path):
     assert back.calibration == robot.calibration and back.fingerprint == Robot.nominal().fingerprint
 
 
-def test_friction_fitted_from_the_shots_recovers_the_lab_lag():
-    """On real-like lab rows, with the true mechanics and registration, the friction fitted on the
-    first rows (as `train --measured` learns it) recovers the total lag of alpha1 and alpha2 (the sum of
-    its weights: the lag after a long move) and brings later rows near the noise, which backlash alone
-    with the true total lag does not."""
+def true_mechanics(data: lab.LabData) -> Robot:
+    """The nominal robot with the lab's curvature and tracker registration (its lag left out)."""
     from dataclasses import replace
 
-    from ctrplan.calibration.predict import Evaluator
-    from ctrplan.training.lag import fit_friction
-
-    data = lab.real_like(n=360, seed=4)
     nominal = Robot.nominal()
     kappa = data.effects["curvature"]["kappa_factor"]
     reg = data.effects["registration"]
     tubes = tuple(replace(t, curvature_per_mm=t.curvature_per_mm * k)
                   for t, k in zip(nominal.tubes, kappa, strict=True))
     frame = reg["rotation_vector_rad"] + reg["translation_mm"]
-    calibration = nominal.calibration.with_term("registration", frame)
-    robot = nominal.with_changes(tubes=tubes, calibration=calibration)
+    return nominal.with_changes(tubes=tubes, calibration=nominal.calibration.with_term("registration", frame))
+
+
+def test_friction_fitted_from_the_shots_recovers_the_lab_lag():
+    """On real-like lab rows, with the true mechanics and registration, the friction fitted on the
+    first rows (as `train --measured` learns it) recovers the total lag of alpha1 and alpha2 (the sum of
+    its weights: the lag after a long move) and brings later rows near the noise, which backlash alone
+    with the true total lag does not."""
+    from ctrplan.calibration.predict import Evaluator
+    from ctrplan.calibration.selection import unsupported
+    from ctrplan.training.lag import fit_friction
+
+    data = lab.real_like(n=360, seed=4)
+    robot = true_mechanics(data)
     motion = Motion.of(data.q)
     fit, test = np.arange(240), np.arange(240, 360)
     tips = np.repeat(data.tips_mm[:, :1], 3, axis=1)
-    learned = fit_friction(robot, data.q[fit], motion.subset(fit), (0,), tips[fit])
+    fitted = fit_friction(robot, data.q[fit], motion.subset(fit), (0,), tips[fit])
+    assert not unsupported(fitted)          # what the lab hid, the rows resolve: the few-shot stage keeps it
+    learned = fitted.robot
     friction = make_effect("friction")
     w = friction.values(learned).reshape(6, -1)
     total = np.degrees(w.sum(axis=1))
@@ -148,3 +155,25 @@ def test_friction_fitted_from_the_shots_recovers_the_lab_lag():
         "backlash", [*np.radians(lab.REAL_LAG_DEG), 0.0]))
     noise = 1.596 * lab.REAL_SIGMA_MM           # mean norm of 3-D Gaussian noise: 2 sqrt(2 / pi) sigma
     assert mean_error(learned) < 1.15 * noise < mean_error(backlash)
+
+
+def test_a_lag_the_shots_do_not_resolve_is_not_kept(tmp_path):
+    """Nineteen fit shots of the real-like lab move beta1 too little to resolve its friction elements:
+    the few-shot stage does not keep the learned friction, whatever the validation shots say -- the
+    rule `diagnose` names a cause by (`unsupported`)."""
+    from ctrplan.calibration import read_measured
+    from ctrplan.training.fewshot import split_shots, validation_split
+    from ctrplan.training.finetune import learn_lag
+
+    data = lab.real_like(n=30, seed=4)
+    path = tmp_path / "lab.csv"
+    data.write_csv(path, tubes=(0,))
+    robot = true_mechanics(data)
+    fs = split_shots(read_measured(path, robot), heldout_fraction=0.2, heldout_last=True)
+    fit, val = validation_split(fs)
+    said: list[str] = []
+    model, record = learn_lag(robot, fs, fit, val, said.append)
+    assert model is robot and record["kept"] is False, record
+    assert any(d.startswith("beta1_slip") and d.endswith("not resolved by the rows")
+               for d in record["unsupported"]), record
+    assert "the shots do not support it" in said[-1]
