@@ -92,7 +92,8 @@ HeldoutOpt, HeldoutLastOpt = heldout_options(
 AdaptOpt = Annotated[int, typer.Option(
     "--adapt-steps", min=0,
     help="With --measured: Adam steps to adapt the PINN to the extended mechanics diagnose finds, "
-         "however long they take (about 3 CPU-minutes for the default; 0: fine-tune the PINN as it is).")]
+         "however long they take (about 4 minutes on two cores for the default; 0: fine-tune the PINN as "
+         "it is).")]
 TransferOpt = Annotated[str, typer.Option(
     "--transfer", metavar="auto|none|NAME",
     help="Start from the layers of a model trained for another robot: auto picks the nearest shipped "
