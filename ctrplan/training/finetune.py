@@ -171,19 +171,18 @@ def tube1_error_mm(tips: np.ndarray, fs: FewShot, rows: np.ndarray) -> float:
 
 def best_predictor(diag: Diagnosis, fs: FewShot, val: np.ndarray, say) -> tuple[Robot, dict]:
     """The extended robot of ``diag``, or a neighbour of it among the candidates the diagnosis fitted
-    -- one cause more, one less, or one swapped for another (plausible, nothing at a bound or
-    unresolved) -- whichever predicts the validation shots ``val`` best; and its record. `diagnose`
-    names causes only when they are significant and each gains at least ``min_gain`` (a claim about
-    the robot, judged on its own split of the fit shots); a few-shot model wants the best predictor, so
-    the shots no stage fitted choose among the close contenders."""
+    -- one cause more, one less, or one swapped for another, each supported by the rows as `diagnose`
+    requires of what it names (`unsupported`) -- whichever predicts the validation shots ``val`` best;
+    and its record. `diagnose` names causes only when they are significant and each gains at least
+    ``min_gain`` (a claim about the robot, judged on its own split of the fit shots); a few-shot model
+    wants the best predictor, so the shots no stage fitted choose among the close contenders."""
     ext = diag.extended_robot
     named = set(diag.causes)
 
     def near(causes: set[str]) -> bool:   # one cause more, one less, or one swapped
         return causes != named and len(causes - named) <= 1 and len(named - causes) <= 1
 
-    contenders = [c for c in diag.selection.candidates if near(set(c.causes))
-                  and not (c.fit.implausible or c.fit.at_bound() or c.fit.unresolved())]
+    contenders = [c for c in diag.selection.candidates if near(set(c.causes)) and not unsupported(c.fit)]
     label = "+".join(diag.causes) or "nothing named"
     if not contenders or not len(val):
         return ext, {"kept": label, "validation_mean_mm": {}}
