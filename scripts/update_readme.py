@@ -388,6 +388,8 @@ def render_finetune(report: dict[str, Any]) -> str:
     causes = ", ".join(f"`{c}`" for c in ext["causes"])
     lag_text = (f"validation mean {lag['validation_mean_mm']['without']:.3f} -> "
                 f"{lag['validation_mean_mm']['with']:.3f} mm, {'kept' if lag['kept'] else 'not kept'}"
+                + (f" (the shots do not support it: {', '.join(lag['unsupported'])})"
+                   if lag.get("unsupported") else "")
                 if "validation_mean_mm" in lag else lag.get("reason", ""))
     return (markdown_table(["model", "mean mm", "median mm", "p95 mm", "mean % of arc length"], rows)
             + f"\n\nTube-1 tip error on the last {table['rows']:,} of {on['rows']:,} rows (acquisition "

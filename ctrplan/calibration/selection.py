@@ -557,10 +557,11 @@ def beats(a: Candidate, b: Candidate, opt: DiagnoseOptions, pooled: bool = True)
 
 
 def unsupported(fit: FitResult) -> list[str]:
-    """Why the rows do not support ``fit`` as a claim about the robot, one reason per parameter (empty:
-    nothing against it): implausible values, parameters `off_limits`, parameters the rows do not
-    resolve. A cause is named only without any (`judge`); the few-shot stage lets the validation shots
-    choose a contender (`ctrplan.training.finetune.best_predictor`) or keeps a learned lag
+    """Why the rows do not support ``fit`` as a claim about the robot, one line per finding (empty:
+    nothing against it): implausible values (of a parameter or a quantity derived from them),
+    parameters `off_limits`, parameters the rows do not resolve. A cause is named only without any
+    (`judge`); the few-shot stage lets the validation shots choose a contender
+    (`ctrplan.training.finetune.best_predictor`) or keeps a learned lag
     (`ctrplan.training.finetune.learn_lag`) only without any."""
     return ([f"{k} implausible ({v})" for k, v in fit.implausible.items()]
             + [f"{k} at a bound" for k in off_limits(fit)]

@@ -92,7 +92,7 @@ HeldoutOpt, HeldoutLastOpt = heldout_options(
 AdaptOpt = Annotated[int, typer.Option(
     "--adapt-steps", min=0,
     help="With --measured: Adam steps to adapt the PINN to the extended mechanics diagnose finds, "
-         "however long they take (about 4 minutes on two cores for the default; 0: fine-tune the PINN as "
+         "however long they take (4-6 minutes on two cores for the default; 0: fine-tune the PINN as "
          "it is).")]
 TransferOpt = Annotated[str, typer.Option(
     "--transfer", metavar="auto|none|NAME",

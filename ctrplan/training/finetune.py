@@ -13,11 +13,11 @@ Stages (each timed; the card and the printout say how long each took):
 2. **adapt** the PINN to the extended mechanics where they differ from the model's robot: the default
    recipe's supervised training on exact solutions of the extended mechanics, started from the given
    PINN, for `ADAPT_STEPS` optimiser steps (hard-example mining included; a step budget, not minutes,
-   so that a loaded machine takes longer instead of stopping early). This PINN is as good a model of the
-   extended robot as the start PINN was of its own (measured: `ADAPT_STEPS`).
+   so that a loaded machine takes longer instead of stopping early). This PINN is about as good a model
+   of the extended robot as the start PINN was of its own (measured: `ADAPT_STEPS`).
 3. **learn from the shots** what the physics does not explain: first the lag of the joints after a
    reversal (`ctrplan.training.lag`: the cause library's `friction`, Maxwell-slip elements on the
-   travel of each joint, fitted on all the fit shots when the diagnosis did not name it), kept when the
+   travel of each joint, fitted on all the fit shots on top of the extended robot), kept when the
    fit shots support it as `diagnose` requires of a cause it names (every fitted element resolved,
    plausible, off its bounds: `ctrplan.calibration.selection.unsupported`) and it lowers the
    validation error; then

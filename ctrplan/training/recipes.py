@@ -79,10 +79,10 @@ RECIPES = {
 DEFAULT_RECIPE = "fast"
 
 #: Adam steps of few-shot fine-tuning's adaptation stage (the default recipe on the extended mechanics
-#: a diagnosis found, `ctrplan.training.finetune.adapt`): about 4 minutes on two cores here. Enough for
-#: the adapted network to model the extended robot as well as the start network models its own
-#: (hjhdog1, 500 shots; tube-1 tip mean / p99 mm on 2,000 configurations against the exact model:
-#: start 0.161 / 0.371, adapted 20,000 steps 0.163 / 0.409, 9,000 steps 0.272 / 0.668). A step
+#: a diagnosis found, `ctrplan.training.finetune.adapt`): 4-6 minutes on two cores here. Enough for
+#: the adapted network to model the extended robot about as well as the start network models its own
+#: (hjhdog1, 500 shots, one run; tube-1 tip mean / p99 mm on 2,000 configurations against the exact
+#: model: start 0.161 / 0.371, adapted 20,000 steps 0.163 / 0.409, 9,000 steps 0.272 / 0.668). A step
 #: budget, not minutes: a 4-minute limit bought 106 steps on a machine at load 7-11.
 ADAPT_STEPS = 20_000
 

@@ -159,13 +159,14 @@ def test_friction_fitted_from_the_shots_recovers_the_lab_lag():
 
 def test_a_lag_the_shots_do_not_resolve_is_not_kept(tmp_path):
     """Nineteen fit shots of the real-like lab move beta1 too little to resolve its friction elements:
-    the few-shot stage does not keep the learned friction, whatever the validation shots say -- the
-    rule `diagnose` names a cause by (`unsupported`)."""
+    the few-shot stage does not keep the learned friction -- the rule `diagnose` names a cause by
+    (`unsupported`) -- although the validation shots say it predicts better (the lab's alpha lag is
+    real: the rule's price on so few rows; with 240 the lag is resolved and kept, above)."""
     from ctrplan.calibration import read_measured
     from ctrplan.training.fewshot import split_shots, validation_split
     from ctrplan.training.finetune import learn_lag
 
-    data = lab.real_like(n=30, seed=4)
+    data = lab.real_like(n=30, seed=1)
     path = tmp_path / "lab.csv"
     data.write_csv(path, tubes=(0,))
     robot = true_mechanics(data)
@@ -174,6 +175,7 @@ def test_a_lag_the_shots_do_not_resolve_is_not_kept(tmp_path):
     said: list[str] = []
     model, record = learn_lag(robot, fs, fit, val, said.append)
     assert model is robot and record["kept"] is False, record
+    assert record["validation_mean_mm"]["with"] < 0.5 * record["validation_mean_mm"]["without"], record
     assert any(d.startswith("beta1_slip") and d.endswith("not resolved by the rows")
                for d in record["unsupported"]), record
     assert "the shots do not support it" in said[-1]
