@@ -386,11 +386,13 @@ def render_finetune(report: dict[str, Any]) -> str:
     fitted = ", ".join(f"{k} = {v['value']:.4g}" for k, v in ext["parameters"].items())
     validation = ", ".join(f"{k} {v:.3f}" for k, v in kept["validation_mean_mm"].items())
     causes = ", ".join(f"`{c}`" for c in ext["causes"])
-    lag_text = (f"validation mean {lag['validation_mean_mm']['without']:.3f} -> "
-                f"{lag['validation_mean_mm']['with']:.3f} mm, {'kept' if lag['kept'] else 'not kept'}"
-                + (f" (the shots do not support it: {', '.join(lag['unsupported'])})"
-                   if lag.get("unsupported") else "")
-                if "validation_mean_mm" in lag else lag.get("reason", ""))
+    lag_text = lag.get("reason", "")
+    if "validation_mean_mm" in lag:
+        val = lag["validation_mean_mm"]
+        lag_text = (f"validation mean {val['without']:.3f} -> {val['with']:.3f} mm, "
+                    f"{'kept' if lag['kept'] else 'not kept'}")
+        if lag.get("unsupported"):
+            lag_text += f" (the shots do not support it: {', '.join(lag['unsupported'])})"
     return (markdown_table(["model", "mean mm", "median mm", "p95 mm", "mean % of arc length"], rows)
             + f"\n\nTube-1 tip error on the last {table['rows']:,} of {on['rows']:,} rows (acquisition "
               f"order) of `tests/independent/lab.real_like` (seed 0); {on['fit_shots']} shots fitted, the "

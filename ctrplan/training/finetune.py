@@ -217,7 +217,9 @@ def learn_lag(ext: Robot, fs: FewShot, fit: np.ndarray, val: np.ndarray, say) ->
     friction = make_effect("friction")
     record = {"kept": bool(keep), "friction": friction.write(friction.values(model)),
               "validation_mean_mm": {"without": round(before, 4), "with": round(after, 4)}}
-    return (model if keep else ext), ({**record, "unsupported": doubts} if doubts else record)
+    if doubts:
+        record["unsupported"] = doubts
+    return (model if keep else ext), record
 
 
 def choose_stage(fs: FewShot, val: np.ndarray, stages: dict[str, tuple[PinnNet, Robot]]) -> dict:
