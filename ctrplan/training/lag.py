@@ -34,10 +34,10 @@ def fit_friction(robot: Robot, q: np.ndarray, motion: Motion, tubes: tuple[int, 
     fixed = effect.unseen(q, motion.direction, robot)
     if all(p.name in fixed for p in effect.params(robot)):
         return None
-    solved = np.flatnonzero(Evaluator(q, motion).predict([robot])[0].converged)
+    every = Evaluator(q, motion).predict([robot])[0]
+    solved = np.flatnonzero(every.converged)
     if not len(solved):
         return None
-    ev = Evaluator(q[solved], motion.subset(solved))
-    start = ev.predict([robot])[0]
+    ev, start = Evaluator(q[solved], motion.subset(solved)), every.subset(solved)
     return fit_effect(effect, robot, ev, measured_mm[solved], tubes, start, x_start=effect.values(robot),
                       max_nfev=MAX_NFEV, fixed=fixed)
